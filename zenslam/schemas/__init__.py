@@ -1,0 +1,1 @@
+"""Message definitions, their encoder/decoder and key expressions."""

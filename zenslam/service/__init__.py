@@ -1,0 +1,1 @@
+"""What makes zenslam a service: sources, bus, recorder, supervisor, configuration, evaluation, CLI."""

@@ -1,0 +1,36 @@
+"""The ``zenslam`` command line: the only place that configures logging."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+
+from zenslam import __version__
+from zenslam.errors import ZenslamError
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="zenslam", description="Visual SLAM service (ORB-SLAM on a GTSAM back end).")
+    parser.add_argument("--version", action="version", version=f"zenslam {__version__}")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
+    parser.add_subparsers(dest="command", metavar="COMMAND")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    if args.command is None:
+        parser.print_help()
+        return 0
+    try:
+        return int(args.handler(args) or 0)
+    except ZenslamError as exc:
+        logging.getLogger("zenslam").error("%s", exc)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Trajectory evaluation: ATE/RPE with evo, metrics.json and plots."""
