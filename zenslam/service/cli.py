@@ -8,13 +8,15 @@ import sys
 
 from zenslam import __version__
 from zenslam.errors import ZenslamError
+from zenslam.service.commands import register_all
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="zenslam", description="Visual SLAM service (ORB-SLAM on a GTSAM back end).")
     parser.add_argument("--version", action="version", version=f"zenslam {__version__}")
     parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
-    parser.add_subparsers(dest="command", metavar="COMMAND")
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
+    register_all(subparsers)
     return parser
 
 
