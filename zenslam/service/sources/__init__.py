@@ -1,0 +1,57 @@
+"""Sources of frames: dataset readers (KITTI, EuRoC, TUM RGB-D) and synthetic scenes, named by a spec string.
+
+Spec strings (what ``zenslam run SOURCE`` and ``zenslam inspect SOURCE`` take):
+``kitti:<root>/sequences/NN``, ``euroc:<sequence folder holding mav0/>``, ``tum:<sequence folder>``,
+``synthetic`` (the loop scene) or ``synthetic:<scene>`` with scene one of loop, figure_eight, still,
+optionally followed by ``/<sensor>`` (stereo, rgbd, mono), e.g. ``synthetic:figure_eight/rgbd``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from zenslam.errors import SourceSpecError
+from zenslam.service.sources.frame import ImuSamples, SensorFrame, Source
+
+__all__ = ["ImuSamples", "SensorFrame", "Source", "open_source", "SOURCE_KINDS"]
+
+SOURCE_KINDS = ("kitti", "euroc", "tum", "synthetic")
+
+
+def open_source(spec: str) -> Source:
+    """Open the source named by ``spec``; raises SourceSpecError naming the accepted forms."""
+    kind, _, argument = spec.partition(":")
+    if kind == "synthetic":
+        return _open_synthetic(argument)
+    if kind not in SOURCE_KINDS:
+        raise SourceSpecError(
+            f"unknown source {spec!r}: use one of kitti:<root>/sequences/NN, euroc:<folder>, tum:<folder>, "
+            "synthetic[:<scene>[/<sensor>]]"
+        )
+    if not argument:
+        raise SourceSpecError(f"source {spec!r} needs a path after '{kind}:', e.g. {kind}:/data/{kind}/sequence")
+    path = Path(argument).expanduser()
+    if kind == "kitti":
+        from zenslam.service.sources.kitti import KittiSource
+
+        return KittiSource(path)
+    if kind == "euroc":
+        from zenslam.service.sources.euroc import EurocSource
+
+        return EurocSource(path)
+    from zenslam.service.sources.tum import TumSource
+
+    return TumSource(path)
+
+
+def _open_synthetic(argument: str) -> Source:
+    from zenslam.service.sources.synthetic import SCENE_NAMES, SyntheticSource, scene_config
+
+    scene, _, sensor = (argument or "loop").partition("/")
+    if scene not in SCENE_NAMES:
+        raise SourceSpecError(f"unknown synthetic scene {scene!r}: choose one of {sorted(SCENE_NAMES)}")
+    sensors = ("stereo", "rgbd", "mono")
+    if sensor and sensor not in sensors:
+        raise SourceSpecError(f"unknown synthetic sensor {sensor!r}: choose one of {list(sensors)}")
+    overrides = {"sensor": sensor} if sensor else {}
+    return SyntheticSource(scene_config(scene, **overrides))
