@@ -1,0 +1,163 @@
+"""Pose-only optimisation recovers known poses from synthetic observations with gross outliers."""
+
+import numpy as np
+import pytest
+
+import zenslam.frontend.pose_optimizer as pose_optimizer
+from zenslam.camera import PinholeCalibration
+from zenslam.errors import CalibrationError
+from zenslam.frontend.pose_optimizer import PoseOptimizerConfig, optimize_pose
+from zenslam.geometry import invert_T, make_T, so3_exp, so3_log
+from zenslam.service.config import from_mapping
+
+STEREO = PinholeCalibration(707.0912, 707.0912, 601.8873, 183.1104, 1226, 370, baseline_m=0.5372)
+MONO = PinholeCalibration(458.654, 457.296, 367.215, 248.375, 752, 480)
+
+
+def make_scene(n, seed, calibration=STEREO, stereo_fraction=0.5, outlier_fraction=0.3, noise_px=1.0):
+    """Points seen by a known camera, 1 px noise, random-pixel outliers, a start 10 cm / 5 deg off."""
+    rng = np.random.default_rng(seed)
+    T_true = make_T(so3_exp(rng.normal(scale=0.3, size=3)), rng.normal(scale=5.0, size=3))
+    u = rng.uniform(0, calibration.width, n)
+    v = rng.uniform(0, calibration.height, n)
+    z = rng.uniform(2.0, 40.0, n)
+    p_cam = np.stack([(u - calibration.cx) * z / calibration.fx, (v - calibration.cy) * z / calibration.fy, z], 1)
+    p_world = (p_cam - T_true[:3, 3]) @ T_true[:3, :3]
+    level = rng.integers(0, 8, n)
+    obs_px = np.stack([u, v], 1) + rng.normal(scale=noise_px, size=(n, 2))
+    stereo = rng.random(n) < stereo_fraction
+    bf = calibration.bf if calibration.baseline_m else 0.0
+    obs_right_u = np.where(stereo, u - bf / z + rng.normal(scale=noise_px, size=n), np.nan)
+    outlier = rng.random(n) < outlier_fraction
+    obs_px[outlier] = rng.uniform([0, 0], [calibration.width, calibration.height], (int(outlier.sum()), 2))
+    bad = outlier & stereo
+    obs_right_u[bad] = obs_px[bad, 0] - rng.uniform(1.0, 100.0, int(bad.sum()))
+    axis, direction = rng.normal(size=3), rng.normal(size=3)
+    delta = make_T(so3_exp(np.deg2rad(5.0) * axis / np.linalg.norm(axis)), 0.1 * direction / np.linalg.norm(direction))
+    inv_sigma2 = 1.2 ** (-2.0 * level)
+    return T_true, delta @ T_true, p_world, obs_px, obs_right_u, inv_sigma2, outlier
+
+
+def pose_errors(T_est, T_true):
+    position = np.linalg.norm(invert_T(T_est)[:3, 3] - invert_T(T_true)[:3, 3])
+    rotation = np.rad2deg(np.linalg.norm(so3_log(T_est[:3, :3] @ T_true[:3, :3].T)))
+    return position, rotation
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_recovers_pose_and_flags_outliers_with_mixed_stereo_and_mono(seed):
+    T_true, T_init, p_world, obs_px, obs_right_u, inv_sigma2, outlier = make_scene(400, seed)
+    result = optimize_pose(T_init, p_world, obs_px, obs_right_u, inv_sigma2, STEREO, PoseOptimizerConfig())
+    position, rotation = pose_errors(result.T_cam_world, T_true)
+    assert position < 0.02
+    assert rotation < 0.2
+    assert (~result.inliers[outlier]).mean() > 0.95  # outliers flagged
+    assert result.inliers[~outlier].mean() > 0.95  # inliers kept
+    assert result.n_inliers == int(result.inliers.sum())
+    assert result.rounds == 4 and 0 < result.iterations <= 40
+    np.testing.assert_allclose(result.T_cam_world[:3, :3] @ result.T_cam_world[:3, :3].T, np.eye(3), atol=1e-12)
+
+
+def test_recovers_pose_from_mono_observations_without_a_baseline():
+    T_true, T_init, p_world, obs_px, obs_right_u, inv_sigma2, outlier = make_scene(
+        400, 3, calibration=MONO, stereo_fraction=0.0
+    )
+    result = optimize_pose(T_init, p_world, obs_px, obs_right_u, inv_sigma2, MONO, PoseOptimizerConfig())
+    position, rotation = pose_errors(result.T_cam_world, T_true)
+    assert position < 0.02 and rotation < 0.2
+    assert (~result.inliers[outlier]).mean() > 0.95 and result.inliers[~outlier].mean() > 0.95
+
+
+def test_exact_observations_give_exact_pose_and_zero_chi2():
+    T_true, T_init, p_world, obs_px, obs_right_u, inv_sigma2, _ = make_scene(50, 4, outlier_fraction=0.0, noise_px=0.0)
+    result = optimize_pose(T_init, p_world, obs_px, obs_right_u, inv_sigma2, STEREO, PoseOptimizerConfig())
+    np.testing.assert_allclose(result.T_cam_world, T_true, atol=1e-8)
+    assert result.inliers.all()
+    assert np.all(result.chi2 < 1e-10)
+
+
+def test_negative_right_u_means_mono_observation():
+    _, T_init, p_world, obs_px, obs_right_u, inv_sigma2, _ = make_scene(100, 5)
+    with_nan = optimize_pose(T_init, p_world, obs_px, obs_right_u, inv_sigma2, STEREO, PoseOptimizerConfig())
+    with_negative = optimize_pose(
+        T_init, p_world, obs_px, np.nan_to_num(obs_right_u, nan=-1.0), inv_sigma2, STEREO, PoseOptimizerConfig()
+    )
+    np.testing.assert_array_equal(with_nan.T_cam_world, with_negative.T_cam_world)
+    np.testing.assert_array_equal(with_nan.inliers, with_negative.inliers)
+
+
+def test_results_are_deterministic():
+    _, T_init, p_world, obs_px, obs_right_u, inv_sigma2, _ = make_scene(200, 6)
+    a = optimize_pose(T_init, p_world, obs_px, obs_right_u, inv_sigma2, STEREO, PoseOptimizerConfig())
+    b = optimize_pose(T_init, p_world, obs_px, obs_right_u, inv_sigma2, STEREO, PoseOptimizerConfig())
+    np.testing.assert_array_equal(a.T_cam_world, b.T_cam_world)
+    np.testing.assert_array_equal(a.inliers, b.inliers)
+    np.testing.assert_array_equal(a.chi2, b.chi2)
+
+
+@pytest.mark.parametrize("n", [0, 1, 2])
+def test_fewer_than_three_observations_is_no_pose(n):
+    _, T_init, p_world, obs_px, obs_right_u, inv_sigma2, _ = make_scene(5, 7, outlier_fraction=0.0)
+    result = optimize_pose(
+        T_init, p_world[:n], obs_px[:n], obs_right_u[:n], inv_sigma2[:n], STEREO, PoseOptimizerConfig()
+    )
+    assert result.n_inliers == 0
+    assert result.inliers.shape == (n,) and not result.inliers.any()
+    assert result.iterations == 0
+    np.testing.assert_array_equal(result.T_cam_world, T_init)
+
+
+def test_points_behind_the_camera_are_all_outliers_and_the_pose_stays():
+    _, T_init, p_world, obs_px, obs_right_u, inv_sigma2, _ = make_scene(30, 8, outlier_fraction=0.0)
+    p_cam = p_world @ T_init[:3, :3].T + T_init[:3, 3]
+    p_cam[:, 2] *= -1.0  # mirror every point behind the camera
+    p_world_behind = (p_cam - T_init[:3, 3]) @ T_init[:3, :3]
+    result = optimize_pose(T_init, p_world_behind, obs_px, obs_right_u, inv_sigma2, STEREO, PoseOptimizerConfig())
+    assert result.n_inliers == 0 and not result.inliers.any()
+    assert np.all(np.isinf(result.chi2))
+    np.testing.assert_allclose(result.T_cam_world, T_init, atol=1e-12)
+
+
+def test_non_finite_rows_are_ignored_and_never_inliers():
+    T_true, T_init, p_world, obs_px, obs_right_u, inv_sigma2, _ = make_scene(100, 9, outlier_fraction=0.0)
+    p_world[:5] = np.nan
+    result = optimize_pose(T_init, p_world, obs_px, obs_right_u, inv_sigma2, STEREO, PoseOptimizerConfig())
+    assert not result.inliers[:5].any() and np.isnan(result.chi2[:5]).all()
+    assert pose_errors(result.T_cam_world, T_true)[0] < 0.02
+
+
+def test_stereo_observations_need_a_baseline():
+    _, T_init, p_world, obs_px, obs_right_u, inv_sigma2, _ = make_scene(20, 10)
+    with pytest.raises(CalibrationError, match="baseline"):
+        optimize_pose(T_init, p_world, obs_px, obs_right_u, inv_sigma2, MONO, PoseOptimizerConfig())
+
+
+def test_mismatched_shapes_name_the_argument():
+    _, T_init, p_world, obs_px, obs_right_u, inv_sigma2, _ = make_scene(20, 11)
+    with pytest.raises(ValueError, match="obs_px"):
+        optimize_pose(T_init, p_world, obs_px[:10], obs_right_u, inv_sigma2, STEREO, PoseOptimizerConfig())
+
+
+def test_analytic_jacobian_matches_finite_differences():
+    rng = np.random.default_rng(12)
+    p_world = rng.normal(size=(6, 3)) + [0.0, 0.0, 6.0]
+    usable = np.ones(6, dtype=bool)
+    problem = pose_optimizer._make_problem(
+        p_world, rng.normal(size=(6, 2)), np.ones(6), np.ones(6), usable, STEREO, PoseOptimizerConfig()
+    )
+    T = make_T(so3_exp([0.1, -0.2, 0.05]), [0.3, -0.1, 0.2])
+    p_cam, _ = pose_optimizer._project(T, problem)
+    analytic = pose_optimizer._jacobian(p_cam, problem)
+    numeric = np.zeros_like(analytic)
+    for k in range(6):
+        step = np.zeros(6)
+        step[k] = 1e-6
+        _, plus = pose_optimizer._project(pose_optimizer._se3_exp(step) @ T, problem)
+        _, minus = pose_optimizer._project(pose_optimizer._se3_exp(-step) @ T, problem)
+        numeric[:, :, k] = (plus - minus) / 2e-6
+    np.testing.assert_allclose(analytic, numeric, rtol=1e-5, atol=1e-4)
+
+
+def test_config_builds_from_a_mapping():
+    config = from_mapping(PoseOptimizerConfig, {"rounds": 2, "chi2_mono": 6.0})
+    assert config.rounds == 2 and config.chi2_mono == 6.0 and config.iterations_per_round == 10

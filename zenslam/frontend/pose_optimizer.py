@@ -1,0 +1,301 @@
+"""Pose-only optimisation: one camera pose from fixed map points, with ORB-SLAM2's outlier rounds.
+
+The camera pose ``T_cam_world`` maps world points into the camera frame (x right, y down,
+z forward). Observations are level-0 pixels ``(u, v)`` and, for stereo / RGB-D keypoints, the
+right-image coordinate ``u_right = u - bf / z``. This is ORB-SLAM2's ``Optimizer::PoseOptimization``
+(robust rounds, chi-square outlier classification, kernel dropped in the last round) solved by a
+vectorised Levenberg-Marquardt on SE(3) in numpy: ``benchmarks/pose_optimizer.py`` measured it
+against gtsam factor graphs of the same problem (see ``benchmarks/results/pose_optimizer.json``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from zenslam.camera import PinholeCalibration
+from zenslam.geometry import skew, so3_exp
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class PoseOptimizerConfig:
+    """Settings of pose-only optimisation (defaults are ORB-SLAM2's)."""
+
+    rounds: int = 4  # outlier-classification rounds (count)
+    iterations_per_round: int = 10  # Levenberg-Marquardt iterations per round (count)
+    robust_rounds: int = 3  # leading rounds that use the Huber kernel; later rounds are plain least squares (count)
+    chi2_mono: float = 5.991  # chi-square threshold for (u, v) residuals, 2 dof at 95% (information-weighted px^2)
+    chi2_stereo: float = 7.815  # chi-square threshold for (u, v, u_right) residuals, 3 dof at 95% (information-weighted px^2)
+    min_observations: int = 3  # fewer usable correspondences: no optimisation, n_inliers 0 (count)
+    min_observations_for_rounds: int = 10  # fewer correspondences: stop after the first round, as ORB-SLAM2 (count)
+    min_depth_m: float = 1e-3  # points nearer than this along the optical axis count as behind the camera (m)
+    initial_damping: float = 1e-4  # Levenberg-Marquardt lambda relative to diag(H) at the start of a round (unitless)
+    step_tolerance: float = 1e-9  # a round ends early when the update's norm is below this (rad and m mixed)
+
+
+@dataclass(frozen=True)
+class PoseResult:
+    """The optimised pose and the classification of every observation."""
+
+    T_cam_world: np.ndarray  # (4, 4) maps world points into the camera frame
+    inliers: np.ndarray  # (N,) bool, classification after the last round
+    n_inliers: int  # inliers.sum(); 0 when the pose could not be optimised
+    chi2: np.ndarray  # (N,) information-weighted squared error at the final pose; inf behind the camera, nan unusable
+    iterations: int  # Levenberg-Marquardt iterations over all rounds (count)
+    rounds: int  # rounds run (count)
+
+
+@dataclass(frozen=True)
+class _Problem:
+    """The fixed data of one optimisation, in the solver's stacked layout."""
+
+    p_world: np.ndarray  # (N, 3)
+    obs: np.ndarray  # (N, 3) u, v, u_right (0 for mono rows)
+    row_mask: np.ndarray  # (N, 3) 1 where the residual row exists (u_right only for stereo)
+    inv_sigma2: np.ndarray  # (N,)
+    delta2: np.ndarray  # (N,) squared Huber threshold, = chi-square threshold of the observation's dof
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    bf: float
+
+    def subset(self, rows: np.ndarray) -> _Problem:
+        """The problem restricted to the observations selected by the boolean mask ``rows``."""
+        return dataclasses.replace(
+            self,
+            p_world=self.p_world[rows],
+            obs=self.obs[rows],
+            row_mask=self.row_mask[rows],
+            inv_sigma2=self.inv_sigma2[rows],
+            delta2=self.delta2[rows],
+        )
+
+
+def optimize_pose(
+    T_cam_world_init: np.ndarray,
+    p_world: np.ndarray,
+    obs_px: np.ndarray,
+    obs_right_u: np.ndarray,
+    inv_sigma2: np.ndarray,
+    calibration: PinholeCalibration,
+    config: PoseOptimizerConfig,
+) -> PoseResult:
+    """Optimise the camera pose from fixed world points and their observations.
+
+    T_cam_world_init: (4, 4) initial pose, maps world points (metres) into the camera frame.
+    p_world: (N, 3) map points in the world frame (metres).
+    obs_px: (N, 2) observed keypoint (u, v) in level-0 pixels.
+    obs_right_u: (N,) observed right-image u in pixels; NaN or negative for a mono observation.
+    inv_sigma2: (N,) information of the observation, 1 / scale_factor**(2 * level) (1/px^2).
+    Rows with a non-finite point or pixel are never used and never inliers.
+
+    Each round runs Levenberg-Marquardt on the current inliers (all usable observations in the
+    first round), then re-classifies *every* observation by its chi-square at the new pose, so a
+    point rejected earlier can come back, as in ORB-SLAM2. Unlike ORB-SLAM2, a round starts from
+    the previous round's estimate rather than the initial pose. Fewer than
+    ``config.min_observations`` usable rows is an expected outcome: the initial pose is returned
+    with ``n_inliers == 0``.
+    """
+    T_init = np.asarray(T_cam_world_init, dtype=float)
+    p_world, obs_px, obs_right_u, inv_sigma2 = _check_shapes(T_init, p_world, obs_px, obs_right_u, inv_sigma2)
+    n = len(p_world)
+    usable = (
+        np.isfinite(p_world).all(axis=1)
+        & np.isfinite(obs_px).all(axis=1)
+        & np.isfinite(inv_sigma2)
+        & (inv_sigma2 > 0)
+    )
+    if int(usable.sum()) < config.min_observations:
+        logger.debug("pose optimisation skipped: %d usable observations of %d", int(usable.sum()), n)
+        chi2 = np.full(n, np.nan)
+        return PoseResult(T_init.copy(), np.zeros(n, dtype=bool), 0, chi2, 0, 0)
+
+    problem = _make_problem(p_world, obs_px, obs_right_u, inv_sigma2, usable, calibration, config)
+    T = T_init.copy()
+    active = usable.copy()
+    iterations = 0
+    rounds_run = 0
+    for round_index in range(config.rounds):
+        robust = round_index < config.robust_rounds
+        if int(active.sum()) >= config.min_observations:
+            T, its = _solve_round(T, problem.subset(active), robust, config)
+            iterations += its
+        rounds_run += 1
+        chi2, in_front = _chi2(T, problem)
+        active = usable & in_front & (chi2 <= problem.delta2)
+        if int(usable.sum()) < config.min_observations_for_rounds:
+            break
+    chi2 = np.where(usable, chi2, np.nan)
+    n_inliers = int(active.sum())
+    logger.debug("pose optimisation: %d/%d inliers after %d iterations", n_inliers, n, iterations)
+    return PoseResult(T, active, n_inliers, chi2, iterations, rounds_run)
+
+
+def _check_shapes(T, p_world, obs_px, obs_right_u, inv_sigma2):
+    """The inputs as float arrays of consistent shapes; ValueError names the offending argument."""
+    if T.shape != (4, 4):
+        raise ValueError(f"T_cam_world_init must be a 4x4 transform, got shape {T.shape}")
+    n = len(p_world)
+    expected = {"p_world": (n, 3), "obs_px": (n, 2), "obs_right_u": (n,), "inv_sigma2": (n,)}
+    given = {"p_world": p_world, "obs_px": obs_px, "obs_right_u": obs_right_u, "inv_sigma2": inv_sigma2}
+    arrays = []
+    for name, shape in expected.items():
+        array = np.asarray(given[name], dtype=float)
+        if array.size == 0 and n == 0:
+            array = array.reshape(shape)
+        if array.shape != shape:
+            raise ValueError(f"{name} has shape {array.shape}, expected {shape} for {n} observations")
+        arrays.append(array)
+    return tuple(arrays)
+
+
+def _make_problem(p_world, obs_px, obs_right_u, inv_sigma2, usable, calibration, config) -> _Problem:
+    stereo = usable & np.isfinite(obs_right_u) & (obs_right_u >= 0)
+    # A stereo observation needs bf; calibration.bf raises a CalibrationError for a mono camera.
+    bf = calibration.bf if stereo.any() else 0.0
+    obs = np.zeros((len(p_world), 3))
+    obs[:, :2] = np.where(usable[:, None], obs_px, 0.0)
+    obs[:, 2] = np.where(stereo, obs_right_u, 0.0)
+    row_mask = np.ones((len(p_world), 3))
+    row_mask[:, 2] = stereo
+    return _Problem(
+        p_world=np.where(usable[:, None], p_world, 0.0),
+        obs=obs,
+        row_mask=row_mask,
+        inv_sigma2=np.where(usable, inv_sigma2, 0.0),
+        delta2=np.where(stereo, config.chi2_stereo, config.chi2_mono),
+        fx=calibration.fx,
+        fy=calibration.fy,
+        cx=calibration.cx,
+        cy=calibration.cy,
+        bf=bf,
+    )
+
+
+def _project(T: np.ndarray, problem: _Problem) -> tuple[np.ndarray, np.ndarray]:
+    """Camera-frame points (N, 3) and residuals predicted - observed (N, 3), zero on absent rows."""
+    p_cam = problem.p_world @ T[:3, :3].T + T[:3, 3]
+    z = p_cam[:, 2]
+    inv_z = 1.0 / np.where(np.abs(z) > 1e-12, z, 1e-12)
+    pred = np.empty_like(p_cam)
+    pred[:, 0] = problem.fx * p_cam[:, 0] * inv_z + problem.cx
+    pred[:, 1] = problem.fy * p_cam[:, 1] * inv_z + problem.cy
+    pred[:, 2] = pred[:, 0] - problem.bf * inv_z
+    return p_cam, (pred - problem.obs) * problem.row_mask
+
+
+def _chi2(T: np.ndarray, problem: _Problem) -> tuple[np.ndarray, np.ndarray]:
+    """Per-observation chi-square (inf behind the camera) and the in-front mask at pose T."""
+    p_cam, residual = _project(T, problem)
+    in_front = p_cam[:, 2] > 0.0
+    chi2 = problem.inv_sigma2 * np.einsum("nk,nk->n", residual, residual)
+    return np.where(in_front, chi2, np.inf), in_front
+
+
+def _jacobian(p_cam: np.ndarray, problem: _Problem) -> np.ndarray:
+    """d(prediction)/d(xi) (N, 3, 6) for the left perturbation T <- exp(xi) T, xi = (omega, upsilon).
+
+    The chain d(u, v, u_right)/d(p_cam) @ [-[p_cam]x | I], written out per entry (as g2o's
+    EdgeStereoSE3ProjectXYZOnlyPose) because that is several times faster than the matrix product.
+    """
+    x, y, z = p_cam[:, 0], p_cam[:, 1], p_cam[:, 2]
+    inv_z = 1.0 / z
+    xz, yz = x * inv_z, y * inv_z
+    fx, fy, bf = problem.fx, problem.fy, problem.bf
+    J = np.empty((len(p_cam), 3, 6))
+    J[:, 0, 0] = -fx * xz * yz
+    J[:, 0, 1] = fx * (1.0 + xz * xz)
+    J[:, 0, 2] = -fx * yz
+    J[:, 0, 3] = fx * inv_z
+    J[:, 0, 4] = 0.0
+    J[:, 0, 5] = -fx * xz * inv_z
+    J[:, 1, 0] = -fy * (1.0 + yz * yz)
+    J[:, 1, 1] = fy * xz * yz
+    J[:, 1, 2] = fy * xz
+    J[:, 1, 3] = 0.0
+    J[:, 1, 4] = fy * inv_z
+    J[:, 1, 5] = -fy * yz * inv_z
+    # u_right = u - bf / z adds bf / z^2 * d(z)/d(xi), with d(z)/d(xi) = (y, -x, 0, 0, 0, 1).
+    b = bf * inv_z * inv_z
+    J[:, 2, :] = J[:, 0, :]
+    J[:, 2, 0] += b * y
+    J[:, 2, 1] -= b * x
+    J[:, 2, 5] += b
+    return J
+
+
+def _linearize(T: np.ndarray, problem: _Problem, robust: bool, min_depth_m: float):
+    """Robust cost and normal equations (H, g) of the IRLS-weighted problem at T."""
+    p_cam, residual = _project(T, problem)
+    chi2 = problem.inv_sigma2 * (residual * residual).sum(axis=1)
+    delta2 = problem.delta2
+    if robust:
+        # Huber on the chi-square (as g2o): rho(s) = s inside, 2 delta sqrt(s) - delta^2 outside.
+        root = np.sqrt(np.maximum(chi2, delta2))
+        delta = np.sqrt(delta2)
+        rho = np.where(chi2 > delta2, 2.0 * delta * root - delta2, chi2)
+        weight = delta / root
+    else:
+        rho, weight = chi2, np.ones_like(chi2)
+    in_front = p_cam[:, 2] > min_depth_m
+    if in_front.all():
+        cost = float(rho.sum())
+    else:
+        # Points pushed behind the camera get a constant cost, so leaving the frustum is no gain.
+        cost = float(rho[in_front].sum() + delta2[~in_front].sum())
+        p_cam, residual, weight = p_cam[in_front], residual[in_front], weight[in_front]
+        problem = problem.subset(in_front)
+    J = _jacobian(p_cam, problem)
+    Jw = J * ((weight * problem.inv_sigma2)[:, None] * problem.row_mask)[:, :, None]
+    Jw = Jw.reshape(-1, 6)
+    return cost, Jw.T @ J.reshape(-1, 6), Jw.T @ residual.reshape(-1)
+
+
+def _se3_exp(xi: np.ndarray) -> np.ndarray:
+    """4x4 exponential of xi = (omega rad, upsilon m)."""
+    omega, upsilon = xi[:3], xi[3:]
+    theta = float(np.linalg.norm(omega))
+    K = skew(omega)
+    if theta < 1e-8:
+        V = np.eye(3) + 0.5 * K
+    else:
+        V = np.eye(3) + (1.0 - math.cos(theta)) / theta**2 * K + (theta - math.sin(theta)) / theta**3 * (K @ K)
+    T = np.eye(4)
+    T[:3, :3] = so3_exp(omega)
+    T[:3, 3] = V @ upsilon
+    return T
+
+
+def _solve_round(T, problem, robust, config) -> tuple[np.ndarray, int]:
+    """Levenberg-Marquardt with IRLS Huber weights on SE(3) (left perturbation); returns (T, iterations)."""
+    cost, H, g = _linearize(T, problem, robust, config.min_depth_m)
+    lam = config.initial_damping
+    iterations = 0
+    for _ in range(config.iterations_per_round):
+        iterations += 1
+        damped = H + lam * np.diag(np.diag(H) + 1e-9)
+        try:
+            xi = -np.linalg.solve(damped, g)
+        except np.linalg.LinAlgError:
+            lam *= 10.0
+            continue
+        T_new = _se3_exp(xi) @ T
+        cost_new, H_new, g_new = _linearize(T_new, problem, robust, config.min_depth_m)
+        if cost_new <= cost:
+            T, cost, H, g = T_new, cost_new, H_new, g_new
+            lam = max(lam * 0.1, 1e-12)
+        else:
+            lam *= 10.0
+        if float(np.linalg.norm(xi)) < config.step_tolerance:
+            break
+    # Re-orthonormalise the rotation so repeated calls never drift off SO(3).
+    U, _, Vt = np.linalg.svd(T[:3, :3])
+    T[:3, :3] = U @ Vt
+    return T, iterations
