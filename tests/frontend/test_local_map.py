@@ -1,0 +1,194 @@
+"""The frontend's local map: ids, observations, covisibility, local keyframes and points, culling."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from zenslam.frontend.keyframe import KeyFrame
+from zenslam.frontend.local_map import IdAllocator, LocalMap, LocalMapConfig
+from zenslam.frontend.map_point import representative_descriptor
+from zenslam.geometry import make_T
+
+
+def add_keyframe(
+    local_map: LocalMap,
+    observed_ids: list[int] | np.ndarray,
+    n_new: int,
+    centre=(0.0, 0.0, 0.0),
+    rng: np.random.Generator | None = None,
+    descriptors: np.ndarray | None = None,
+) -> KeyFrame:
+    """Insert a keyframe whose first keypoints observe ``observed_ids`` and the next ``n_new`` make new points."""
+    rng = rng or np.random.default_rng(0)
+    observed_ids = np.asarray(observed_ids, dtype=np.int64)
+    n = len(observed_ids) + n_new
+    new_ids = local_map.new_point_ids(n_new)
+    new_kps = np.arange(len(observed_ids), n, dtype=np.int64)
+    T_world_cam = make_T(np.eye(3), np.asarray(centre, dtype=float))
+    new_points = np.asarray(centre) + np.column_stack(
+        [rng.uniform(-2, 2, n_new), rng.uniform(-1, 1, n_new), rng.uniform(4, 8, n_new)]
+    )
+    kf = KeyFrame(
+        id=local_map.new_keyframe_id(),
+        frame_index=local_map.n_keyframes,
+        stamp_ns=local_map.n_keyframes * 100_000_000,
+        T_world_cam=T_world_cam,
+        px=rng.uniform(0, 600, (n, 2)).astype(np.float32),
+        level=np.zeros(n, dtype=np.int16),
+        angle_deg=np.zeros(n, dtype=np.float32),
+        response=np.ones(n, dtype=np.float32),
+        descriptors=descriptors if descriptors is not None else rng.integers(0, 256, (n, 32), dtype=np.uint8),
+        right_u=np.full(n, -1, dtype=np.float32),
+        depth_m=np.full(n, -1, dtype=np.float32),
+        map_point_ids=np.concatenate([observed_ids, new_ids]),
+        new_point_ids=new_ids,
+        new_point_keypoints=new_kps,
+        new_points_world=new_points,
+    )
+    local_map.insert_keyframe(kf)
+    return kf
+
+
+def test_id_allocator_and_configured_id_spaces() -> None:
+    alloc = IdAllocator(start=5, step=3)
+    assert alloc.next() == 5
+    assert alloc.take(3).tolist() == [8, 11, 14]
+    assert alloc.next() == 17
+    high = 1 << 62
+    lm = LocalMap(LocalMapConfig(point_id_start=high, point_id_step=2, keyframe_id_start=1000))
+    kf = add_keyframe(lm, [], 3)
+    assert kf.id == 1000
+    assert kf.new_point_ids.tolist() == [high, high + 2, high + 4]
+    assert lm.point_ids.tolist() == kf.new_point_ids.tolist()
+    assert lm.rows_of_ids(np.array([high + 2, 7, -1])).tolist() == [1, -1, -1]
+
+
+def test_covisibility_weights_count_shared_points() -> None:
+    lm = LocalMap()
+    kf0 = add_keyframe(lm, [], 100)  # points 0..99
+    kf1 = add_keyframe(lm, np.arange(0, 60), 50)  # new points 100..149
+    add_keyframe(lm, np.concatenate([np.arange(40, 80), kf1.new_point_ids[:20]]), 10)
+    assert lm.covisibility_weight(0, 1) == 60
+    assert lm.covisibility_weight(0, 2) == 40
+    assert lm.covisibility_weight(1, 2) == 20 + 20  # points 40..59 and 20 of kf1's new ones
+    assert lm.covisibility_weight(1, 0) == 60  # symmetric
+    assert lm.best_covisible(2, 10) == [0, 1]  # tie broken by slot
+    assert lm.best_covisible(0, 10) == [1, 2]
+    assert lm.parent(0) == -1 and lm.parent(1) == 0 and lm.parent(2) == 0
+    assert lm.children(0) == [1, 2]
+    assert lm.n_observations[:100].tolist() == [2] * 40 + [3] * 20 + [2] * 20 + [1] * 20
+    assert lm.observations(45) == {kf0.id: 45, kf1.id: 45, 2: 5}
+
+
+def test_weak_links_are_not_covisibility_edges_unless_the_only_one() -> None:
+    lm = LocalMap(LocalMapConfig(min_covisibility_weight=15))
+    add_keyframe(lm, [], 100)
+    add_keyframe(lm, np.arange(0, 10), 50)  # weight 10 < 15: still the only link -> kept
+    add_keyframe(lm, np.concatenate([np.arange(20, 50), np.arange(100, 105)]), 0)  # 30 to kf0, 5 to kf1
+    assert lm.best_covisible(1, 10) == [0]
+    assert lm.best_covisible(2, 10) == [0]  # kf1's 5 shared points make no edge
+    assert lm.covisibility_weight(2, 1) == 5
+
+
+def test_local_window_votes_then_adds_one_neighbour_each() -> None:
+    lm = LocalMap()
+    add_keyframe(lm, [], 100)  # slot 0: points 0..99
+    add_keyframe(lm, np.arange(0, 80), 100)  # slot 1: new 100..199
+    add_keyframe(lm, np.arange(100, 170), 100)  # slot 2: new 200..299
+    add_keyframe(lm, np.arange(200, 260), 100)  # slot 3: new 300..399
+    add_keyframe(lm, np.arange(300, 350), 100)  # slot 4
+    # A frame matched only to points first seen by slot 3 and also by slot 4 (300..349).
+    frame_rows = lm.rows_of_ids(np.arange(300, 340))
+    window = lm.local_window(np.concatenate([frame_rows, [-1, -1]]))
+    assert window.reference_slot in (3, 4)
+    voted = {3, 4}
+    slots = window.keyframe_slots.tolist()
+    assert set(slots[:2]) == voted
+    # Each voted keyframe adds its first new best-covisible neighbour (slot 2 for slot 3) and its parent.
+    assert 2 in slots
+    assert len(slots) == len(set(slots))
+    # Slot 0 is only a neighbour of neighbours: not local.
+    assert 0 not in slots
+    rows = lm.local_point_rows(window.keyframe_slots)
+    assert np.all(np.diff(rows) > 0)
+    expected = np.unique(np.concatenate([lm.keyframe_point_rows(s) for s in slots]))
+    assert np.array_equal(rows, expected)
+
+
+def test_local_window_reference_is_the_keyframe_sharing_most_points() -> None:
+    lm = LocalMap()
+    add_keyframe(lm, [], 100)
+    add_keyframe(lm, np.arange(0, 30), 100)
+    window = lm.local_window(lm.rows_of_ids(np.arange(0, 100)))
+    assert window.reference_slot == 0
+    assert window.keyframe_slots.tolist()[0] == 0
+    empty = lm.local_window(np.full(5, -1))
+    assert empty.reference_slot == -1 and len(empty.keyframe_slots) == 0
+
+
+def test_local_window_stops_adding_neighbours_past_the_cap() -> None:
+    lm = LocalMap(LocalMapConfig(max_local_keyframes=5))
+    add_keyframe(lm, [], 200)
+    for k in range(1, 12):  # every keyframe sees 20 points of slot 0 and one unique point
+        add_keyframe(lm, np.arange(10 * k, 10 * k + 20), 1)
+    # The frame sees one point of each of slots 1..8: all 8 are voted in, none added beyond.
+    own_points = [200 + k - 1 for k in range(1, 9)]
+    window = lm.local_window(lm.rows_of_ids(np.array(own_points)))
+    assert sorted(window.keyframe_slots.tolist()) == list(range(1, 9))
+
+
+def test_observations_refresh_descriptors_and_normals() -> None:
+    rng = np.random.default_rng(4)
+    lm = LocalMap()
+    base = rng.integers(0, 256, (1, 32), dtype=np.uint8)
+    add_keyframe(lm, [], 1, centre=(0, 0, 0), rng=rng, descriptors=base)
+    p = lm.p_world[0].copy()
+    seen = [base[0]]
+    centres = [np.zeros(3)]
+    for k in range(1, 5):
+        desc = rng.integers(0, 256, (1, 32), dtype=np.uint8)
+        add_keyframe(lm, [0], 0, centre=(0.5 * k, 0, 0), rng=rng, descriptors=desc)
+        seen.append(desc[0])
+        centres.append(np.array([0.5 * k, 0, 0]))
+    assert np.array_equal(lm.descriptors[0], representative_descriptor(np.stack(seen)))
+    rays = p - np.stack(centres)
+    expected = (rays / np.linalg.norm(rays, axis=1, keepdims=True)).mean(axis=0)
+    assert np.allclose(lm.normals[0], expected, atol=1e-12)
+    assert lm.n_observations[0] == 5
+    # The distance range comes from the creating keyframe.
+    d = np.linalg.norm(p)
+    assert lm.max_distance_m[0] == pytest.approx(d)
+    assert lm.min_distance_m[0] == pytest.approx(d / 1.2**7)
+
+
+def test_recent_point_culling() -> None:
+    lm = LocalMap()
+    add_keyframe(lm, [], 10)  # points 0..9
+    lm.increase_visible(np.arange(10))
+    lm.increase_visible(np.arange(0, 3))
+    lm.increase_visible(np.arange(0, 3))
+    lm.increase_visible(np.arange(0, 3))  # points 0..2: found 1 of visible 5 = 0.2
+    add_keyframe(lm, np.arange(3, 8), 0)
+    assert lm.cull_recent_points() == 3
+    add_keyframe(lm, np.arange(3, 6), 0)
+    # Two keyframes after birth: points 8, 9 were never re-observed.
+    assert lm.cull_recent_points() == 2
+    assert np.flatnonzero(lm.valid).tolist() == [3, 4, 5, 6, 7]
+    assert lm.tracked_points(0, 2) == 5
+    assert lm.tracked_points(0, 3) == 3
+    window = lm.local_window(np.arange(10))
+    assert 0 in window.keyframe_slots.tolist()
+    assert set(lm.local_point_rows(window.keyframe_slots).tolist()) == {3, 4, 5, 6, 7}
+
+
+def test_map_update_hooks() -> None:
+    lm = LocalMap()
+    kf = add_keyframe(lm, [], 4)
+    assert lm.set_point_positions(np.array([kf.new_point_ids[1], 999]), np.array([[1.0, 2, 3], [4, 5, 6]])) == 1
+    assert lm.p_world[1].tolist() == [1.0, 2.0, 3.0]
+    assert lm.remove_points(np.array([kf.new_point_ids[2]])) == 1
+    assert lm.n_valid_points == 3
+    # A keyframe naming a removed point does not observe it.
+    add_keyframe(lm, kf.new_point_ids, 0)
+    assert lm.n_observations.tolist() == [2, 2, 1, 2]

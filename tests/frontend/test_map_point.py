@@ -1,0 +1,112 @@
+"""Map point rules: representative descriptor, viewing direction, scale-invariance range, scale prediction."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from zenslam.frontend.descriptors import hamming_distance
+from zenslam.frontend.map_point import (
+    MapPoint,
+    mean_viewing_direction,
+    predict_scale_level,
+    radius_by_viewing_cos,
+    representative_descriptor,
+    representative_descriptors,
+    scale_invariance_range,
+)
+
+
+def _flip_bits(desc: np.ndarray, bits: np.ndarray) -> np.ndarray:
+    out = desc.copy()
+    for b in bits:
+        out[b // 8] ^= np.uint8(1 << (b % 8))
+    return out
+
+
+def test_representative_descriptor_is_the_one_with_least_median_distance() -> None:
+    rng = np.random.default_rng(0)
+    centre = rng.integers(0, 256, 32, dtype=np.uint8)
+    # Four noisy copies of a centre and one outlier: the best is a copy, never the outlier.
+    copies = [_flip_bits(centre, rng.choice(256, 6, replace=False)) for _ in range(4)]
+    outlier = rng.integers(0, 256, 32, dtype=np.uint8)
+    descs = np.stack([outlier, *copies])
+    best = representative_descriptor(descs)
+    d = hamming_distance(descs, descs)
+    medians = np.sort(d, axis=1)[:, (len(descs) - 1) // 2]
+    assert np.array_equal(best, descs[int(np.argmin(medians))])
+    assert not np.array_equal(best, outlier)
+
+
+def test_representative_descriptor_of_one_or_two() -> None:
+    rng = np.random.default_rng(1)
+    descs = rng.integers(0, 256, (2, 32), dtype=np.uint8)
+    assert np.array_equal(representative_descriptor(descs[:1]), descs[0])
+    # With two, both medians (lower median) are 0: the first wins, as in ORB-SLAM.
+    assert np.array_equal(representative_descriptor(descs), descs[0])
+
+
+def test_batched_representatives_match_one_by_one() -> None:
+    rng = np.random.default_rng(2)
+    groups = rng.integers(0, 256, (7, 5, 32), dtype=np.uint8)
+    batched = representative_descriptors(groups)
+    for g, b in zip(groups, batched):
+        assert np.array_equal(representative_descriptor(g), b)
+
+
+def test_scale_invariance_range_follows_level() -> None:
+    lo, hi = scale_invariance_range(np.array([10.0, 10.0]), np.array([0, 3]), 1.2, 8)
+    assert hi[0] == pytest.approx(10.0)
+    assert lo[0] == pytest.approx(10.0 / 1.2**7)
+    assert hi[1] == pytest.approx(10.0 * 1.2**3)
+    assert lo[1] == pytest.approx(10.0 / 1.2**4)
+
+
+def test_predict_scale_inverts_the_range() -> None:
+    _, hi = scale_invariance_range(5.0, 2, 1.2, 8)
+    # Seen from the distance where it was created, the point is predicted on its own level.
+    assert int(predict_scale_level(5.0, hi, 1.2, 8)) == 2
+    # Twice as far: 1.2**3.8 ~ 2 -> about 4 levels finer, clamped at 0.
+    assert int(predict_scale_level(10.0, hi, 1.2, 8)) == 0
+    # Much closer: clamped at the top level.
+    assert int(predict_scale_level(0.1, hi, 1.2, 8)) == 7
+    levels = predict_scale_level(np.array([5.0, 5.0 / 1.2, 5.0 / 1.2**2]), hi, 1.2, 8)
+    assert levels.tolist() == [2, 3, 4]
+
+
+def test_mean_viewing_direction() -> None:
+    p = np.array([0.0, 0.0, 10.0])
+    centres = np.array([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]])
+    n = mean_viewing_direction(p, centres)
+    assert n[0] == pytest.approx(0.0, abs=1e-12)
+    assert n[2] == pytest.approx(10.0 / np.sqrt(101.0))
+
+
+def test_radius_by_viewing_cos() -> None:
+    assert radius_by_viewing_cos(np.array([0.999, 0.99])).tolist() == [2.5, 4.0]
+
+
+def test_map_point_updates() -> None:
+    rng = np.random.default_rng(3)
+    descs = rng.integers(0, 256, (3, 32), dtype=np.uint8)
+    point = MapPoint(id=7, p_world=np.array([0.0, 0.0, 4.0]), descriptor=descs[0])
+    point.add_observation(10, 5)
+    point.add_observation(11, 9)
+    assert point.reference_keyframe_id == 10
+    assert point.observations == {10: 5, 11: 9}
+    point.update_descriptor(descs)
+    assert np.array_equal(point.descriptor, representative_descriptor(descs))
+    point.update_normal_and_depth(
+        centres_world=np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 2.0]]),
+        reference_centre_world=np.zeros(3),
+        reference_level=1,
+        scale_factor=1.2,
+        n_levels=8,
+    )
+    assert np.allclose(point.normal, [0.0, 0.0, 1.0])
+    assert point.max_distance_m == pytest.approx(4.0 * 1.2)
+    assert point.min_distance_m == pytest.approx(4.0 * 1.2 / 1.2**7)
+    assert point.predict_scale(4.0, 1.2, 8) == 1
+    assert point.in_distance_range(4.0) and not point.in_distance_range(100.0)
+    point.n_visible, point.n_found = 8, 2
+    assert point.found_ratio() == pytest.approx(0.25)

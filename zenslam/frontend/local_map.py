@@ -1,0 +1,421 @@
+"""The frontend's cache of the map: keyframes, points as arrays, covisibility and the local window.
+
+Points are stored as a struct of arrays indexed by *row* (an internal, dense index); their ids
+are what leaves the frontend. Per-frame queries (local keyframes, local points) are vectorised
+over these arrays; the per-keyframe bookkeeping (observations, covisibility) runs once per
+keyframe.
+
+Id spaces: point and keyframe ids come from ``IdAllocator(start, step)`` objects built from
+``LocalMapConfig`` (``point_id_start``/``point_id_step``, ``keyframe_id_start``/
+``keyframe_id_step``). The frontend's defaults start at 0 with step 1; a backend creating points
+gives itself a disjoint space (for example a start with the high bit set) through its own
+configuration, so no id needs a round trip.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from zenslam.frontend.keyframe import KeyFrame
+from zenslam.frontend.map_point import representative_descriptors, scale_invariance_range
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class LocalMapConfig:
+    """Id spaces, local-window sizes and the recent-point culling rules of the frontend's map."""
+
+    point_id_start: int = 0  # first id given to a point created by the frontend
+    point_id_step: int = 1  # increment between consecutive point ids
+    keyframe_id_start: int = 0  # first keyframe id
+    keyframe_id_step: int = 1  # increment between consecutive keyframe ids
+    max_local_keyframes: int = 80  # stop adding covisible neighbours past this many local keyframes
+    best_covisible: int = 10  # neighbours examined per local keyframe (ORB-SLAM: 10)
+    min_covisibility_weight: int = 15  # shared points for a covisibility edge (ORB-SLAM: 15)
+    cull_recent_points: bool = True  # apply ORB-SLAM's recent map point culling at each keyframe
+    cull_min_found_ratio: float = 0.25  # found / visible below this -> point removed
+    cull_min_keyframe_observations: int = 2  # keyframes that must see a point 2 keyframes after its birth
+    cull_window_keyframes: int = 3  # points stay "recent" (checked) for this many keyframes
+
+
+class IdAllocator:
+    """Hands out int ids start, start + step, start + 2 step, ... in order."""
+
+    def __init__(self, start: int, step: int = 1) -> None:
+        if step <= 0:
+            raise ValueError(f"id step must be positive, got {step}")
+        self._next = int(start)
+        self._step = int(step)
+
+    def next(self) -> int:
+        """One new id."""
+        value = self._next
+        self._next += self._step
+        return value
+
+    def take(self, n: int) -> np.ndarray:
+        """``n`` new ids as an (n,) int64 array."""
+        ids = self._next + self._step * np.arange(n, dtype=np.int64)
+        self._next += self._step * n
+        return ids
+
+
+@dataclass(frozen=True)
+class LocalWindow:
+    """The keyframes around the current frame (slots into the map) and the reference among them."""
+
+    keyframe_slots: np.ndarray  # (L,) int64, the ones voted for first (most shared points first)
+    reference_slot: int  # the keyframe sharing most points with the frame, -1 if none
+
+
+_POINT_ARRAYS = {
+    "ids": ((), np.int64),
+    "p_world": ((3,), np.float64),
+    "descriptors": ((32,), np.uint8),
+    "normals": ((3,), np.float64),
+    "min_distance_m": ((), np.float64),
+    "max_distance_m": ((), np.float64),
+    "n_visible": ((), np.int64),
+    "n_found": ((), np.int64),
+    "n_observations": ((), np.int64),
+    "valid": ((), np.bool_),
+    "created_serial": ((), np.int64),
+}
+_OBS_ARRAYS = {"row": ((), np.int64), "slot": ((), np.int64), "keypoint": ((), np.int64), "desc": ((32,), np.uint8)}
+
+
+def _grow(arrays: dict[str, np.ndarray], spec: dict, needed: int) -> None:
+    capacity = next(iter(arrays.values())).shape[0]
+    if needed <= capacity:
+        return
+    new_capacity = max(needed, 2 * capacity, 1024)
+    for name, (shape, dtype) in spec.items():
+        bigger = np.zeros((new_capacity, *shape), dtype=dtype)
+        bigger[:capacity] = arrays[name]
+        arrays[name] = bigger
+
+
+class LocalMap:
+    """Keyframes, map points and covisibility as the frontend needs them for tracking.
+
+    Keyframes are addressed by *slot* (insertion order), points by *row*; ``keyframe(slot).id``
+    and ``point_ids[row]`` give the ids other stages use.
+    """
+
+    def __init__(self, config: LocalMapConfig | None = None) -> None:
+        self.config = config or LocalMapConfig()
+        self.point_id_allocator = IdAllocator(self.config.point_id_start, self.config.point_id_step)
+        self.keyframe_id_allocator = IdAllocator(self.config.keyframe_id_start, self.config.keyframe_id_step)
+        self._pts = {name: np.zeros((0, *shape), dtype=dtype) for name, (shape, dtype) in _POINT_ARRAYS.items()}
+        self._obs = {name: np.zeros((0, *shape), dtype=dtype) for name, (shape, dtype) in _OBS_ARRAYS.items()}
+        self._n_points = 0
+        self._n_obs = 0
+        self._row_of_id: dict[int, int] = {}
+        self._keyframes: list[KeyFrame] = []
+        self._slot_of_id: dict[int, int] = {}
+        self._kf_rows: list[np.ndarray] = []  # per slot: rows of the points the keyframe observes
+        self._kf_centres = np.zeros((0, 3))
+        self._covisibility: list[dict[int, int]] = []
+        self._ordered_neighbours: list[list[int]] = []
+        self._parent: list[int] = []
+        self._children: list[list[int]] = []
+
+    # ---- sizes and accessors -------------------------------------------------------------------
+    @property
+    def n_keyframes(self) -> int:
+        """Keyframes inserted so far."""
+        return len(self._keyframes)
+
+    @property
+    def n_points(self) -> int:
+        """Rows in use (culled points keep their row, with ``valid`` False)."""
+        return self._n_points
+
+    @property
+    def n_valid_points(self) -> int:
+        """Points not culled."""
+        return int(np.count_nonzero(self.valid))
+
+    def _view(self, name: str) -> np.ndarray:
+        return self._pts[name][: self._n_points]
+
+    point_ids = property(lambda self: self._view("ids"), doc="(M,) int64 id of each row")
+    p_world = property(lambda self: self._view("p_world"), doc="(M, 3) positions, metres, world frame")
+    descriptors = property(lambda self: self._view("descriptors"), doc="(M, 32) representative descriptors")
+    normals = property(lambda self: self._view("normals"), doc="(M, 3) mean viewing directions, world frame")
+    min_distance_m = property(lambda self: self._view("min_distance_m"), doc="(M,) scale-invariance minimum")
+    max_distance_m = property(lambda self: self._view("max_distance_m"), doc="(M,) scale-invariance maximum")
+    n_visible = property(lambda self: self._view("n_visible"), doc="(M,) frames whose frustum held the point")
+    n_found = property(lambda self: self._view("n_found"), doc="(M,) frames where the point was an inlier")
+    n_observations = property(lambda self: self._view("n_observations"), doc="(M,) keyframes observing it")
+    valid = property(lambda self: self._view("valid"), doc="(M,) False once culled or removed")
+
+    def keyframe(self, slot: int) -> KeyFrame:
+        """The keyframe in ``slot``."""
+        return self._keyframes[slot]
+
+    def slot_of(self, keyframe_id: int) -> int:
+        """Slot of a keyframe id, -1 when unknown."""
+        return self._slot_of_id.get(int(keyframe_id), -1)
+
+    def keyframe_point_rows(self, slot: int) -> np.ndarray:
+        """Rows of the valid points observed by the keyframe in ``slot``."""
+        rows = self._kf_rows[slot]
+        return rows[self.valid[rows]]
+
+    def rows_of_ids(self, point_ids: np.ndarray) -> np.ndarray:
+        """Rows (int64) of point ids; -1 for negative or unknown ids."""
+        lookup = self._row_of_id.get
+        ids = np.asarray(point_ids, dtype=np.int64).ravel()
+        return np.fromiter((lookup(int(i), -1) for i in ids), dtype=np.int64, count=ids.size)
+
+    def observations(self, row: int) -> dict[int, int]:
+        """Keyframe id -> keypoint index of every observation of the point in ``row``."""
+        mask = self._obs["row"][: self._n_obs] == row
+        slots = self._obs["slot"][: self._n_obs][mask]
+        kps = self._obs["keypoint"][: self._n_obs][mask]
+        return {self._keyframes[int(s)].id: int(k) for s, k in zip(slots, kps)}
+
+    # ---- ids -------------------------------------------------------------------------------------
+    def new_keyframe_id(self) -> int:
+        """A fresh keyframe id from this map's id space."""
+        return self.keyframe_id_allocator.next()
+
+    def new_point_ids(self, n: int) -> np.ndarray:
+        """``n`` fresh point ids (n,) int64 from this map's id space."""
+        return self.point_id_allocator.take(n)
+
+    # ---- insertion -------------------------------------------------------------------------------
+    def insert_keyframe(self, keyframe: KeyFrame) -> np.ndarray:
+        """Add a keyframe, create its new points, record its observations, update covisibility.
+
+        ``keyframe.map_point_ids`` must name points already in the map or among
+        ``keyframe.new_point_ids``. Returns the rows (P,) of the new points. Observations refresh
+        the observed points' representative descriptors and viewing directions.
+        """
+        slot = len(self._keyframes)
+        self._keyframes.append(keyframe)
+        self._slot_of_id[int(keyframe.id)] = slot
+        self._kf_centres = np.vstack([self._kf_centres, keyframe.centre_world[None]])
+        new_rows = self._append_new_points(keyframe, slot)
+        rows = self.rows_of_ids(keyframe.map_point_ids)
+        rows[rows >= 0] = np.where(self.valid[rows[rows >= 0]], rows[rows >= 0], -1)
+        keypoints = np.flatnonzero(rows >= 0)
+        _, first = np.unique(rows[keypoints], return_index=True)  # one observation per point
+        keypoints = keypoints[np.sort(first)]
+        observed = rows[keypoints]
+        self._append_observations(slot, observed, keypoints, keyframe.descriptors[keypoints])
+        self._kf_rows.append(observed)
+        self._pts["n_observations"][observed] += 1
+        self._refresh_points(observed)
+        self._connect(slot, observed)
+        return new_rows
+
+    def _append_new_points(self, keyframe: KeyFrame, slot: int) -> np.ndarray:
+        n_new = len(keyframe.new_point_ids)
+        start = self._n_points
+        _grow(self._pts, _POINT_ARRAYS, start + n_new)
+        rows = np.arange(start, start + n_new, dtype=np.int64)
+        kps = np.asarray(keyframe.new_point_keypoints, dtype=np.int64)
+        p = np.asarray(keyframe.new_points_world, dtype=float).reshape(n_new, 3)
+        rays = p - keyframe.centre_world
+        dist = np.linalg.norm(rays, axis=1)
+        lo, hi = scale_invariance_range(dist, keyframe.level[kps], keyframe.scale_factor, keyframe.n_levels)
+        pts = self._pts
+        pts["ids"][rows] = keyframe.new_point_ids
+        pts["p_world"][rows] = p
+        pts["descriptors"][rows] = keyframe.descriptors[kps]
+        pts["normals"][rows] = rays / np.maximum(dist, 1e-12)[:, None]
+        pts["min_distance_m"][rows] = lo
+        pts["max_distance_m"][rows] = hi
+        pts["n_visible"][rows] = 1
+        pts["n_found"][rows] = 1
+        pts["n_observations"][rows] = 0
+        pts["valid"][rows] = True
+        pts["created_serial"][rows] = slot
+        self._n_points = start + n_new
+        for point_id, row in zip(keyframe.new_point_ids.tolist(), rows.tolist()):
+            self._row_of_id[point_id] = row
+        return rows
+
+    def _append_observations(self, slot: int, rows: np.ndarray, keypoints: np.ndarray, desc: np.ndarray) -> None:
+        start, n = self._n_obs, len(rows)
+        _grow(self._obs, _OBS_ARRAYS, start + n)
+        self._obs["row"][start : start + n] = rows
+        self._obs["slot"][start : start + n] = slot
+        self._obs["keypoint"][start : start + n] = keypoints
+        self._obs["desc"][start : start + n] = desc
+        self._n_obs = start + n
+
+    def _refresh_points(self, rows: np.ndarray) -> None:
+        """Recompute viewing directions and representative descriptors of ``rows`` from all their observations."""
+        if len(rows) == 0:
+            return
+        mask = np.zeros(self._n_points, dtype=bool)
+        mask[rows] = True
+        obs_rows = self._obs["row"][: self._n_obs]
+        entries = np.flatnonzero(mask[obs_rows])
+        entries = entries[np.argsort(obs_rows[entries], kind="stable")]
+        e_rows = obs_rows[entries]
+        rays = self._pts["p_world"][e_rows] - self._kf_centres[self._obs["slot"][entries]]
+        rays /= np.maximum(np.linalg.norm(rays, axis=1, keepdims=True), 1e-12)
+        counts = np.bincount(e_rows, minlength=self._n_points)
+        sums = np.stack([np.bincount(e_rows, weights=rays[:, k], minlength=self._n_points) for k in range(3)], 1)
+        self._pts["normals"][rows] = sums[rows] / counts[rows, None]
+        starts = np.cumsum(counts) - counts  # first sorted entry of each row (rows outside have none)
+        desc = self._obs["desc"][entries]
+        for k in np.unique(counts[rows]):
+            group = rows[counts[rows] == k]
+            index = starts[group][:, None] + np.arange(k)[None, :]
+            self._pts["descriptors"][group] = representative_descriptors(desc[index])
+
+    def _connect(self, slot: int, rows: np.ndarray) -> None:
+        """Covisibility weights of the new keyframe (shared points) and its spanning-tree parent."""
+        in_kf = np.zeros(self._n_points, dtype=bool)
+        in_kf[rows] = True
+        obs_rows = self._obs["row"][: self._n_obs]
+        weights = np.bincount(self._obs["slot"][: self._n_obs][in_kf[obs_rows]], minlength=slot + 1)
+        weights[slot] = 0
+        links = {int(s): int(weights[s]) for s in np.flatnonzero(weights)}
+        self._covisibility.append(links)
+        self._ordered_neighbours.append([])
+        self._children.append([])
+        for other, weight in links.items():
+            self._covisibility[other][slot] = weight
+            self._ordered_neighbours[other] = self._order(other)
+        self._ordered_neighbours[slot] = self._order(slot)
+        parent = self._ordered_neighbours[slot][0] if self._ordered_neighbours[slot] else -1
+        self._parent.append(parent)
+        if parent >= 0:
+            self._children[parent].append(slot)
+
+    def _order(self, slot: int) -> list[int]:
+        """ORB-SLAM's ordered connections: neighbours with weight >= threshold by decreasing weight,
+        or the single best one when none reaches it."""
+        links = self._covisibility[slot]
+        if not links:
+            return []
+        ranked = sorted(links, key=lambda s: (-links[s], s))
+        strong = [s for s in ranked if links[s] >= self.config.min_covisibility_weight]
+        return strong or ranked[:1]
+
+    # ---- covisibility queries --------------------------------------------------------------------
+    def covisibility_weight(self, slot_a: int, slot_b: int) -> int:
+        """Points observed by both keyframes."""
+        return self._covisibility[slot_a].get(slot_b, 0)
+
+    def best_covisible(self, slot: int, n: int) -> list[int]:
+        """Up to ``n`` connected keyframes (slots), strongest first."""
+        return self._ordered_neighbours[slot][:n]
+
+    def parent(self, slot: int) -> int:
+        """Spanning-tree parent (the best covisible keyframe at insertion), -1 for the first."""
+        return self._parent[slot]
+
+    def children(self, slot: int) -> list[int]:
+        """Spanning-tree children, in insertion order."""
+        return list(self._children[slot])
+
+    def local_window(self, frame_point_rows: np.ndarray) -> LocalWindow:
+        """ORB-SLAM's ``UpdateLocalKeyFrames`` for a frame matched to ``frame_point_rows`` (-1 none).
+
+        Every keyframe observing a matched point is local; then, while there are at most
+        ``max_local_keyframes``, each of those adds its first not-yet-local keyframe among its
+        10 best covisible ones, one child and its parent. The voted keyframes are visited by
+        decreasing vote (ORB-SLAM's order is by pointer, i.e. arbitrary) and ORB-SLAM2's early
+        exit after adding a parent is not reproduced.
+        """
+        rows = np.asarray(frame_point_rows, dtype=np.int64)
+        rows = rows[rows >= 0]
+        rows = rows[self.valid[rows]]
+        if len(rows) == 0 or not self._keyframes:
+            return LocalWindow(np.zeros(0, dtype=np.int64), -1)
+        in_frame = np.zeros(self._n_points, dtype=bool)
+        in_frame[rows] = True
+        obs_rows = self._obs["row"][: self._n_obs]
+        votes = np.bincount(self._obs["slot"][: self._n_obs][in_frame[obs_rows]], minlength=self.n_keyframes)
+        voted = np.flatnonzero(votes)
+        if len(voted) == 0:
+            return LocalWindow(np.zeros(0, dtype=np.int64), -1)
+        voted = voted[np.lexsort((voted, -votes[voted]))]
+        selected = [int(s) for s in voted]
+        included = set(selected)
+        for slot in voted.tolist():
+            if len(selected) > self.config.max_local_keyframes:
+                break
+            candidates = (
+                self.best_covisible(slot, self.config.best_covisible),
+                self._children[slot],
+                [self._parent[slot]] if self._parent[slot] >= 0 else [],
+            )
+            for group in candidates:
+                for other in group:
+                    if other not in included:
+                        selected.append(other)
+                        included.add(other)
+                        break
+        return LocalWindow(np.asarray(selected, dtype=np.int64), int(voted[0]))
+
+    def local_point_rows(self, keyframe_slots: np.ndarray) -> np.ndarray:
+        """ORB-SLAM's ``UpdateLocalPoints``: sorted unique rows of valid points seen by the keyframes."""
+        if len(keyframe_slots) == 0:
+            return np.zeros(0, dtype=np.int64)
+        rows = np.unique(np.concatenate([self._kf_rows[int(s)] for s in keyframe_slots]))
+        return rows[self.valid[rows]]
+
+    def tracked_points(self, slot: int, min_observations: int) -> int:
+        """Valid points of the keyframe seen by at least ``min_observations`` keyframes."""
+        rows = self.keyframe_point_rows(slot)
+        return int(np.count_nonzero(self.n_observations[rows] >= min_observations))
+
+    # ---- statistics and culling ------------------------------------------------------------------
+    def increase_visible(self, rows: np.ndarray) -> None:
+        """Count one more frame whose frustum held each point in ``rows`` (unique rows)."""
+        self._pts["n_visible"][rows] += 1
+
+    def increase_found(self, rows: np.ndarray) -> None:
+        """Count one more frame where each point in ``rows`` (unique rows) was an inlier."""
+        self._pts["n_found"][rows] += 1
+
+    def cull_recent_points(self) -> int:
+        """ORB-SLAM's ``MapPointCulling`` on points born in the last ``cull_window_keyframes`` keyframes.
+
+        A recent point goes when its found ratio is below ``cull_min_found_ratio``, or when two or
+        more keyframes have passed since its birth and fewer than ``cull_min_keyframe_observations``
+        keyframes observe it. Returns the number culled.
+        """
+        cfg = self.config
+        if not cfg.cull_recent_points or self.n_keyframes == 0:
+            return 0
+        age = (self.n_keyframes - 1) - self._view("created_serial")
+        recent = self.valid & (age <= cfg.cull_window_keyframes)
+        ratio = self.n_found / np.maximum(self.n_visible, 1)
+        bad = recent & (
+            (ratio < cfg.cull_min_found_ratio)
+            | ((age >= 2) & (self.n_observations < cfg.cull_min_keyframe_observations))
+        )
+        self._pts["valid"][np.flatnonzero(bad)] = False
+        return int(np.count_nonzero(bad))
+
+    # ---- map updates from elsewhere --------------------------------------------------------------
+    def set_point_positions(self, point_ids: np.ndarray, p_world: np.ndarray) -> int:
+        """Move known points (ids) to new world positions (K, 3) metres; unknown ids are ignored.
+
+        The hook through which the backend's refined positions reach the frontend. Returns how
+        many points were updated.
+        """
+        rows = self.rows_of_ids(point_ids)
+        known = rows >= 0
+        self._pts["p_world"][rows[known]] = np.asarray(p_world, dtype=float).reshape(-1, 3)[known]
+        return int(np.count_nonzero(known))
+
+    def remove_points(self, point_ids: np.ndarray) -> int:
+        """Mark known points (ids) as removed; returns how many were known."""
+        rows = self.rows_of_ids(point_ids)
+        rows = rows[rows >= 0]
+        self._pts["valid"][rows] = False
+        return len(rows)
