@@ -1,0 +1,77 @@
+"""Top-view PNG of an aligned estimate against ground truth, drawn without pyplot's global state."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from zenslam.errors import TrajectoryError
+from zenslam.service.evaluation.metrics import Evaluation
+
+logger = logging.getLogger(__name__)
+
+Plane = Literal["auto", "xy", "xz", "yz"]
+
+_AXIS_NAMES = "xyz"
+
+
+def choose_plane(p_world: np.ndarray) -> tuple[int, int]:
+    """The two world axes (indices, ascending) spanning the widest view of positions (N, 3).
+
+    The axis of smallest extent is dropped; ties drop y, the down axis of camera-frame worlds such
+    as KITTI's, giving their x-z top view. Without gravity no rule is always right: callers that
+    know the up axis pass an explicit plane.
+    """
+    extent = np.ptp(np.asarray(p_world, dtype=float), axis=0)
+    dropped = min((1, 2, 0), key=lambda axis: extent[axis])
+    return tuple(a for a in range(3) if a != dropped)  # type: ignore[return-value]
+
+
+def save_top_view(
+    path: str | Path,
+    p_world_gt: np.ndarray,
+    p_world_est: np.ndarray,
+    *,
+    plane: Plane = "auto",
+    title: str = "",
+) -> Path:
+    """Draw ground-truth and estimated positions (N, 3 and M, 3, metres, same world frame) to a PNG.
+
+    ``plane`` names the two world axes drawn; ``auto`` uses ``choose_plane(p_world_gt)``.
+    """
+    path = Path(path)
+    p_gt = np.asarray(p_world_gt, dtype=float).reshape(-1, 3)
+    p_est = np.asarray(p_world_est, dtype=float).reshape(-1, 3)
+    a, b = choose_plane(p_gt) if plane == "auto" else (_AXIS_NAMES.index(plane[0]), _AXIS_NAMES.index(plane[1]))
+    fig = Figure(figsize=(6.4, 6.4), dpi=100)
+    FigureCanvasAgg(fig)  # this figure renders with Agg, whatever pyplot's backend is
+    ax = fig.add_subplot()
+    ax.plot(p_gt[:, a], p_gt[:, b], color="0.2", linewidth=1.5, label="ground truth")
+    ax.plot(p_est[:, a], p_est[:, b], color="tab:orange", linewidth=1.2, label="estimate (aligned)")
+    ax.plot(p_gt[:1, a], p_gt[:1, b], "o", color="0.2", markersize=5, label="start")
+    ax.set_xlabel(f"{_AXIS_NAMES[a]} [m]")
+    ax.set_ylabel(f"{_AXIS_NAMES[b]} [m]")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.grid(True, linewidth=0.5, alpha=0.5)
+    ax.legend(loc="best")
+    if title:
+        ax.set_title(title, fontsize=10)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(path, format="png")
+    except OSError as exc:
+        raise TrajectoryError(f"cannot write plot {path}: {exc}; check the output folder") from exc
+    logger.debug("wrote %s", path)
+    return path
+
+
+def save_evaluation_plot(path: str | Path, evaluation: Evaluation, *, plane: Plane = "auto") -> Path:
+    """Top view of an evaluation's matched ground truth and aligned estimate, titled with the ATE."""
+    ate = evaluation.ate
+    title = f"ATE rmse {ate.rmse_m:.4f} m ({ate.alignment} alignment, {ate.matched_poses} poses)"
+    return save_top_view(path, evaluation.p_world_gt, evaluation.p_world_est_aligned, plane=plane, title=title)
