@@ -1,0 +1,78 @@
+"""Reading and writing dataset images with errors that name the file and the problem."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from zenslam.errors import DatasetError, ImageReadError
+
+
+def _decode(path: Path, flags: int) -> np.ndarray:
+    """Decode the image file at ``path`` with OpenCV ``flags``; ImageReadError when that fails."""
+    if not path.is_file():
+        raise ImageReadError(f"image {path} does not exist; check the dataset folder is complete")
+    try:
+        data = np.fromfile(path, dtype=np.uint8)
+    except OSError as exc:
+        raise ImageReadError(f"image {path} cannot be read ({exc}); check its permissions") from exc
+    image = cv2.imdecode(data, flags) if data.size else None
+    if image is None:
+        raise ImageReadError(
+            f"image {path} could not be decoded ({data.size} bytes): the file is corrupt or not an image; "
+            "re-download or replace it"
+        )
+    return image
+
+
+def _check_shape(path: Path, image: np.ndarray, expected_shape: tuple[int, int] | None) -> None:
+    if expected_shape is not None and image.shape[:2] != tuple(expected_shape):
+        h, w = image.shape[:2]
+        raise ImageReadError(
+            f"image {path} is {w}x{h} pixels but the calibration expects {expected_shape[1]}x{expected_shape[0]}; "
+            "the image or the calibration belongs to another camera"
+        )
+
+
+def read_grey(path: Path, expected_shape: tuple[int, int] | None = None) -> np.ndarray:
+    """Read an image as 8-bit grey (H, W); colour images are converted by the decoder
+    (luma weights, within one grey level of ``cv2.cvtColor``).
+
+    ``expected_shape`` is (height, width) in pixels; a different size raises ImageReadError.
+    """
+    path = Path(path)
+    image = _decode(path, cv2.IMREAD_GRAYSCALE)
+    _check_shape(path, image, expected_shape)
+    return image
+
+
+def read_depth_u16(path: Path, expected_shape: tuple[int, int] | None = None) -> np.ndarray:
+    """Read a single-channel 16-bit depth PNG as stored (raw units, 0 = unknown), shape (H, W)."""
+    path = Path(path)
+    image = _decode(path, cv2.IMREAD_UNCHANGED)
+    if image.dtype != np.uint16 or image.ndim != 2:
+        channels = 1 if image.ndim == 2 else image.shape[2]
+        raise ImageReadError(
+            f"depth image {path} is {image.dtype} with {channels} channel(s); "
+            "a depth image must be a single-channel 16-bit PNG"
+        )
+    _check_shape(path, image, expected_shape)
+    return image
+
+
+def image_size(path: Path) -> tuple[int, int]:
+    """(height, width) in pixels of the image at ``path`` (decodes it once)."""
+    path = Path(path)
+    return _decode(path, cv2.IMREAD_GRAYSCALE).shape[:2]
+
+
+def write_png(path: Path, image: np.ndarray) -> None:
+    """Write ``image`` (uint8 or uint16, grey or BGR) losslessly as PNG, creating parent folders."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if image.dtype not in (np.uint8, np.uint16):
+        raise DatasetError(f"cannot write {path}: PNG images must be uint8 or uint16, got {image.dtype}")
+    if not cv2.imwrite(str(path), image):
+        raise DatasetError(f"OpenCV could not write the image {path}; check the folder is writable")

@@ -1,0 +1,175 @@
+"""KITTI odometry stereo sequences (rectified grey pairs, calib.txt, times.txt, poses/NN.txt).
+
+Layout: ``<root>/sequences/NN/{image_0,image_1}/%06d.png``, ``calib.txt`` (rectified projection
+matrices P0..P3, optionally Tr), ``times.txt`` (seconds, one per frame) and, when published,
+``<root>/poses/NN.txt`` (3x4 row-major T_world_cam0 per frame, world = first camera). The image
+size is taken from the first left image; every other image must match it.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from zenslam.camera import PinholeCalibration, SensorKind
+from zenslam.errors import CalibrationError, DatasetError
+from zenslam.service.sources.csv_util import check_increasing, parse_floats, parse_seconds_ns, read_rows
+from zenslam.service.sources.frame import ImuSamples, SensorFrame
+from zenslam.service.sources.images import image_size, read_grey
+from zenslam.trajectory import Trajectory
+
+log = logging.getLogger(__name__)
+
+
+def read_kitti_calibration(calib_path: Path, width: int, height: int) -> PinholeCalibration:
+    """Rectified left calibration from KITTI ``calib.txt``: fx = P0[0,0], baseline_m = -P1[0,3] / P1[0,0]."""
+    calib_path = Path(calib_path)
+    if not calib_path.is_file():
+        raise CalibrationError(f"KITTI calibration {calib_path} does not exist; every sequence folder has a calib.txt")
+    matrices: dict[str, np.ndarray] = {}
+    for number, text in enumerate(calib_path.read_text().splitlines(), start=1):
+        if not text.strip():
+            continue
+        key, _, values = text.partition(":")
+        numbers = parse_floats(values.split(), calib_path, number)
+        if numbers.size != 12:
+            raise CalibrationError(
+                f"KITTI calibration {calib_path}, line {number}: {key.strip()} has {numbers.size} values, "
+                "expected 12 (3x4)"
+            )
+        matrices[key.strip()] = numbers.reshape(3, 4)
+    missing = [k for k in ("P0", "P1") if k not in matrices]
+    if missing:
+        raise CalibrationError(f"KITTI calibration {calib_path} lacks {missing}; it needs the rectified P0 and P1")
+    P0, P1 = matrices["P0"], matrices["P1"]
+    if not (P0[0, 0] > 0 and P1[0, 0] > 0 and P0[1, 1] > 0):
+        raise CalibrationError(
+            f"KITTI calibration {calib_path}: focal lengths P0[0,0]={P0[0, 0]}, P0[1,1]={P0[1, 1]}, "
+            f"P1[0,0]={P1[0, 0]} must be positive pixels"
+        )
+    baseline_m = -P1[0, 3] / P1[0, 0]
+    if not baseline_m > 0:
+        raise CalibrationError(
+            f"KITTI calibration {calib_path}: P1[0,3]={P1[0, 3]} gives baseline {baseline_m} m; the right camera "
+            "must be a positive distance to the right (P1[0,3] = -fx * baseline)"
+        )
+    return PinholeCalibration(
+        fx=float(P0[0, 0]),
+        fy=float(P0[1, 1]),
+        cx=float(P0[0, 2]),
+        cy=float(P0[1, 2]),
+        width=int(width),
+        height=int(height),
+        baseline_m=float(baseline_m),
+    )
+
+
+def read_kitti_poses(path: Path) -> np.ndarray:
+    """T_world_cam0 (N, 4, 4) from a KITTI pose file (one 3x4 row-major matrix per line)."""
+    rows = read_rows(path, "KITTI pose file", 12)
+    poses = np.tile(np.eye(4), (len(rows), 1, 1))
+    for k, row in enumerate(rows):
+        if len(row.fields) != 12:
+            raise DatasetError(f"KITTI pose file {path}, line {row.line}: expected 12 values, got {len(row.fields)}")
+        poses[k, :3, :] = parse_floats(row.fields, path, row.line).reshape(3, 4)
+    return poses
+
+
+class KittiSource:
+    """A KITTI odometry sequence as a lazy stereo Source; ``sequence_dir`` is ``<root>/sequences/NN``."""
+
+    def __init__(self, sequence_dir: Path) -> None:
+        self._dir = Path(sequence_dir).absolute()
+        if not self._dir.is_dir():
+            raise DatasetError(
+                f"KITTI sequence folder {self._dir} does not exist; pass <root>/sequences/NN of the odometry dataset"
+            )
+        self._left = self._list_images("image_0")
+        self._right = self._list_images("image_1")
+        if len(self._left) != len(self._right):
+            raise DatasetError(
+                f"KITTI sequence {self._dir}: image_0 has {len(self._left)} images but image_1 has "
+                f"{len(self._right)}; every left image needs its right partner"
+            )
+        times_path = self._dir / "times.txt"
+        rows = read_rows(times_path, "KITTI times file", 1)
+        self._stamps = np.array([parse_seconds_ns(r.fields[0], times_path, r.line) for r in rows], dtype=np.int64)
+        check_increasing(self._stamps, [r.line for r in rows], times_path)
+        if len(self._left) != len(self._stamps):
+            raise DatasetError(
+                f"KITTI sequence {self._dir}: {len(self._left)} images in image_0 but {len(self._stamps)} stamps in "
+                f"{times_path}; the counts must be equal"
+            )
+        self._check_names()
+        height, width = image_size(self._left[0])
+        self._shape = (height, width)
+        self._calibration = read_kitti_calibration(self._dir / "calib.txt", width, height)
+
+    def _list_images(self, folder: str) -> list[Path]:
+        path = self._dir / folder
+        if not path.is_dir():
+            raise DatasetError(f"KITTI image folder {path} does not exist; a stereo sequence has image_0 and image_1")
+        images = sorted(path.glob("*.png"))
+        if not images:
+            raise DatasetError(f"KITTI image folder {path} holds no .png images")
+        return images
+
+    def _check_names(self) -> None:
+        expected = [f"{i:06d}.png" for i in range(len(self._stamps))]
+        for images in (self._left, self._right):
+            names = [p.name for p in images]
+            if names != expected:
+                first = next(i for i, (a, b) in enumerate(zip(names, expected)) if a != b)
+                raise DatasetError(
+                    f"KITTI image folder {images[0].parent}: image {first} is {names[first]}, expected "
+                    f"{expected[first]}; images must be numbered %06d.png from 0 without gaps"
+                )
+
+    @property
+    def name(self) -> str:
+        return f"kitti/{self._dir.name}"
+
+    @property
+    def sensor(self) -> SensorKind:
+        return "stereo"
+
+    @property
+    def calibration(self) -> PinholeCalibration:
+        return self._calibration
+
+    def __len__(self) -> int:
+        return len(self._stamps)
+
+    def __iter__(self) -> Iterator[SensorFrame]:
+        for i, stamp in enumerate(self._stamps):
+            yield SensorFrame(
+                index=i,
+                stamp_ns=int(stamp),
+                left=read_grey(self._left[i], self._shape),
+                right=read_grey(self._right[i], self._shape),
+            )
+
+    def stamps_ns(self) -> np.ndarray:
+        """Frame stamps (N,) int64 ns from times.txt (seconds since the sequence start)."""
+        return self._stamps.copy()
+
+    def ground_truth(self) -> Trajectory | None:
+        """T_world_cam0 from ``<root>/poses/NN.txt`` at the frame stamps, or None when absent."""
+        path = self._dir.parent.parent / "poses" / f"{self._dir.name}.txt"
+        if not path.is_file():
+            log.info("no KITTI ground truth at %s", path)
+            return None
+        poses = read_kitti_poses(path)
+        if len(poses) != len(self._stamps):
+            raise DatasetError(
+                f"KITTI pose file {path} has {len(poses)} poses but the sequence has {len(self._stamps)} frames; "
+                "the counts must be equal"
+            )
+        return Trajectory(self._stamps.copy(), poses)
+
+    def imu(self) -> ImuSamples | None:
+        """KITTI odometry has no IMU."""
+        return None
