@@ -37,7 +37,7 @@ def describe(source: Source, check_images: int = 1) -> list[str]:
     if gt is None:
         lines.append("ground truth: none")
     else:
-        lines.append(f"ground truth: {len(gt)} poses, path length {gt.path_length_m():.2f} m")
+        lines.append(f"ground truth: {len(gt)} poses, path length {gt.path_length_m():.3f} m")
     imu = source.imu()
     lines.append("imu:         none" if imu is None else f"imu:         {len(imu.stamps_ns)} samples")
     for i, frame in enumerate(source):
