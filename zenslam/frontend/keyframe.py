@@ -6,7 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from zenslam.geometry import invert_T
+from zenslam.camera import PinholeCalibration
+from zenslam.geometry import invert_T, transform_points
 
 
 @dataclass(frozen=True, eq=False)
@@ -58,3 +59,33 @@ class KeyFrame:
     def n_tracked_points(self) -> int:
         """Keypoints linked to a map point."""
         return int(np.count_nonzero(self.map_point_ids >= 0))
+
+
+def select_new_point_keypoints(
+    depth_m: np.ndarray, has_point: np.ndarray, th_depth_m: float, min_points: int = 100
+) -> np.ndarray:
+    """Keypoints (int64 indices) that get a new map point when a stereo/RGB-D keyframe is made.
+
+    ORB-SLAM2's ``CreateNewKeyFrame``: keypoints with depth are visited nearest first, counting
+    those that already have a point too; every visited keypoint without a point gets one, and the
+    visit stops after the first keypoint farther than ``th_depth_m`` once more than ``min_points``
+    were counted. So all close keypoints get points, and at least ``min_points`` overall.
+    """
+    depth_m = np.asarray(depth_m, dtype=float)
+    with_depth = np.flatnonzero(depth_m > 0)
+    order = with_depth[np.argsort(depth_m[with_depth], kind="stable")]
+    far_enough = np.flatnonzero((depth_m[order] > th_depth_m) & (np.arange(len(order)) >= min_points))
+    visited = order if len(far_enough) == 0 else order[: far_enough[0] + 1]
+    return np.sort(visited[~np.asarray(has_point, dtype=bool)[visited]])
+
+
+def unproject_keypoints(
+    px: np.ndarray, depth_m: np.ndarray, calibration: PinholeCalibration, T_world_cam: np.ndarray
+) -> np.ndarray:
+    """World points (K, 3) metres of keypoints at pixels ``px`` (K, 2) with depths ``depth_m`` (K,)."""
+    px = np.asarray(px, dtype=float).reshape(-1, 2)
+    z = np.asarray(depth_m, dtype=float).reshape(-1)
+    p_cam = np.column_stack(
+        [(px[:, 0] - calibration.cx) * z / calibration.fx, (px[:, 1] - calibration.cy) * z / calibration.fy, z]
+    )
+    return transform_points(np.asarray(T_world_cam, dtype=float), p_cam)
