@@ -1,0 +1,407 @@
+"""The only encoder/decoder of zenslam bus messages: numpy arrays and dataclasses <-> protobuf bytes.
+
+Arrays travel as raw little-endian ``bytes`` fields (see zenslam.proto for each field's dtype
+and shape); decoding checks every length against the counts in the message, so a truncated or
+mismatched message fails here with the field's name rather than deep inside a stage. Decoded
+arrays are read-only views on the received bytes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
+from google.protobuf.message import DecodeError, Message
+
+from zenslam.camera import PinholeCalibration, SensorKind
+from zenslam.errors import CalibrationError, ZenslamError
+from zenslam.geometry import R_to_quat_wxyz, quat_wxyz_to_R
+from zenslam.schemas import zenslam_pb2 as pb
+from zenslam.service.sources.frame import SensorFrame
+
+# Schema names: the protobuf full names, also used as the zenoh encoding schema and MCAP schema.
+SENSOR_FRAME = "zenslam.SensorFrame"
+TRACKING_STATE = "zenslam.TrackingState"
+KEYFRAME = "zenslam.Keyframe"
+STAGE_STATUS = "zenslam.StageStatus"
+POSE_IN_FRAME = "foxglove.PoseInFrame"
+
+MESSAGE_CLASSES: dict[str, type[Message]] = {
+    SENSOR_FRAME: pb.SensorFrame,
+    TRACKING_STATE: pb.TrackingState,
+    KEYFRAME: pb.Keyframe,
+    STAGE_STATUS: pb.StageStatus,
+    POSE_IN_FRAME: PoseInFrame,
+}
+
+TrackingStateName = Literal["ok", "lost", "initializing"]
+StageStateName = Literal["starting", "running", "finished", "failed"]
+DepthEncodingName = Literal["float32_m", "uint16_mm"]
+
+_SENSORS: dict[str, int] = {"mono": pb.SENSOR_KIND_MONO, "stereo": pb.SENSOR_KIND_STEREO, "rgbd": pb.SENSOR_KIND_RGBD}
+_TRACKING: dict[str, int] = {
+    "ok": pb.TRACKING_STATE_OK,
+    "lost": pb.TRACKING_STATE_LOST,
+    "initializing": pb.TRACKING_STATE_INITIALIZING,
+}
+_STAGE: dict[str, int] = {
+    "starting": pb.STAGE_STATE_STARTING,
+    "running": pb.STAGE_STATE_RUNNING,
+    "finished": pb.STAGE_STATE_FINISHED,
+    "failed": pb.STAGE_STATE_FAILED,
+}
+_NS_PER_S = 1_000_000_000
+
+
+class MessageError(ZenslamError):
+    """A bus message cannot be encoded or decoded (wrong schema, truncated, inconsistent arrays)."""
+
+
+@dataclass(frozen=True)
+class EndOfStream:
+    """The last message of a stream; ``count`` data messages were sent before it."""
+
+    count: int
+
+
+@dataclass(frozen=True)
+class FrameMessage:
+    """A decoded sensor/frame message: the frame with the calibration and sensor kind it came with."""
+
+    frame: SensorFrame
+    calibration: PinholeCalibration
+    sensor: SensorKind
+    source_name: str = ""
+
+
+@dataclass(frozen=True)
+class TrackingStateMessage:
+    """The outcome of tracking one frame (frontend/state)."""
+
+    index: int
+    stamp_ns: int
+    state: TrackingStateName
+    lost_reason: str | None = None
+    n_tracked: int = 0
+    timings_ms: dict[str, float] = field(default_factory=dict)  # per step, milliseconds
+    has_pose: bool = False  # a frontend/pose message was sent for this frame
+    keyframe_id: int = -1  # the keyframe made at this frame, -1 if none
+
+
+@dataclass(frozen=True)
+class KeyframeMessage:
+    """A keyframe on frontend/keyframe: N keypoints, M new map points, L pyramid levels."""
+
+    id: int
+    stamp_ns: int
+    frame_index: int
+    T_world_cam: np.ndarray  # (4, 4)
+    calibration: PinholeCalibration
+    sensor: SensorKind
+    keypoints_px: np.ndarray  # (N, 2) float32, level-0 pixels
+    levels: np.ndarray  # (N,) int16
+    angles_deg: np.ndarray  # (N,) float32
+    right_u: np.ndarray  # (N,) float32 pixels, -1 if none
+    depth_m: np.ndarray  # (N,) float32 metres, -1 if none
+    descriptors: np.ndarray  # (N, 32) uint8
+    map_point_ids: np.ndarray  # (N,) int64, -1 if none
+    scale_factors: np.ndarray  # (L,) float64
+    new_point_ids: np.ndarray  # (M,) int64
+    new_points_world: np.ndarray  # (M, 3) float64 metres
+
+
+@dataclass(frozen=True)
+class StampedPose:
+    """A camera pose at a time: T_world_cam maps camera to ``frame_id`` coordinates."""
+
+    stamp_ns: int
+    T_world_cam: np.ndarray  # (4, 4)
+    frame_id: str = "world"
+
+
+@dataclass(frozen=True)
+class StageStatusMessage:
+    """How a stage is doing (<stage>/status)."""
+
+    stage: str
+    state: StageStateName
+    processed: int = 0
+    step_ms: float = 0.0  # duration of the last step, milliseconds
+    queue_depth: int = 0  # messages waiting in the stage's inbox
+    dropped: int = 0  # input messages skipped (live mode)
+    detail: str = ""
+
+
+def _pack(array: np.ndarray, dtype: str, shape_tail: tuple[int, ...], name: str) -> bytes:
+    a = np.asarray(array)
+    if a.shape[1:] != shape_tail:
+        raise MessageError(f"{name} must have shape (N, {', '.join(map(str, shape_tail))}), got {a.shape}")
+    return np.ascontiguousarray(a, dtype=dtype).tobytes()
+
+
+def _unpack(data: bytes, dtype: str, shape: tuple[int, ...], name: str) -> np.ndarray:
+    dt = np.dtype(dtype)
+    expected = int(np.prod(shape)) * dt.itemsize
+    if len(data) != expected:
+        raise MessageError(f"field {name}: expected {expected} bytes for {dt} {shape}, got {len(data)}; sender and receiver disagree")
+    return np.frombuffer(data, dtype=dt).reshape(shape)
+
+
+def _parse(cls: type[Message], data: bytes) -> Message:
+    msg = cls()
+    try:
+        msg.ParseFromString(bytes(data))
+    except DecodeError as exc:
+        raise MessageError(f"cannot decode {len(data)} bytes as {cls.DESCRIPTOR.full_name}: {exc}") from exc
+    return msg
+
+
+def _calibration_to_pb(calibration: PinholeCalibration, out: pb.Calibration) -> None:
+    out.fx, out.fy, out.cx, out.cy = calibration.fx, calibration.fy, calibration.cx, calibration.cy
+    out.width, out.height = calibration.width, calibration.height
+    if calibration.baseline_m is not None:
+        out.baseline_m = calibration.baseline_m
+
+
+def _calibration_from_pb(msg: pb.Calibration) -> PinholeCalibration:
+    baseline = msg.baseline_m if msg.HasField("baseline_m") else None
+    return PinholeCalibration(msg.fx, msg.fy, msg.cx, msg.cy, msg.width, msg.height, baseline)
+
+
+def _sensor_from_pb(value: int, where: str) -> SensorKind:
+    for name, code in _SENSORS.items():
+        if code == value:
+            return name  # type: ignore[return-value]
+    raise MessageError(f"{where}: sensor kind {value} is not mono, stereo or rgbd")
+
+
+def _transform_to_pb(T: np.ndarray, out: pb.RigidTransform) -> None:
+    T = np.asarray(T, dtype=float)
+    if T.shape != (4, 4):
+        raise MessageError(f"a pose must be a 4x4 transform, got shape {T.shape}")
+    out.tx, out.ty, out.tz = (float(v) for v in T[:3, 3])
+    out.qw, out.qx, out.qy, out.qz = (float(v) for v in R_to_quat_wxyz(T[:3, :3]))
+
+
+def _transform_from_pb(msg: pb.RigidTransform) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = quat_wxyz_to_R(np.array([msg.qw, msg.qx, msg.qy, msg.qz]))
+    T[:3, 3] = (msg.tx, msg.ty, msg.tz)
+    return T
+
+
+def encode_sensor_frame(
+    frame: SensorFrame,
+    calibration: PinholeCalibration,
+    sensor: SensorKind,
+    source_name: str = "",
+    depth_encoding: DepthEncodingName = "float32_m",
+) -> bytes:
+    """Encode a frame (uint8 grey images, depth in metres) with its calibration for sensor/frame.
+
+    ``depth_encoding`` "uint16_mm" rounds depth to millimetres (0 stays unknown) to halve its size.
+    """
+    left = np.asarray(frame.left)
+    if left.dtype != np.uint8 or left.ndim != 2:
+        raise MessageError(f"frame {frame.index}: left image must be uint8 HxW grey, got {left.dtype} {left.shape}")
+    height, width = left.shape
+    if (width, height) != (calibration.width, calibration.height):
+        raise CalibrationError(
+            f"frame {frame.index} is {width}x{height} but the calibration says {calibration.width}x{calibration.height}; "
+            "fix the calibration override or the source"
+        )
+    msg = pb.SensorFrame(index=frame.index, stamp_ns=frame.stamp_ns, width=width, height=height, source_name=source_name)
+    msg.sensor = _SENSORS[sensor]
+    _calibration_to_pb(calibration, msg.calibration)
+    msg.left = left.tobytes()
+    if frame.right is not None:
+        right = np.asarray(frame.right)
+        if right.shape != left.shape or right.dtype != np.uint8:
+            raise MessageError(f"frame {frame.index}: right image {right.dtype} {right.shape} must match left uint8 {left.shape}")
+        msg.right = right.tobytes()
+    if frame.depth_m is not None:
+        depth = np.asarray(frame.depth_m)
+        if depth.shape != left.shape:
+            raise MessageError(f"frame {frame.index}: depth {depth.shape} must match the image {left.shape}")
+        if depth_encoding == "uint16_mm":
+            mm = np.clip(np.rint(np.nan_to_num(depth, nan=0.0) * 1000.0), 0, np.iinfo(np.uint16).max)
+            msg.depth_encoding, msg.depth = pb.DEPTH_ENCODING_UINT16_MM, mm.astype("<u2").tobytes()
+        else:
+            msg.depth_encoding, msg.depth = pb.DEPTH_ENCODING_FLOAT32_M, np.ascontiguousarray(depth, "<f4").tobytes()
+    return msg.SerializeToString()
+
+
+def decode_sensor_frame(data: bytes) -> FrameMessage | EndOfStream:
+    """Decode a sensor/frame message; depth comes back as float32 metres whatever its encoding."""
+    msg = _parse(pb.SensorFrame, data)
+    if msg.end_of_stream:
+        return EndOfStream(msg.count)
+    shape = (msg.height, msg.width)
+    where = f"sensor frame {msg.index}"
+    left = _unpack(msg.left, "u1", shape, f"{where} left")
+    right = _unpack(msg.right, "u1", shape, f"{where} right") if msg.right else None
+    depth = None
+    if msg.depth_encoding == pb.DEPTH_ENCODING_FLOAT32_M:
+        depth = _unpack(msg.depth, "<f4", shape, f"{where} depth")
+    elif msg.depth_encoding == pb.DEPTH_ENCODING_UINT16_MM:
+        depth = _unpack(msg.depth, "<u2", shape, f"{where} depth").astype(np.float32) / np.float32(1000.0)
+    frame = SensorFrame(index=msg.index, stamp_ns=msg.stamp_ns, left=left, right=right, depth_m=depth)
+    calibration = _calibration_from_pb(msg.calibration)
+    return FrameMessage(frame, calibration, _sensor_from_pb(msg.sensor, where), msg.source_name)
+
+
+def encode_end_of_stream(schema: str, count: int) -> bytes:
+    """The end-of-stream message of the stream whose schema is SENSOR_FRAME, TRACKING_STATE or KEYFRAME."""
+    if schema not in (SENSOR_FRAME, TRACKING_STATE, KEYFRAME):
+        raise MessageError(f"streams of {schema!r} have no end-of-stream message; use {SENSOR_FRAME}, {TRACKING_STATE} or {KEYFRAME}")
+    return MESSAGE_CLASSES[schema](end_of_stream=True, count=count).SerializeToString()
+
+
+def encode_tracking_state(state: TrackingStateMessage) -> bytes:
+    """Encode a frontend/state message."""
+    msg = pb.TrackingState(
+        index=state.index,
+        stamp_ns=state.stamp_ns,
+        state=_TRACKING[state.state],
+        lost_reason=state.lost_reason or "",
+        n_tracked=state.n_tracked,
+        has_pose=state.has_pose,
+        keyframe_id=state.keyframe_id,
+    )
+    for name, ms in state.timings_ms.items():
+        msg.timings_ms[name] = float(ms)
+    return msg.SerializeToString()
+
+
+def decode_tracking_state(data: bytes) -> TrackingStateMessage | EndOfStream:
+    """Decode a frontend/state message."""
+    msg = _parse(pb.TrackingState, data)
+    if msg.end_of_stream:
+        return EndOfStream(msg.count)
+    names = {code: name for name, code in _TRACKING.items()}
+    if msg.state not in names:
+        raise MessageError(f"tracking state of frame {msg.index}: unknown state code {msg.state}")
+    return TrackingStateMessage(
+        index=msg.index,
+        stamp_ns=msg.stamp_ns,
+        state=names[msg.state],  # type: ignore[arg-type]
+        lost_reason=msg.lost_reason or None,
+        n_tracked=msg.n_tracked,
+        timings_ms={k: msg.timings_ms[k] for k in sorted(msg.timings_ms)},
+        has_pose=msg.has_pose,
+        keyframe_id=msg.keyframe_id,
+    )
+
+
+def encode_keyframe(kf: KeyframeMessage) -> bytes:
+    """Encode a frontend/keyframe message; array shapes must agree with the keypoint count."""
+    n = len(kf.keypoints_px)
+    m = len(kf.new_point_ids)
+    msg = pb.Keyframe(id=kf.id, stamp_ns=kf.stamp_ns, frame_index=kf.frame_index, num_keypoints=n, num_new_points=m)
+    _transform_to_pb(kf.T_world_cam, msg.T_world_cam)
+    _calibration_to_pb(kf.calibration, msg.calibration)
+    msg.sensor = _SENSORS[kf.sensor]
+    per_keypoint = {
+        "levels": (kf.levels, "<i2", ()),
+        "angles_deg": (kf.angles_deg, "<f4", ()),
+        "right_u": (kf.right_u, "<f4", ()),
+        "depth_m": (kf.depth_m, "<f4", ()),
+        "descriptors": (kf.descriptors, "u1", (32,)),
+        "map_point_ids": (kf.map_point_ids, "<i8", ()),
+    }
+    msg.keypoints_px = _pack(kf.keypoints_px, "<f4", (2,), f"keyframe {kf.id} keypoints_px")
+    for name, (array, dtype, tail) in per_keypoint.items():
+        if len(array) != n:
+            raise MessageError(f"keyframe {kf.id}: {name} has {len(array)} entries for {n} keypoints")
+        setattr(msg, name, _pack(array, dtype, tail, f"keyframe {kf.id} {name}"))
+    if len(kf.new_points_world) != m:
+        raise MessageError(f"keyframe {kf.id}: {len(kf.new_points_world)} new point positions for {m} new point ids")
+    msg.new_point_ids = _pack(kf.new_point_ids, "<i8", (), f"keyframe {kf.id} new_point_ids")
+    msg.new_points_world = _pack(kf.new_points_world, "<f8", (3,), f"keyframe {kf.id} new_points_world")
+    msg.scale_factors = _pack(kf.scale_factors, "<f8", (), f"keyframe {kf.id} scale_factors")
+    return msg.SerializeToString()
+
+
+def decode_keyframe(data: bytes) -> KeyframeMessage | EndOfStream:
+    """Decode a frontend/keyframe message."""
+    msg = _parse(pb.Keyframe, data)
+    if msg.end_of_stream:
+        return EndOfStream(msg.count)
+    n, m, where = msg.num_keypoints, msg.num_new_points, f"keyframe {msg.id}"
+    return KeyframeMessage(
+        id=msg.id,
+        stamp_ns=msg.stamp_ns,
+        frame_index=msg.frame_index,
+        T_world_cam=_transform_from_pb(msg.T_world_cam),
+        calibration=_calibration_from_pb(msg.calibration),
+        sensor=_sensor_from_pb(msg.sensor, where),
+        keypoints_px=_unpack(msg.keypoints_px, "<f4", (n, 2), f"{where} keypoints_px"),
+        levels=_unpack(msg.levels, "<i2", (n,), f"{where} levels"),
+        angles_deg=_unpack(msg.angles_deg, "<f4", (n,), f"{where} angles_deg"),
+        right_u=_unpack(msg.right_u, "<f4", (n,), f"{where} right_u"),
+        depth_m=_unpack(msg.depth_m, "<f4", (n,), f"{where} depth_m"),
+        descriptors=_unpack(msg.descriptors, "u1", (n, 32), f"{where} descriptors"),
+        map_point_ids=_unpack(msg.map_point_ids, "<i8", (n,), f"{where} map_point_ids"),
+        scale_factors=_unpack(msg.scale_factors, "<f8", (len(msg.scale_factors) // 8,), f"{where} scale_factors"),
+        new_point_ids=_unpack(msg.new_point_ids, "<i8", (m,), f"{where} new_point_ids"),
+        new_points_world=_unpack(msg.new_points_world, "<f8", (m, 3), f"{where} new_points_world"),
+    )
+
+
+def encode_pose_in_frame(pose: StampedPose) -> bytes:
+    """Encode a pose as foxglove.PoseInFrame (what Foxglove and rerun's MCAP reader draw)."""
+    msg = PoseInFrame(frame_id=pose.frame_id)
+    seconds, nanos = divmod(int(pose.stamp_ns), _NS_PER_S)
+    msg.timestamp.seconds, msg.timestamp.nanos = seconds, nanos
+    T = np.asarray(pose.T_world_cam, dtype=float)
+    if T.shape != (4, 4):
+        raise MessageError(f"a pose must be a 4x4 transform, got shape {T.shape}")
+    msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = (float(v) for v in T[:3, 3])
+    w, x, y, z = R_to_quat_wxyz(T[:3, :3])
+    o = msg.pose.orientation
+    o.x, o.y, o.z, o.w = float(x), float(y), float(z), float(w)  # foxglove orders quaternions x, y, z, w
+    return msg.SerializeToString()
+
+
+def decode_pose_in_frame(data: bytes) -> StampedPose:
+    """Decode a foxglove.PoseInFrame message."""
+    msg = _parse(PoseInFrame, data)
+    o, p = msg.pose.orientation, msg.pose.position
+    T = np.eye(4)
+    T[:3, :3] = quat_wxyz_to_R(np.array([o.w, o.x, o.y, o.z]))
+    T[:3, 3] = (p.x, p.y, p.z)
+    stamp_ns = msg.timestamp.seconds * _NS_PER_S + msg.timestamp.nanos
+    return StampedPose(stamp_ns, T, msg.frame_id)
+
+
+def encode_stage_status(status: StageStatusMessage) -> bytes:
+    """Encode a <stage>/status message."""
+    msg = pb.StageStatus(
+        stage=status.stage,
+        state=_STAGE[status.state],
+        processed=status.processed,
+        step_ms=status.step_ms,
+        queue_depth=status.queue_depth,
+        dropped=status.dropped,
+        detail=status.detail,
+    )
+    return msg.SerializeToString()
+
+
+def decode_stage_status(data: bytes) -> StageStatusMessage:
+    """Decode a <stage>/status message."""
+    msg = _parse(pb.StageStatus, data)
+    names = {code: name for name, code in _STAGE.items()}
+    if msg.state not in names:
+        raise MessageError(f"status of stage {msg.stage!r}: unknown state code {msg.state}")
+    return StageStatusMessage(
+        stage=msg.stage,
+        state=names[msg.state],  # type: ignore[arg-type]
+        processed=msg.processed,
+        step_ms=msg.step_ms,
+        queue_depth=msg.queue_depth,
+        dropped=msg.dropped,
+        detail=msg.detail,
+    )

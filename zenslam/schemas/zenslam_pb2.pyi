@@ -1,0 +1,211 @@
+from google.protobuf.internal import containers as _containers
+from google.protobuf.internal import enum_type_wrapper as _enum_type_wrapper
+from google.protobuf import descriptor as _descriptor
+from google.protobuf import message as _message
+from collections.abc import Mapping as _Mapping
+from typing import ClassVar as _ClassVar, Optional as _Optional, Union as _Union
+
+DESCRIPTOR: _descriptor.FileDescriptor
+
+class SensorKind(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+    __slots__ = ()
+    SENSOR_KIND_UNSPECIFIED: _ClassVar[SensorKind]
+    SENSOR_KIND_MONO: _ClassVar[SensorKind]
+    SENSOR_KIND_STEREO: _ClassVar[SensorKind]
+    SENSOR_KIND_RGBD: _ClassVar[SensorKind]
+
+class DepthEncoding(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+    __slots__ = ()
+    DEPTH_ENCODING_NONE: _ClassVar[DepthEncoding]
+    DEPTH_ENCODING_FLOAT32_M: _ClassVar[DepthEncoding]
+    DEPTH_ENCODING_UINT16_MM: _ClassVar[DepthEncoding]
+
+class TrackingStateKind(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+    __slots__ = ()
+    TRACKING_STATE_UNSPECIFIED: _ClassVar[TrackingStateKind]
+    TRACKING_STATE_OK: _ClassVar[TrackingStateKind]
+    TRACKING_STATE_LOST: _ClassVar[TrackingStateKind]
+    TRACKING_STATE_INITIALIZING: _ClassVar[TrackingStateKind]
+
+class StageState(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+    __slots__ = ()
+    STAGE_STATE_UNSPECIFIED: _ClassVar[StageState]
+    STAGE_STATE_STARTING: _ClassVar[StageState]
+    STAGE_STATE_RUNNING: _ClassVar[StageState]
+    STAGE_STATE_FINISHED: _ClassVar[StageState]
+    STAGE_STATE_FAILED: _ClassVar[StageState]
+SENSOR_KIND_UNSPECIFIED: SensorKind
+SENSOR_KIND_MONO: SensorKind
+SENSOR_KIND_STEREO: SensorKind
+SENSOR_KIND_RGBD: SensorKind
+DEPTH_ENCODING_NONE: DepthEncoding
+DEPTH_ENCODING_FLOAT32_M: DepthEncoding
+DEPTH_ENCODING_UINT16_MM: DepthEncoding
+TRACKING_STATE_UNSPECIFIED: TrackingStateKind
+TRACKING_STATE_OK: TrackingStateKind
+TRACKING_STATE_LOST: TrackingStateKind
+TRACKING_STATE_INITIALIZING: TrackingStateKind
+STAGE_STATE_UNSPECIFIED: StageState
+STAGE_STATE_STARTING: StageState
+STAGE_STATE_RUNNING: StageState
+STAGE_STATE_FINISHED: StageState
+STAGE_STATE_FAILED: StageState
+
+class Calibration(_message.Message):
+    __slots__ = ("fx", "fy", "cx", "cy", "width", "height", "baseline_m")
+    FX_FIELD_NUMBER: _ClassVar[int]
+    FY_FIELD_NUMBER: _ClassVar[int]
+    CX_FIELD_NUMBER: _ClassVar[int]
+    CY_FIELD_NUMBER: _ClassVar[int]
+    WIDTH_FIELD_NUMBER: _ClassVar[int]
+    HEIGHT_FIELD_NUMBER: _ClassVar[int]
+    BASELINE_M_FIELD_NUMBER: _ClassVar[int]
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+    baseline_m: float
+    def __init__(self, fx: _Optional[float] = ..., fy: _Optional[float] = ..., cx: _Optional[float] = ..., cy: _Optional[float] = ..., width: _Optional[int] = ..., height: _Optional[int] = ..., baseline_m: _Optional[float] = ...) -> None: ...
+
+class RigidTransform(_message.Message):
+    __slots__ = ("tx", "ty", "tz", "qw", "qx", "qy", "qz")
+    TX_FIELD_NUMBER: _ClassVar[int]
+    TY_FIELD_NUMBER: _ClassVar[int]
+    TZ_FIELD_NUMBER: _ClassVar[int]
+    QW_FIELD_NUMBER: _ClassVar[int]
+    QX_FIELD_NUMBER: _ClassVar[int]
+    QY_FIELD_NUMBER: _ClassVar[int]
+    QZ_FIELD_NUMBER: _ClassVar[int]
+    tx: float
+    ty: float
+    tz: float
+    qw: float
+    qx: float
+    qy: float
+    qz: float
+    def __init__(self, tx: _Optional[float] = ..., ty: _Optional[float] = ..., tz: _Optional[float] = ..., qw: _Optional[float] = ..., qx: _Optional[float] = ..., qy: _Optional[float] = ..., qz: _Optional[float] = ...) -> None: ...
+
+class SensorFrame(_message.Message):
+    __slots__ = ("index", "stamp_ns", "width", "height", "sensor", "calibration", "left", "right", "depth_encoding", "depth", "source_name", "end_of_stream", "count")
+    INDEX_FIELD_NUMBER: _ClassVar[int]
+    STAMP_NS_FIELD_NUMBER: _ClassVar[int]
+    WIDTH_FIELD_NUMBER: _ClassVar[int]
+    HEIGHT_FIELD_NUMBER: _ClassVar[int]
+    SENSOR_FIELD_NUMBER: _ClassVar[int]
+    CALIBRATION_FIELD_NUMBER: _ClassVar[int]
+    LEFT_FIELD_NUMBER: _ClassVar[int]
+    RIGHT_FIELD_NUMBER: _ClassVar[int]
+    DEPTH_ENCODING_FIELD_NUMBER: _ClassVar[int]
+    DEPTH_FIELD_NUMBER: _ClassVar[int]
+    SOURCE_NAME_FIELD_NUMBER: _ClassVar[int]
+    END_OF_STREAM_FIELD_NUMBER: _ClassVar[int]
+    COUNT_FIELD_NUMBER: _ClassVar[int]
+    index: int
+    stamp_ns: int
+    width: int
+    height: int
+    sensor: SensorKind
+    calibration: Calibration
+    left: bytes
+    right: bytes
+    depth_encoding: DepthEncoding
+    depth: bytes
+    source_name: str
+    end_of_stream: bool
+    count: int
+    def __init__(self, index: _Optional[int] = ..., stamp_ns: _Optional[int] = ..., width: _Optional[int] = ..., height: _Optional[int] = ..., sensor: _Optional[_Union[SensorKind, str]] = ..., calibration: _Optional[_Union[Calibration, _Mapping]] = ..., left: _Optional[bytes] = ..., right: _Optional[bytes] = ..., depth_encoding: _Optional[_Union[DepthEncoding, str]] = ..., depth: _Optional[bytes] = ..., source_name: _Optional[str] = ..., end_of_stream: _Optional[bool] = ..., count: _Optional[int] = ...) -> None: ...
+
+class TrackingState(_message.Message):
+    __slots__ = ("index", "stamp_ns", "state", "lost_reason", "n_tracked", "timings_ms", "has_pose", "keyframe_id", "end_of_stream", "count")
+    class TimingsMsEntry(_message.Message):
+        __slots__ = ("key", "value")
+        KEY_FIELD_NUMBER: _ClassVar[int]
+        VALUE_FIELD_NUMBER: _ClassVar[int]
+        key: str
+        value: float
+        def __init__(self, key: _Optional[str] = ..., value: _Optional[float] = ...) -> None: ...
+    INDEX_FIELD_NUMBER: _ClassVar[int]
+    STAMP_NS_FIELD_NUMBER: _ClassVar[int]
+    STATE_FIELD_NUMBER: _ClassVar[int]
+    LOST_REASON_FIELD_NUMBER: _ClassVar[int]
+    N_TRACKED_FIELD_NUMBER: _ClassVar[int]
+    TIMINGS_MS_FIELD_NUMBER: _ClassVar[int]
+    HAS_POSE_FIELD_NUMBER: _ClassVar[int]
+    KEYFRAME_ID_FIELD_NUMBER: _ClassVar[int]
+    END_OF_STREAM_FIELD_NUMBER: _ClassVar[int]
+    COUNT_FIELD_NUMBER: _ClassVar[int]
+    index: int
+    stamp_ns: int
+    state: TrackingStateKind
+    lost_reason: str
+    n_tracked: int
+    timings_ms: _containers.ScalarMap[str, float]
+    has_pose: bool
+    keyframe_id: int
+    end_of_stream: bool
+    count: int
+    def __init__(self, index: _Optional[int] = ..., stamp_ns: _Optional[int] = ..., state: _Optional[_Union[TrackingStateKind, str]] = ..., lost_reason: _Optional[str] = ..., n_tracked: _Optional[int] = ..., timings_ms: _Optional[_Mapping[str, float]] = ..., has_pose: _Optional[bool] = ..., keyframe_id: _Optional[int] = ..., end_of_stream: _Optional[bool] = ..., count: _Optional[int] = ...) -> None: ...
+
+class Keyframe(_message.Message):
+    __slots__ = ("id", "stamp_ns", "frame_index", "T_world_cam", "calibration", "sensor", "num_keypoints", "keypoints_px", "levels", "angles_deg", "right_u", "depth_m", "descriptors", "map_point_ids", "scale_factors", "num_new_points", "new_point_ids", "new_points_world", "end_of_stream", "count")
+    ID_FIELD_NUMBER: _ClassVar[int]
+    STAMP_NS_FIELD_NUMBER: _ClassVar[int]
+    FRAME_INDEX_FIELD_NUMBER: _ClassVar[int]
+    T_WORLD_CAM_FIELD_NUMBER: _ClassVar[int]
+    CALIBRATION_FIELD_NUMBER: _ClassVar[int]
+    SENSOR_FIELD_NUMBER: _ClassVar[int]
+    NUM_KEYPOINTS_FIELD_NUMBER: _ClassVar[int]
+    KEYPOINTS_PX_FIELD_NUMBER: _ClassVar[int]
+    LEVELS_FIELD_NUMBER: _ClassVar[int]
+    ANGLES_DEG_FIELD_NUMBER: _ClassVar[int]
+    RIGHT_U_FIELD_NUMBER: _ClassVar[int]
+    DEPTH_M_FIELD_NUMBER: _ClassVar[int]
+    DESCRIPTORS_FIELD_NUMBER: _ClassVar[int]
+    MAP_POINT_IDS_FIELD_NUMBER: _ClassVar[int]
+    SCALE_FACTORS_FIELD_NUMBER: _ClassVar[int]
+    NUM_NEW_POINTS_FIELD_NUMBER: _ClassVar[int]
+    NEW_POINT_IDS_FIELD_NUMBER: _ClassVar[int]
+    NEW_POINTS_WORLD_FIELD_NUMBER: _ClassVar[int]
+    END_OF_STREAM_FIELD_NUMBER: _ClassVar[int]
+    COUNT_FIELD_NUMBER: _ClassVar[int]
+    id: int
+    stamp_ns: int
+    frame_index: int
+    T_world_cam: RigidTransform
+    calibration: Calibration
+    sensor: SensorKind
+    num_keypoints: int
+    keypoints_px: bytes
+    levels: bytes
+    angles_deg: bytes
+    right_u: bytes
+    depth_m: bytes
+    descriptors: bytes
+    map_point_ids: bytes
+    scale_factors: bytes
+    num_new_points: int
+    new_point_ids: bytes
+    new_points_world: bytes
+    end_of_stream: bool
+    count: int
+    def __init__(self, id: _Optional[int] = ..., stamp_ns: _Optional[int] = ..., frame_index: _Optional[int] = ..., T_world_cam: _Optional[_Union[RigidTransform, _Mapping]] = ..., calibration: _Optional[_Union[Calibration, _Mapping]] = ..., sensor: _Optional[_Union[SensorKind, str]] = ..., num_keypoints: _Optional[int] = ..., keypoints_px: _Optional[bytes] = ..., levels: _Optional[bytes] = ..., angles_deg: _Optional[bytes] = ..., right_u: _Optional[bytes] = ..., depth_m: _Optional[bytes] = ..., descriptors: _Optional[bytes] = ..., map_point_ids: _Optional[bytes] = ..., scale_factors: _Optional[bytes] = ..., num_new_points: _Optional[int] = ..., new_point_ids: _Optional[bytes] = ..., new_points_world: _Optional[bytes] = ..., end_of_stream: _Optional[bool] = ..., count: _Optional[int] = ...) -> None: ...
+
+class StageStatus(_message.Message):
+    __slots__ = ("stage", "state", "processed", "step_ms", "queue_depth", "dropped", "detail")
+    STAGE_FIELD_NUMBER: _ClassVar[int]
+    STATE_FIELD_NUMBER: _ClassVar[int]
+    PROCESSED_FIELD_NUMBER: _ClassVar[int]
+    STEP_MS_FIELD_NUMBER: _ClassVar[int]
+    QUEUE_DEPTH_FIELD_NUMBER: _ClassVar[int]
+    DROPPED_FIELD_NUMBER: _ClassVar[int]
+    DETAIL_FIELD_NUMBER: _ClassVar[int]
+    stage: str
+    state: StageState
+    processed: int
+    step_ms: float
+    queue_depth: int
+    dropped: int
+    detail: str
+    def __init__(self, stage: _Optional[str] = ..., state: _Optional[_Union[StageState, str]] = ..., processed: _Optional[int] = ..., step_ms: _Optional[float] = ..., queue_depth: _Optional[int] = ..., dropped: _Optional[int] = ..., detail: _Optional[str] = ...) -> None: ...

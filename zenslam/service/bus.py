@@ -1,0 +1,240 @@
+"""The zenoh bus: session configuration, publishers with per-topic delivery, and bounded subscriber inboxes.
+
+Delivery is chosen per topic where each publisher or subscription is declared:
+- ``lossless`` (keyframes, poses, states, end-of-stream, lockstep frames): RELIABLE with
+  CongestionControl.BLOCK on the publisher, and a bounded zenoh FifoChannel on the subscriber, so a
+  slow consumer slows the producer down instead of losing messages (zenoh's defaults silently
+  dropped 74% of 60 KB messages to a slow subscriber).
+- ``live`` (camera frames in live mode): BEST_EFFORT with CongestionControl.DROP on the publisher
+  and a RingChannel on the subscriber that keeps the newest frames and drops the oldest, as a
+  robot's tracker must keep up with the camera rather than fall behind it.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import socket
+import time
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Generic, Literal, TypeVar
+
+import zenoh
+
+from zenslam.errors import ConfigError, ZenslamError
+from zenslam.schemas import keys
+
+logger = logging.getLogger(__name__)
+
+T = TypeVar("T")
+Delivery = Literal["lossless", "live"]
+
+
+class BusError(ZenslamError):
+    """The bus cannot be opened, or a peer process did not appear or answer in time."""
+
+
+@dataclass(frozen=True)
+class BusConfig:
+    """How a process joins the zenoh network (the ``bus`` section of a run configuration)."""
+
+    mode: Literal["peer", "client"] = "peer"  # zenoh mode: peer on one machine, client to go through routers
+    listen: tuple[str, ...] = ("tcp/127.0.0.1:0",)  # zenoh endpoints to listen on; port 0 picks a free port
+    connect: tuple[str, ...] = ()  # zenoh endpoints to connect to: the run's hub, or routers
+    multicast_scouting: bool = False  # UDP multicast discovery; off keeps a run on its own machine
+    zenoh_config_file: str | None = None  # a zenoh JSON5 config file; when set it replaces the four fields above
+    lossless_queue: int = 32  # messages a lossless inbox holds before the sender blocks, messages
+    live_queue: int = 2  # newest camera frames a live inbox keeps (older ones dropped), frames
+
+
+def zenoh_config(config: BusConfig) -> zenoh.Config:
+    """The zenoh.Config of ``config`` (the config file as is, when one is named)."""
+    if config.zenoh_config_file is not None:
+        path = Path(config.zenoh_config_file).expanduser()
+        if not path.is_file():
+            raise ConfigError(f"bus.zenoh_config_file {path} does not exist; give the path of a zenoh JSON5 config file")
+        try:
+            return zenoh.Config.from_file(str(path))
+        except zenoh.ZError as exc:
+            raise ConfigError(f"bus.zenoh_config_file {path} is not a valid zenoh configuration: {exc}") from exc
+    cfg = zenoh.Config()
+    try:
+        cfg.insert_json5("mode", json.dumps(config.mode))
+        cfg.insert_json5("scouting/multicast/enabled", json.dumps(config.multicast_scouting))
+        cfg.insert_json5("listen/endpoints", json.dumps(list(config.listen)))
+        cfg.insert_json5("connect/endpoints", json.dumps(list(config.connect)))
+    except zenoh.ZError as exc:
+        raise ConfigError(f"invalid bus configuration {config}: {exc}") from exc
+    return cfg
+
+
+@contextmanager
+def open_session(config: BusConfig) -> Iterator[zenoh.Session]:
+    """Open a zenoh session and close it on exit (an unclosed session can hang interpreter exit)."""
+    try:
+        session = zenoh.open(zenoh_config(config))
+    except zenoh.ZError as exc:
+        raise BusError(f"cannot open a zenoh session with {config}: {exc}; check the endpoints") from exc
+    try:
+        yield session
+    finally:
+        session.close()
+
+
+def free_tcp_endpoint(host: str = "127.0.0.1") -> str:
+    """A ``tcp/<host>:<port>`` endpoint on a port that was free a moment ago (for a run's hub)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.bind((host, 0))
+        port = sock.getsockname()[1]
+    return f"tcp/{host}:{port}"
+
+
+def quiet_zenoh_logs() -> None:
+    """Let zenoh's own logger print only errors unless RUST_LOG says otherwise (process entry points only)."""
+    zenoh.init_log_from_env_or("error")
+
+
+def declare_publisher(session: zenoh.Session, key: str, schema: str, delivery: Delivery) -> zenoh.Publisher:
+    """A publisher on ``key`` whose payloads are protobuf ``schema`` messages, with ``delivery``'s QoS."""
+    encoding = zenoh.Encoding.APPLICATION_PROTOBUF.with_schema(schema)
+    if delivery == "lossless":
+        return session.declare_publisher(
+            key,
+            encoding=encoding,
+            congestion_control=zenoh.CongestionControl.BLOCK,
+            reliability=zenoh.Reliability.RELIABLE,
+        )
+    return session.declare_publisher(
+        key,
+        encoding=encoding,
+        congestion_control=zenoh.CongestionControl.DROP,
+        reliability=zenoh.Reliability.BEST_EFFORT,
+    )
+
+
+class Inbox(Generic[T]):
+    """Decoded messages of one subscription, taken by the stage's worker thread.
+
+    zenoh's channel does the enqueueing on its own thread; the worker decodes as it takes
+    messages, so no stage work ever runs on zenoh's threads.
+    """
+
+    def __init__(self, subscriber: zenoh.Subscriber, decode: Callable[[bytes], T], capacity: int, drop_oldest: bool):
+        self._subscriber = subscriber
+        self._decode = decode
+        self._capacity = capacity
+        self._drop_oldest = drop_oldest
+        self._pending: deque[zenoh.Sample] = deque()
+
+    def _pull(self) -> None:
+        while self._drop_oldest or len(self._pending) < self._capacity:
+            sample = self._subscriber.try_recv()
+            if sample is None:
+                return
+            if self._drop_oldest and len(self._pending) >= self._capacity:
+                self._pending.popleft()  # the ring channel's policy, kept on this side too
+            self._pending.append(sample)
+
+    @property
+    def depth(self) -> int:
+        """Messages waiting for the worker (a lower bound: zenoh's channel may hold more)."""
+        self._pull()
+        return len(self._pending)
+
+    def get(self, timeout_s: float | None = None) -> T | None:
+        """The next decoded message, or None if none arrives within ``timeout_s`` seconds (None: wait forever)."""
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        pause = 0.0002
+        while True:
+            self._pull()
+            if self._pending:
+                return self._decode(self._pending.popleft().payload.to_bytes())
+            if deadline is not None and time.monotonic() >= deadline:
+                return None
+            # zenoh's blocking recv cannot be interrupted by SIGINT; poll with a short, growing pause.
+            time.sleep(pause)
+            pause = min(pause * 2.0, 0.005)
+
+    def close(self) -> None:
+        """Undeclare the subscription; what is still queued is discarded.
+
+        A full FifoChannel blocks zenoh's receiving thread, which would block closing the
+        session: empty it first.
+        """
+        while self._subscriber.try_recv() is not None:
+            pass
+        self._subscriber.undeclare()
+        self._pending.clear()
+
+
+def subscribe(session: zenoh.Session, key: str, decode: Callable[[bytes], T], delivery: Delivery, capacity: int) -> Inbox[T]:
+    """Subscribe to ``key``: ``lossless`` uses a FifoChannel of ``capacity`` (back-pressure when full),
+    ``live`` a RingChannel keeping the newest ``capacity`` messages."""
+    if capacity < 1:
+        raise ConfigError(f"an inbox capacity must be at least 1 message, got {capacity}")
+    if delivery == "lossless":
+        subscriber = session.declare_subscriber(key, zenoh.handlers.FifoChannel(capacity))
+        return Inbox(subscriber, decode, capacity, drop_oldest=False)
+    subscriber = session.declare_subscriber(key, zenoh.handlers.RingChannel(capacity))
+    return Inbox(subscriber, decode, capacity, drop_oldest=True)
+
+
+def declare_alive(session: zenoh.Session, session_name: str, process: str) -> zenoh.LivelinessToken:
+    """Announce that ``process`` is up; the token vanishes when the process's session closes or dies."""
+    return session.liveliness().declare_token(keys.alive(session_name, process))
+
+
+def alive_processes(session: zenoh.Session, session_name: str, timeout_s: float = 0.5) -> set[str]:
+    """Names of the processes of the session whose liveliness tokens are present now."""
+    prefix = keys.alive(session_name, "x")[:-1]
+    names = set()
+    for reply in session.liveliness().get(keys.all_alive(session_name), timeout=timeout_s):
+        if reply.ok is not None:
+            names.add(str(reply.ok.key_expr).removeprefix(prefix))
+    return names
+
+
+def wait_for_alive(
+    session: zenoh.Session,
+    session_name: str,
+    processes: Iterable[str],
+    timeout_s: float,
+    keep_waiting: Callable[[], bool] = lambda: True,
+) -> set[str]:
+    """Wait until every named process's token is present; returns the ones still missing at the deadline
+    (or when ``keep_waiting`` says to stop)."""
+    missing = set(processes)
+    prefix = keys.alive(session_name, "x")[:-1]
+    deadline = time.monotonic() + timeout_s
+    with session.liveliness().declare_subscriber(
+        keys.all_alive(session_name), zenoh.handlers.FifoChannel(64), history=True
+    ) as subscriber:
+        while missing and time.monotonic() < deadline and keep_waiting():
+            sample = subscriber.try_recv()
+            if sample is None:
+                time.sleep(0.002)
+                continue
+            name = str(sample.key_expr).removeprefix(prefix)
+            if sample.kind == zenoh.SampleKind.PUT:
+                missing.discard(name)
+    return missing
+
+
+def wait_for_subscribers(publisher: zenoh.Publisher, timeout_s: float, keep_waiting: Callable[[], bool] = lambda: True) -> bool:
+    """Wait until some subscriber matches ``publisher``; False if none did within ``timeout_s`` seconds."""
+    deadline = time.monotonic() + timeout_s
+    while not publisher.matching_status.matching:
+        if time.monotonic() >= deadline or not keep_waiting():
+            return False
+        time.sleep(0.002)
+    return True
+
+
+def parent_alive(parent_pid: int | None) -> bool:
+    """True while the process that started this one is still its parent (False once orphaned)."""
+    return parent_pid is None or os.getppid() == parent_pid
