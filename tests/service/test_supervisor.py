@@ -1,0 +1,150 @@
+"""The supervisor starts real child processes, notices failures with their output, and leaves no orphans."""
+
+from __future__ import annotations
+
+import os
+import signal
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+from zenslam.service import bus
+from zenslam.service.supervisor import ProcessError, ProcessSpec, StopFlag, Supervisor
+
+# A stage-like child: parses the common arguments, joins the bus, announces itself, waits for a stop.
+STAGE_CHILD = """
+import argparse, sys, time
+from pathlib import Path
+from zenslam.service import bus
+from zenslam.service.supervisor import StopFlag, add_process_arguments, bus_config_with
+parser = argparse.ArgumentParser()
+add_process_arguments(parser)
+parser.add_argument("--name", required=True)
+parser.add_argument("--marker", type=Path, required=True)
+args = parser.parse_args()
+stop = StopFlag(args.parent_pid).install()
+with bus.open_session(bus_config_with(bus.BusConfig(), args.connect)) as session:
+    with bus.declare_alive(session, args.session, args.name):
+        while not stop():
+            time.sleep(0.01)
+args.marker.write_text("stopped cleanly")
+"""
+
+CRASHING_CHILD = """
+import sys
+print("loading the frontend", flush=True)
+print("Traceback: ValueError: calibration is nonsense", file=sys.stderr, flush=True)
+sys.exit(3)
+"""
+
+# Ignores SIGINT and SIGTERM, and starts a grandchild in its process group that does the same.
+STUBBORN_CHILD = """
+import signal, subprocess, sys, time
+from pathlib import Path
+signal.signal(signal.SIGINT, signal.SIG_IGN)
+signal.signal(signal.SIGTERM, signal.SIG_IGN)
+if "--grandchild" not in sys.argv:
+    g = subprocess.Popen([sys.executable, "-m", "stubborn_child", "--grandchild"])
+    Path(sys.argv[sys.argv.index("--pidfile") + 1]).write_text(str(g.pid))
+while True:
+    time.sleep(0.05)
+"""
+
+
+@pytest.fixture
+def modules(tmp_path: Path) -> dict[str, str]:
+    """Child modules importable by ``python -m`` through PYTHONPATH."""
+    pkg = tmp_path / "children"
+    pkg.mkdir()
+    for name, text in {"stage_child": STAGE_CHILD, "crashing_child": CRASHING_CHILD, "stubborn_child": STUBBORN_CHILD}.items():
+        (pkg / f"{name}.py").write_text(textwrap.dedent(text))
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(pkg), env.get("PYTHONPATH", "")])
+    return env
+
+
+def _supervisor(tmp_path: Path, env: dict[str, str], hub: str | None = None) -> Supervisor:
+    return Supervisor(tmp_path / "run", "sup-test", tmp_path / "config.yaml", hub, env=env)
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+def test_stage_comes_up_on_the_bus_and_stops_cleanly_on_sigint(tmp_path, modules):
+    hub = bus.free_tcp_endpoint()
+    marker = tmp_path / "marker"
+    with bus.open_session(bus.BusConfig(listen=(hub,))) as session:
+        with _supervisor(tmp_path, modules, hub) as supervisor:
+            supervisor.start(ProcessSpec("dummy", "stage_child", ("--name", "dummy", "--marker", str(marker))))
+            supervisor.wait_until_alive(session, ["dummy"], timeout_s=30.0)
+            assert supervisor.returncode("dummy") is None
+            started = time.monotonic()
+            supervisor.stop(grace_s=10.0)
+            assert time.monotonic() - started < 5.0
+            assert supervisor.returncode("dummy") == 0
+        assert marker.read_text() == "stopped cleanly"
+        assert bus.alive_processes(session, "sup-test") == set()
+
+
+def test_a_crash_is_reported_with_the_tail_of_its_output(tmp_path, modules):
+    with _supervisor(tmp_path, modules) as supervisor:
+        supervisor.start(ProcessSpec("frontend", "crashing_child"))
+        supervisor.wait_exit(timeout_s=30.0)
+        with pytest.raises(ProcessError, match=r"(?s)frontend exited with status 3.*calibration is nonsense"):
+            supervisor.check()
+        assert "loading the frontend" in supervisor.log_tail("frontend")  # stdout is kept too
+    assert (tmp_path / "run" / "logs" / "frontend.log").is_file()
+
+
+def test_waiting_for_a_child_that_crashes_fails_fast(tmp_path, modules):
+    with bus.open_session(bus.BusConfig()) as session, _supervisor(tmp_path, modules) as supervisor:
+        supervisor.start(ProcessSpec("frontend", "crashing_child"))
+        started = time.monotonic()
+        with pytest.raises(ProcessError, match="status 3"):
+            supervisor.wait_until_alive(session, ["frontend"], timeout_s=60.0)
+        assert time.monotonic() - started < 20.0
+
+
+def test_stubborn_children_and_their_children_are_killed(tmp_path, modules):
+    pidfile = tmp_path / "grandchild.pid"
+    with _supervisor(tmp_path, modules) as supervisor:
+        supervisor.start(ProcessSpec("stubborn", "stubborn_child", ("--pidfile", str(pidfile))))
+        deadline = time.monotonic() + 20.0
+        while not pidfile.exists() or not pidfile.read_text():
+            assert time.monotonic() < deadline, "the stubborn child did not start its grandchild"
+            time.sleep(0.05)
+        grandchild = int(pidfile.read_text())
+        supervisor.stop(grace_s=0.3, term_s=0.3)
+        assert supervisor.returncode("stubborn") == -signal.SIGKILL
+    deadline = time.monotonic() + 5.0
+    while _pid_alive(grandchild) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not _pid_alive(grandchild)
+
+
+def test_children_get_the_session_config_hub_and_parent(tmp_path):
+    supervisor = Supervisor(tmp_path, "s1", tmp_path / "config.yaml", "tcp/127.0.0.1:7000")
+    args = supervisor.common_args()
+    assert args[args.index("--session") + 1] == "s1"
+    assert args[args.index("--connect") + 1] == "tcp/127.0.0.1:7000"
+    assert args[args.index("--config") + 1] == str(tmp_path / "config.yaml")
+    assert int(args[args.index("--parent-pid") + 1]) == os.getpid()
+
+
+def test_a_child_notices_it_lost_its_parent():
+    assert not StopFlag(parent_pid=os.getppid())()
+    assert StopFlag(parent_pid=os.getppid() + 100_000)()
+
+
+def test_the_same_stage_cannot_start_twice(tmp_path, modules):
+    with _supervisor(tmp_path, modules) as supervisor:
+        supervisor.start(ProcessSpec("frontend", "crashing_child"))
+        with pytest.raises(ProcessError, match="already running"):
+            supervisor.start(ProcessSpec("frontend", "crashing_child"))
