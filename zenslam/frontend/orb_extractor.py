@@ -1,0 +1,480 @@
+"""ORB features as ORB-SLAM extracts them: scale pyramid, per-cell FAST, quadtree distribution, rBRIEF."""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from zenslam.errors import ConfigError, ImageReadError
+
+logger = logging.getLogger(__name__)
+
+# Constants of the ORB descriptor itself (the rBRIEF pattern is defined on a 31 px patch), not tunables.
+_PATCH_SIZE = 31  # level pixels: descriptor / orientation patch diameter
+_HALF_PATCH = 15  # level pixels: intensity-centroid radius
+_EDGE_THRESHOLD = 19  # level pixels: keypoints stay this far from the border so the rotated pattern fits
+_FAST_RADIUS = 3  # level pixels: FAST never fires closer than this to the image it is given
+_QUADTREE_DEPTH = 16  # deepest quadtree split: 2**16 nodes per side is far finer than a pixel
+
+
+@dataclass(frozen=True)
+class OrbConfig:
+    """ORB extraction parameters; the defaults are ORB-SLAM's."""
+
+    n_features: int = 1200  # keypoints per image, summed over the levels (ORB-SLAM uses 1000-2000)
+    scale_factor: float = 1.2  # linear scale between consecutive pyramid levels (> 1)
+    n_levels: int = 8  # pyramid levels
+    ini_fast_threshold: int = 20  # grey levels: FAST threshold tried first in each cell
+    min_fast_threshold: int = 7  # grey levels: FAST threshold for cells where the first finds no corner
+    cell_size_px: int = 30  # level pixels: target side of a FAST cell
+    threads: int = 2  # threads extracting the two images of a stereo pair (1 = sequential; same output)
+
+    def __post_init__(self) -> None:
+        problems = []
+        if self.n_features < 1:
+            problems.append(f"n_features={self.n_features} must be >= 1")
+        if not (math.isfinite(self.scale_factor) and self.scale_factor > 1.0):
+            problems.append(f"scale_factor={self.scale_factor} must be > 1")
+        if self.n_levels < 1:
+            problems.append(f"n_levels={self.n_levels} must be >= 1")
+        if not (0 < self.min_fast_threshold <= self.ini_fast_threshold):
+            problems.append(
+                f"FAST thresholds min={self.min_fast_threshold}, ini={self.ini_fast_threshold} "
+                "must satisfy 0 < min_fast_threshold <= ini_fast_threshold"
+            )
+        if self.cell_size_px < 8:
+            problems.append(f"cell_size_px={self.cell_size_px} must be >= 8 pixels")
+        if self.threads not in (1, 2):
+            problems.append(f"threads={self.threads} must be 1 or 2")
+        if problems:
+            raise ConfigError("invalid OrbConfig: " + "; ".join(problems))
+
+
+@dataclass(frozen=True)
+class Features:
+    """N ORB keypoints of one image, with the pyramid constants needed to weigh them.
+
+    ``px`` is in level-0 pixels (u right, v down); ``level`` is the pyramid level the keypoint was
+    detected at; ``angle_deg`` its intensity-centroid orientation in [0, 360) degrees (image axes);
+    ``response`` its FAST score (grey levels); ``descriptors`` the 256-bit rBRIEF strings.
+    ``scale_factors[l] = scale_factor**l`` and ``inv_level_sigma2[l] = 1 / scale_factors[l]**2``.
+    """
+
+    px: np.ndarray  # (N, 2) float32
+    level: np.ndarray  # (N,) int16
+    angle_deg: np.ndarray  # (N,) float32
+    response: np.ndarray  # (N,) float32
+    descriptors: np.ndarray  # (N, 32) uint8
+    scale_factors: np.ndarray  # (n_levels,) float64
+    inv_level_sigma2: np.ndarray  # (n_levels,) float64
+
+    def __len__(self) -> int:
+        return int(self.px.shape[0])
+
+    @property
+    def size_px(self) -> np.ndarray:
+        """(N,) float32 diameter of each keypoint's patch in level-0 pixels (31 * scale)."""
+        return (_PATCH_SIZE * self.scale_factors[self.level]).astype(np.float32)
+
+    @property
+    def level_sigma2(self) -> np.ndarray:
+        """(n_levels,) variance of a measurement at each level, in level-0 pixels^2."""
+        return self.scale_factors**2
+
+    def subset(self, indices: np.ndarray) -> Features:
+        """The keypoints at ``indices`` (int array or bool mask), in that order."""
+        return Features(
+            px=self.px[indices],
+            level=self.level[indices],
+            angle_deg=self.angle_deg[indices],
+            response=self.response[indices],
+            descriptors=self.descriptors[indices],
+            scale_factors=self.scale_factors,
+            inv_level_sigma2=self.inv_level_sigma2,
+        )
+
+
+def features_per_level(n_features: int, scale_factor: float, n_levels: int) -> np.ndarray:
+    """Keypoints wanted per level, a geometric series of ratio 1/scale_factor summing to n_features.
+
+    This is ORB-SLAM's split (ORBextractor's mnFeaturesPerLevel): each level gets 1/scale_factor
+    of the one below, the last level the remainder.
+    """
+    factor = 1.0 / scale_factor
+    per_scale = n_features * (1.0 - factor) / (1.0 - factor**n_levels)
+    counts = np.zeros(n_levels, dtype=np.int64)
+    for level in range(n_levels - 1):
+        counts[level] = int(round(per_scale))
+        per_scale *= factor
+    counts[-1] = max(n_features - int(counts[:-1].sum()), 0)
+    return counts
+
+
+class OrbExtractor:
+    """Extracts ORB-SLAM-style ORB features from grey images; reusable across frames.
+
+    ``extract`` is deterministic: the same image gives the same features in the same order
+    (sorted by level, then row, then column).
+    """
+
+    def __init__(self, config: OrbConfig | None = None) -> None:
+        self._config = config or OrbConfig()
+        c = self._config
+        self._scale_factors = c.scale_factor ** np.arange(c.n_levels, dtype=np.float64)
+        self._inv_level_sigma2 = 1.0 / self._scale_factors**2
+        self._per_level = features_per_level(c.n_features, c.scale_factor, c.n_levels)
+        self._circle_weights = _centroid_weights()
+        self._executor: ThreadPoolExecutor | None = None
+        self._executor_lock = threading.Lock()
+
+    @property
+    def config(self) -> OrbConfig:
+        return self._config
+
+    @property
+    def scale_factors(self) -> np.ndarray:
+        """(n_levels,) scale of each level relative to level 0."""
+        return self._scale_factors
+
+    @property
+    def inv_level_sigma2(self) -> np.ndarray:
+        """(n_levels,) 1 / scale**2 per level."""
+        return self._inv_level_sigma2
+
+    @property
+    def n_per_level(self) -> np.ndarray:
+        """(n_levels,) number of keypoints wanted at each level."""
+        return self._per_level.copy()
+
+    def build_pyramid(self, image: np.ndarray) -> list[np.ndarray]:
+        """Level images: level 0 is ``image``, level l is level l-1 resized (INTER_LINEAR) by 1/scale_factor."""
+        _check_image(image)
+        pyramid = [np.ascontiguousarray(image)]
+        h0, w0 = image.shape
+        for level in range(1, self._config.n_levels):
+            inv = 1.0 / self._scale_factors[level]
+            size = (int(round(w0 * inv)), int(round(h0 * inv)))
+            pyramid.append(cv2.resize(pyramid[-1], size, interpolation=cv2.INTER_LINEAR))
+        return pyramid
+
+    def extract(self, image: np.ndarray) -> tuple[Features, list[np.ndarray]]:
+        """ORB features of a grey uint8 image (H, W) and its pyramid (list of level images).
+
+        Keypoint coordinates are level-0 pixels; the pyramid is returned because stereo matching
+        refines disparities on the level images.
+        """
+        c = self._config
+        pyramid = self.build_pyramid(image)
+        fast_ini = cv2.FastFeatureDetector_create(c.ini_fast_threshold, True, cv2.FAST_FEATURE_DETECTOR_TYPE_9_16)
+        fast_min = cv2.FastFeatureDetector_create(c.min_fast_threshold, True, cv2.FAST_FEATURE_DETECTOR_TYPE_9_16)
+        orb = cv2.ORB_create(
+            nfeatures=max(int(self._per_level.max()) * 4, 1),
+            scaleFactor=c.scale_factor,
+            nlevels=1,
+            edgeThreshold=_EDGE_THRESHOLD,
+            firstLevel=0,
+            WTA_K=2,
+            patchSize=_PATCH_SIZE,
+        )
+        parts = []
+        for level, level_image in enumerate(pyramid):
+            xy, response = _detect_distributed(level_image, int(self._per_level[level]), c, fast_ini, fast_min)
+            angle = _intensity_centroid_angles(level_image, xy, self._circle_weights)
+            descriptors = _describe(orb, level_image, xy, angle)
+            parts.append((xy * self._scale_factors[level], np.full(len(xy), level, np.int16), angle, response, descriptors))
+        features = Features(
+            px=np.concatenate([p[0] for p in parts]).astype(np.float32).reshape(-1, 2),
+            level=np.concatenate([p[1] for p in parts]),
+            angle_deg=np.concatenate([p[2] for p in parts]).astype(np.float32),
+            response=np.concatenate([p[3] for p in parts]).astype(np.float32),
+            descriptors=np.concatenate([p[4] for p in parts]).reshape(-1, 32),
+            scale_factors=self._scale_factors,
+            inv_level_sigma2=self._inv_level_sigma2,
+        )
+        return features, pyramid
+
+    def extract_pair(
+        self, left: np.ndarray, right: np.ndarray
+    ) -> tuple[tuple[Features, list[np.ndarray]], tuple[Features, list[np.ndarray]]]:
+        """``extract`` on both images of a stereo pair; the right one in a worker thread when threads == 2.
+
+        OpenCV and most numpy work release the GIL, so the two extractions overlap. The output is
+        identical to two sequential calls.
+        """
+        if self._config.threads == 1:
+            return self.extract(left), self.extract(right)
+        future = self._worker().submit(self.extract, right)
+        left_out = self.extract(left)
+        return left_out, future.result()
+
+    def _worker(self) -> ThreadPoolExecutor:
+        with self._executor_lock:
+            if self._executor is None:
+                self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="orb-extract")
+            return self._executor
+
+
+def _check_image(image: np.ndarray) -> None:
+    if not isinstance(image, np.ndarray) or image.ndim != 2 or image.dtype != np.uint8:
+        shape = getattr(image, "shape", None)
+        dtype = getattr(image, "dtype", type(image).__name__)
+        raise ImageReadError(
+            f"ORB extraction needs a grey uint8 image of shape (H, W); got shape {shape} dtype {dtype}. "
+            "Convert colour images with cv2.cvtColor(..., cv2.COLOR_BGR2GRAY)."
+        )
+    if min(image.shape) < 2 * _EDGE_THRESHOLD + 8:
+        raise ImageReadError(f"image of shape {image.shape} is too small for ORB (need at least 46 px per side)")
+
+
+def _detect_distributed(
+    image: np.ndarray,
+    n_target: int,
+    config: OrbConfig,
+    fast_ini: cv2.FastFeatureDetector,
+    fast_min: cv2.FastFeatureDetector,
+) -> tuple[np.ndarray, np.ndarray]:
+    """FAST corners of one level spread by the quadtree: (K, 2) float64 level pixels, (K,) responses."""
+    xy, response, width, height = _detect_cells(image, config, fast_ini, fast_min)
+    keep = distribute_quadtree(xy, response, width, height, n_target)
+    border = _EDGE_THRESHOLD - _FAST_RADIUS
+    return xy[keep].astype(np.float64) + border, response[keep]
+
+
+def _detect_cells(
+    image: np.ndarray,
+    config: OrbConfig,
+    fast_ini: cv2.FastFeatureDetector,
+    fast_min: cv2.FastFeatureDetector,
+) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """ORB-SLAM's per-cell FAST, relative to the detection region's corner.
+
+    ORB-SLAM runs FAST(ini) on each ~30 px cell and falls back to FAST(min) where the cell has no
+    corner. FAST(ini) with non-maximum suppression equals FAST(min) keeping scores >= ini, so one
+    FAST(ini) call over the whole region plus FAST(min) on the empty cells gives the same corners
+    at a fraction of the calls. Returns keypoints (K, 2) float32, responses (K,) float32, and the
+    region's width and height (level pixels).
+    """
+    rows, cols = image.shape
+    border = _EDGE_THRESHOLD - _FAST_RADIUS
+    width, height = cols - 2 * border, rows - 2 * border
+    if width <= 2 * _FAST_RADIUS + 1 or height <= 2 * _FAST_RADIUS + 1:
+        return np.zeros((0, 2), np.float32), np.zeros(0, np.float32), max(width, 1), max(height, 1)
+    n_cols = max(1, int(width / config.cell_size_px))
+    n_rows = max(1, int(height / config.cell_size_px))
+    w_cell = int(math.ceil(width / n_cols))
+    h_cell = int(math.ceil(height / n_rows))
+    region = image[border : border + height, border : border + width]
+    xy, response = _fast(fast_ini, region)
+    # Cell (i, j) detects in [3 + j*w_cell, 3 + (j+1)*w_cell): its FAST window is 6 px wider than the cell.
+    col = np.minimum((xy[:, 0].astype(np.int64) - _FAST_RADIUS) // w_cell, n_cols - 1)
+    row = np.minimum((xy[:, 1].astype(np.int64) - _FAST_RADIUS) // h_cell, n_rows - 1)
+    counts = np.bincount(row * n_cols + col, minlength=n_rows * n_cols)
+    empty_row, empty_col = np.divmod(np.flatnonzero(counts == 0), n_cols)
+    if len(empty_row):
+        cell_xy, cell_response = _fast_in_cells(fast_min, region, empty_row, empty_col, w_cell, h_cell)
+        xy = np.concatenate([xy, cell_xy])
+        response = np.concatenate([response, cell_response])
+    order = np.lexsort((xy[:, 0], xy[:, 1]))  # raster order, for determinism
+    return xy[order], response[order], width, height
+
+
+def _fast_in_cells(
+    detector: cv2.FastFeatureDetector,
+    region: np.ndarray,
+    cell_row: np.ndarray,
+    cell_col: np.ndarray,
+    w_cell: int,
+    h_cell: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """FAST in the given cells' windows (each cell plus a 3 px margin), in one OpenCV call.
+
+    The windows are stacked into one tall image, so only detections at least 3 px inside their
+    own window are kept: those are exactly the corners a separate call per window would find,
+    up to non-maximum suppression against the margin rows. Returns region pixels and scores.
+    """
+    height, width = region.shape
+    win_h, win_w = h_cell + 2 * _FAST_RADIUS, w_cell + 2 * _FAST_RADIUS
+    pad_y = max(0, int(cell_row.max()) * h_cell + win_h - height)
+    pad_x = max(0, int(cell_col.max()) * w_cell + win_w - width)
+    padded = np.pad(region, ((0, pad_y), (0, pad_x)), mode="edge") if pad_x or pad_y else region
+    windows = np.lib.stride_tricks.sliding_window_view(padded, (win_h, win_w))[cell_row * h_cell, cell_col * w_cell]
+    xy, response = _fast(detector, windows.reshape(-1, win_w))
+    tile, local_y = np.divmod(xy[:, 1].astype(np.int64), win_h)
+    x = xy[:, 0] + (cell_col[tile] * w_cell).astype(np.float32)
+    y = local_y + cell_row[tile] * h_cell
+    keep = (
+        (local_y >= _FAST_RADIUS)
+        & (local_y < win_h - _FAST_RADIUS)
+        & (x < width - _FAST_RADIUS)
+        & (y < height - _FAST_RADIUS)
+    )
+    return np.stack([x[keep], y[keep].astype(np.float32)], axis=1), response[keep]
+
+
+def _fast(detector: cv2.FastFeatureDetector, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    return _keypoint_arrays(detector.detect(image))
+
+
+def _keypoint_arrays(keypoints: list[cv2.KeyPoint]) -> tuple[np.ndarray, np.ndarray]:
+    if not keypoints:
+        return np.zeros((0, 2), np.float32), np.zeros(0, np.float32)
+    xy = cv2.KeyPoint_convert(keypoints).astype(np.float32).reshape(-1, 2)
+    response = np.fromiter((k.response for k in keypoints), np.float32, len(keypoints))
+    return xy, response
+
+
+def distribute_quadtree(xy: np.ndarray, response: np.ndarray, width: int, height: int, n_target: int) -> np.ndarray:
+    """Indices of the keypoints ORB-SLAM's quadtree keeps: one (the best response) per final node.
+
+    ``xy`` (K, 2) are pixel coordinates inside the region [0, width) x [0, height). As in ORB-SLAM's
+    DistributeOctTree the region starts as round(width / height) nodes; every node holding more
+    than one keypoint splits into four until there are at least ``n_target`` nodes or every node
+    holds one keypoint, and when a full round would overshoot, the most populated nodes split
+    first. (ORB-SLAM also stops when a round leaves the node count unchanged, which returns one
+    keypoint for a cluster inside one quadrant; here such nodes keep splitting.)
+    Nodes are addressed by Morton codes of the keypoints, so each round is a few vector
+    operations on the keypoints sorted once. Ties go to the lower Morton code: deterministic.
+    Returns sorted int64 indices into ``xy``.
+    """
+    n_keys = len(xy)
+    if n_keys == 0 or n_target <= 0:
+        return np.zeros(0, np.int64)
+    n_ini = max(1, int(round(width / height)))
+    step = width / n_ini
+    side = 1 << _QUADTREE_DEPTH
+    ini = np.clip((xy[:, 0] / step).astype(np.int64), 0, n_ini - 1)
+    ix = np.clip(((xy[:, 0] - ini * step) * (side / step)).astype(np.int64), 0, side - 1)
+    iy = np.clip((xy[:, 1] * (side / height)).astype(np.int64), 0, side - 1)
+    code = (ini << (2 * _QUADTREE_DEPTH)) | _spread_bits(ix) | (_spread_bits(iy) << 1)
+    order = np.argsort(code, kind="stable")
+    code = code[order]
+    depth = 0
+    while depth < _QUADTREE_DEPTH:
+        depth += 1
+        starts = _node_starts(code, depth)
+        sizes = np.diff(np.append(starts, n_keys))
+        n_to_expand = int((sizes > 1).sum())
+        if len(starts) >= n_target or n_to_expand == 0:
+            break
+        if len(starts) + 3 * n_to_expand > n_target:
+            starts = _split_largest_first(code, starts, depth, n_target)
+            break
+    return np.sort(order[_best_per_node(response[order], starts)])
+
+
+def _split_largest_first(code: np.ndarray, starts: np.ndarray, depth: int, n_target: int) -> np.ndarray:
+    """ORB-SLAM's last phase: split nodes, most keypoints first, until there are n_target nodes.
+
+    ``starts`` are the first sorted-key index of each node, all nodes at ``depth`` (or single).
+    Returns the final node starts.
+    """
+    n_keys = len(code)
+    while depth < _QUADTREE_DEPTH:
+        sizes = np.diff(np.append(starts, n_keys))
+        candidates = np.flatnonzero(sizes > 1)
+        if len(candidates) == 0:
+            return starts
+        children_starts = _node_starts(code, depth + 1)
+        is_child_start = np.zeros(n_keys, bool)
+        is_child_start[children_starts] = True
+        n_children = np.add.reduceat(is_child_start, starts, dtype=np.int64)
+        # most populated first; ties by position (ORB-SLAM breaks them by pointer value)
+        candidates = candidates[np.lexsort((candidates, -sizes[candidates]))]
+        reached = np.flatnonzero(len(starts) + np.cumsum(n_children[candidates] - 1) >= n_target)
+        chosen = candidates if len(reached) == 0 else candidates[: reached[0] + 1]
+        in_chosen = np.zeros(len(starts), bool)
+        in_chosen[chosen] = True
+        key_in_chosen = np.repeat(in_chosen, sizes)
+        is_start = np.zeros(n_keys, bool)
+        is_start[starts] = True
+        new_starts = np.flatnonzero(is_start | (is_child_start & key_in_chosen))
+        if len(new_starts) >= n_target:
+            return new_starts
+        starts = new_starts
+        depth += 1
+    return starts
+
+
+def _node_starts(sorted_code: np.ndarray, depth: int) -> np.ndarray:
+    """First index of each quadtree node at ``depth`` among keys sorted by Morton code."""
+    prefix = sorted_code >> (2 * (_QUADTREE_DEPTH - depth))
+    change = np.empty(len(prefix), bool)
+    change[0] = True
+    np.not_equal(prefix[1:], prefix[:-1], out=change[1:])
+    return np.flatnonzero(change)
+
+
+def _best_per_node(response: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """Index of the highest response in each node (the first one on ties)."""
+    sizes = np.diff(np.append(starts, len(response)))
+    best = np.maximum.reduceat(response, starts)
+    candidates = np.flatnonzero(response == np.repeat(best, sizes))
+    node = np.repeat(np.arange(len(starts)), sizes)[candidates]
+    first = np.ones(len(candidates), bool)
+    first[1:] = node[1:] != node[:-1]
+    return candidates[first]
+
+
+def _spread_bits(v: np.ndarray) -> np.ndarray:
+    """Interleave zeros between the 16 low bits of v (Morton encoding of one axis)."""
+    v = (v | (v << 8)) & 0x00FF00FF
+    v = (v | (v << 4)) & 0x0F0F0F0F
+    v = (v | (v << 2)) & 0x33333333
+    return (v | (v << 1)) & 0x55555555
+
+
+def _centroid_weights() -> np.ndarray:
+    """(31*31, 2) float32 weights (u, v) on the circular patch, zero outside: patch @ w = (m_10, m_01)."""
+    u_max = np.zeros(_HALF_PATCH + 1, np.int64)
+    v_max = int(math.floor(_HALF_PATCH * math.sqrt(2.0) / 2 + 1))
+    v_min = int(math.ceil(_HALF_PATCH * math.sqrt(2.0) / 2))
+    for v in range(v_max + 1):
+        u_max[v] = int(round(math.sqrt(_HALF_PATCH**2 - v * v)))
+    # make the circle symmetric under transposition, as ORB-SLAM / OpenCV do
+    v0 = 0
+    for v in range(_HALF_PATCH, v_min - 1, -1):
+        while u_max[v0] == u_max[v0 + 1]:
+            v0 += 1
+        u_max[v] = v0
+        v0 += 1
+    offsets = np.arange(-_HALF_PATCH, _HALF_PATCH + 1)
+    v_grid, u_grid = np.meshgrid(offsets, offsets, indexing="ij")
+    inside = np.abs(u_grid) <= u_max[np.abs(v_grid)]
+    weights = np.stack([u_grid * inside, v_grid * inside], axis=-1)
+    return weights.reshape(-1, 2).astype(np.float32)
+
+
+def _intensity_centroid_angles(image: np.ndarray, xy: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Orientation (degrees in [0, 360), image axes) of the intensity centroid in a radius-15 disc."""
+    if len(xy) == 0:
+        return np.zeros(0, np.float32)
+    cols = np.rint(xy[:, 0]).astype(np.int64) - _HALF_PATCH
+    rows = np.rint(xy[:, 1]).astype(np.int64) - _HALF_PATCH
+    windows = np.lib.stride_tricks.sliding_window_view(image, (_PATCH_SIZE, _PATCH_SIZE))[rows, cols]
+    moments = windows.reshape(len(xy), -1).astype(np.float32) @ weights  # exact: |m| < 2**24
+    angle = np.degrees(np.arctan2(moments[:, 1], moments[:, 0]))
+    return np.mod(angle, 360.0).astype(np.float32)
+
+
+def _describe(orb: cv2.ORB, image: np.ndarray, xy: np.ndarray, angle_deg: np.ndarray) -> np.ndarray:
+    """rBRIEF descriptors (K, 32) uint8 of keypoints on one level image.
+
+    OpenCV's ORB.compute applies ORB-SLAM's 7x7, sigma 2, BORDER_REFLECT_101 Gaussian blur to the
+    (border-extended) level image and steers the pattern by the angle we give it; it does not
+    recompute orientation for provided keypoints.
+    """
+    if len(xy) == 0:
+        return np.zeros((0, 32), np.uint8)
+    keypoints = cv2.KeyPoint_convert(xy.astype(np.float32), float(_PATCH_SIZE), 0.0, 0)
+    for keypoint, angle in zip(keypoints, angle_deg.tolist()):
+        keypoint.angle = angle
+    kept, descriptors = orb.compute(image, keypoints)
+    if descriptors is None or len(kept) != len(xy):
+        raise RuntimeError(f"ORB.compute dropped keypoints ({len(xy)} in, {len(kept)} out); border logic is wrong")
+    return descriptors
