@@ -1,0 +1,126 @@
+"""Configuration of a synthetic scene: trajectory, sensor, camera, textures, IMU and photometric effects."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+from zenslam.camera import PinholeCalibration, SensorKind
+from zenslam.errors import ConfigError
+from zenslam.service.config import from_mapping, to_mapping
+
+TrajectoryKind = Literal["loop", "figure_eight", "still"]
+
+SCENE_NAMES: tuple[str, ...] = ("loop", "figure_eight", "still")
+
+
+@dataclass(frozen=True)
+class PhotometricConfig:
+    """Image degradations applied after rendering; every effect is off at its default."""
+
+    noise_sigma: float = 0.0  # grey levels (0-255 scale): std of per-pixel Gaussian noise; 0 = off
+    defocus_sigma_px: float = 0.0  # pixels: std of a Gaussian defocus blur; 0 = off
+    motion_blur_exposure_s: float = 0.0  # seconds: blur along the image motion during this exposure; 0 = off
+    gain_amplitude: float = 0.0  # fraction: gain = 1 + amplitude * sin(2 pi t / gain_period_s); 0 = off
+    gain_period_s: float = 10.0  # seconds: period of the exposure (gain) change
+
+    def __post_init__(self) -> None:
+        problems = [
+            f"{name}={getattr(self, name)} must be >= 0"
+            for name in ("noise_sigma", "defocus_sigma_px", "motion_blur_exposure_s", "gain_amplitude")
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0)
+        ]
+        if not (math.isfinite(self.gain_period_s) and self.gain_period_s > 0):
+            problems.append(f"gain_period_s={self.gain_period_s} must be a positive number of seconds")
+        if self.gain_amplitude >= 1.0:
+            problems.append(f"gain_amplitude={self.gain_amplitude} must be < 1 (the gain would reach zero)")
+        if problems:
+            raise ConfigError("invalid photometric configuration: " + "; ".join(problems))
+
+    @property
+    def enabled(self) -> bool:
+        """True when any effect changes the rendered image."""
+        return any(
+            v > 0 for v in (self.noise_sigma, self.defocus_sigma_px, self.motion_blur_exposure_s, self.gain_amplitude)
+        )
+
+
+@dataclass(frozen=True)
+class SceneConfig:
+    """A synthetic sequence: a textured room seen along an analytic trajectory, with exact truth."""
+
+    trajectory: TrajectoryKind = "loop"  # camera path: closed loop, figure-eight laps, or a still camera
+    sensor: SensorKind = "stereo"  # which images each frame carries: mono (left), stereo (left+right), rgbd
+    seed: int = 0  # seeds the textures and every noise draw; same seed -> byte-identical output
+    duration_s: float = 30.0  # seconds of sequence; frames run from t=0 to t=duration_s inclusive
+    frame_rate_hz: float = 20.0  # camera frames per second
+    laps: int = 1  # laps of the closed path within duration_s (loop, figure_eight)
+    start_stamp_ns: int = 0  # nanoseconds: stamp of the first frame and IMU sample
+    width: int = 640  # pixels
+    height: int = 480  # pixels
+    fx: float = 460.0  # pixels
+    fy: float = 460.0  # pixels
+    cx: float = 319.5  # pixels
+    cy: float = 239.5  # pixels
+    baseline_m: float = 0.10  # metres: right camera = left shifted along +x (virtual baseline for rgbd)
+    near_m: float = 0.05  # metres: near clipping distance of the renderer
+    texels_per_m: float = 256.0  # texture resolution on every surface, texels per metre
+    tile_m: float = 2.0  # metres: surfaces are split into tiles of at most this size (culling, mip choice)
+    imu_rate_hz: float = 200.0  # IMU samples per second
+    cam_imu_translation_m: tuple[float, float, float] = (0.04, -0.015, 0.01)  # metres: IMU origin in the camera frame
+    cam_imu_rotvec_rad: tuple[float, float, float] = (0.01, -0.02, 0.015)  # radians: rotation vector of R_cam_imu
+    gyro_noise_std_rad_s: float = 0.0  # rad/s: std of white noise added to each gyro sample
+    accel_noise_std_m_s2: float = 0.0  # m/s^2: std of white noise added to each accelerometer sample
+    gyro_bias_rad_s: tuple[float, float, float] = (0.0, 0.0, 0.0)  # rad/s: constant gyro bias (IMU frame)
+    accel_bias_m_s2: tuple[float, float, float] = (0.0, 0.0, 0.0)  # m/s^2: constant accelerometer bias (IMU frame)
+    photometric: PhotometricConfig = field(default_factory=PhotometricConfig)  # image degradations (off)
+
+    def __post_init__(self) -> None:
+        problems = []
+        positive = ("duration_s", "frame_rate_hz", "near_m", "texels_per_m", "tile_m", "imu_rate_hz")
+        for name in positive:
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                problems.append(f"{name}={value} must be positive")
+        if self.laps < 1:
+            problems.append(f"laps={self.laps} must be at least 1")
+        for name in ("gyro_noise_std_rad_s", "accel_noise_std_m_s2"):
+            if not getattr(self, name) >= 0:
+                problems.append(f"{name}={getattr(self, name)} must be >= 0")
+        if problems:
+            raise ConfigError("invalid synthetic scene configuration: " + "; ".join(problems))
+        self.calibration()  # raises CalibrationError naming bad intrinsics
+
+    def calibration(self) -> PinholeCalibration:
+        """The rectified left-camera calibration; baseline set for stereo and rgbd (virtual for rgbd)."""
+        baseline = None if self.sensor == "mono" else self.baseline_m
+        return PinholeCalibration(self.fx, self.fy, self.cx, self.cy, self.width, self.height, baseline)
+
+    def frame_count(self) -> int:
+        """Frames from t=0 to t=duration_s inclusive (a closed loop's last frame repeats its first pose)."""
+        return int(math.floor(self.duration_s * self.frame_rate_hz + 1e-9)) + 1
+
+
+def _preset(name: str) -> dict[str, Any]:
+    """Defaults of a named scene; a closed loop takes 30 s, a figure-eight two 30 s laps."""
+    presets: dict[str, dict[str, Any]] = {
+        "loop": {"trajectory": "loop", "duration_s": 30.0, "laps": 1},
+        "figure_eight": {"trajectory": "figure_eight", "duration_s": 60.0, "laps": 2},
+        "still": {"trajectory": "still", "duration_s": 5.0, "laps": 1},
+    }
+    if name not in presets:
+        raise ConfigError(f"unknown synthetic scene {name!r}: choose one of {list(SCENE_NAMES)}")
+    return dict(presets[name])
+
+
+def scene_config(name: str, **overrides: Any) -> SceneConfig:
+    """The named preset ("loop", "figure_eight", "still") with ``overrides`` (field names of SceneConfig).
+
+    Overrides are checked like YAML keys: unknown names or wrong types raise ConfigError.
+    """
+    mapping = _preset(name)
+    for key, value in overrides.items():
+        mapping[key] = to_mapping(value) if dataclasses.is_dataclass(value) else value
+    return from_mapping(SceneConfig, mapping)
