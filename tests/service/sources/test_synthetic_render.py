@@ -243,3 +243,16 @@ def test_photometric_effects_change_the_image_deterministically(small_scene: Sce
     dim = clean < 150
     ratio = images["gain_amplitude"][dim].mean() / clean[dim].mean()
     assert ratio == pytest.approx(1 + 0.3 * np.sin(3 * np.pi / 4), abs=0.02)
+
+
+def test_motion_blur_kernel_follows_the_image_motion() -> None:
+    from zenslam.service.sources.synthetic.photometric import motion_blur_kernel
+
+    assert motion_blur_kernel((0.4, 0.3)) is None  # under a pixel: no blur
+    kernel = motion_blur_kernel((6.0, 0.0))
+    assert kernel.sum() == pytest.approx(1.0)
+    rows, cols = np.nonzero(kernel)
+    assert set(rows) == {kernel.shape[0] // 2} and np.ptp(cols) == 6  # a horizontal 7-tap line
+    diagonal = motion_blur_kernel((4.0, 4.0))
+    rows, cols = np.nonzero(diagonal)
+    np.testing.assert_array_equal(rows - rows.mean(), cols - cols.mean())  # along the 45-degree motion
