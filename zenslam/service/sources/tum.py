@@ -228,9 +228,14 @@ class TumSource:
         return None
 
 
+def _round_stamp_us(stamp_ns: int) -> int:
+    """A stamp rounded to the nearest whole microsecond, in ns."""
+    return (int(stamp_ns) + 500) // 1000 * 1000
+
+
 def _round_stamps_us(stamps_ns: list[int], where: Path) -> list[int]:
     """Stamps rounded to whole microseconds (what 6 decimals of seconds keep), still strictly increasing."""
-    rounded = [(s + 500) // 1000 * 1000 for s in stamps_ns]
+    rounded = [_round_stamp_us(s) for s in stamps_ns]
     changed = sum(a != b for a, b in zip(stamps_ns, rounded))
     if changed:
         log.warning("%s: TUM text keeps microseconds; %d of %d stamps rounded", where, changed, len(stamps_ns))
@@ -267,17 +272,26 @@ def write_tum_rgbd(
     written in seconds with 6 decimals: ns stamps are rounded to the nearest microsecond.
     """
     folder = Path(folder)
-    frames = list(frames)
-    stamps = _round_stamps_us([f.stamp_ns for f in frames], folder)
     rgb_lines = ["# color images", "# written by zenslam", "# timestamp filename"]
     depth_lines = ["# depth maps", "# written by zenslam", "# timestamp filename"]
     too_far = 0
-    for frame, stamp in zip(frames, stamps):
+    count = 0
+    rounded_count = 0
+    previous: tuple[int, int] | None = None  # (stamp_ns, rounded) of the previous frame
+    for frame in frames:  # streamed: a long sequence never sits in memory
         if frame.depth_m is None or frame.left.dtype != np.uint8:
             raise DatasetError(
                 f"frame {frame.index} cannot be written to {folder} as TUM RGB-D: it needs a uint8 left image "
                 "and depth_m"
             )
+        stamp = _round_stamp_us(frame.stamp_ns)
+        rounded_count += stamp != frame.stamp_ns
+        if previous is not None and stamp <= previous[1]:
+            raise TimestampError(
+                f"cannot write {folder}: stamp {count} ({frame.stamp_ns} ns) does not follow stamp {count - 1} "
+                f"({previous[0]} ns) by at least 1 us, which the TUM text format needs"
+            )
+        previous = (frame.stamp_ns, stamp)
         name = f"{format_seconds(stamp)}.png"
         write_png(folder / "rgb" / name, frame.left)
         units, far = _depth_units(frame.depth_m, depth_scale)
@@ -285,6 +299,9 @@ def write_tum_rgbd(
         write_png(folder / "depth" / name, units)
         rgb_lines.append(f"{format_seconds(stamp)} rgb/{name}")
         depth_lines.append(f"{format_seconds(stamp)} depth/{name}")
+        count += 1
+    if rounded_count:
+        log.warning("%s: TUM text keeps microseconds; %d of %d stamps rounded", folder, rounded_count, count)
     if too_far:
         log.warning("%s: %d depth pixels beyond %.2f m stored as unknown", folder, too_far, 65535 / depth_scale)
     folder.mkdir(parents=True, exist_ok=True)
@@ -294,7 +311,7 @@ def write_tum_rgbd(
         _write_groundtruth(folder / "groundtruth.txt", ground_truth)
     if calibration is not None:
         (folder / CALIBRATION_FILE).write_text(yaml.safe_dump(dataclasses.asdict(calibration), sort_keys=False))
-    return len(frames)
+    return count
 
 
 def _write_groundtruth(path: Path, trajectory: Trajectory) -> None:
