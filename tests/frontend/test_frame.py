@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from zenslam.camera import PinholeCalibration
-from zenslam.errors import CalibrationError, ImageReadError
+from zenslam.errors import CalibrationError, ImageReadError, ZenslamError
 from zenslam.frontend.frame import Frame, make_mono_frame, make_rgbd_frame, make_stereo_frame, rgbd_right_coordinates
 from zenslam.frontend.orb_extractor import Features, OrbExtractor
 
@@ -140,3 +140,9 @@ def test_wrong_inputs_are_rejected() -> None:
         make_rgbd_frame(0, 0, image, np.zeros((480, 640), np.uint16), CALIBRATION, extractor)
     with pytest.raises(CalibrationError, match="virtual baseline"):
         make_rgbd_frame(0, 0, image, np.zeros((480, 640), np.float32), MONO, extractor)
+
+
+def test_frame_rejects_per_keypoint_arrays_of_the_wrong_length() -> None:
+    features = random_features(10)
+    with pytest.raises(ZenslamError, match="one entry per keypoint"):
+        Frame(0, 0, MONO, features, np.full(9, -1.0, np.float32), np.full(10, -1.0, np.float32))

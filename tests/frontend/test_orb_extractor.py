@@ -157,7 +157,8 @@ def test_descriptors_are_rotation_invariant(image: np.ndarray, extracted) -> Non
 def test_a_smaller_image_moves_matches_down_one_level(image: np.ndarray, extracted) -> None:
     features, _ = extracted
     h, w = image.shape
-    small, _ = OrbExtractor().extract(cv2.resize(image, (round(w / 1.2), round(h / 1.2)), interpolation=cv2.INTER_LINEAR))
+    resized = cv2.resize(image, (round(w / 1.2), round(h / 1.2)), interpolation=cv2.INTER_LINEAR)
+    small, _ = OrbExtractor().extract(resized)
     matches = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True).match(features.descriptors, small.descriptors)
     query = np.array([m.queryIdx for m in matches])
     train = np.array([m.trainIdx for m in matches])

@@ -73,7 +73,8 @@ def test_disparities_match_the_truth(matched) -> None:
     error = np.abs(features.px[ok, 0] - matches.right_u[ok] - true_d[ok])
     assert np.median(error) < 0.3
     assert np.percentile(error, 95) < 1.0
-    np.testing.assert_allclose(matches.depth_m[ok], CALIBRATION.bf / (features.px[ok, 0] - matches.right_u[ok]), rtol=1e-4)
+    measured = features.px[ok, 0] - matches.right_u[ok]
+    np.testing.assert_allclose(matches.depth_m[ok], CALIBRATION.bf / measured, rtol=1e-4)
     assert np.all(matches.right_u[~ok] == -1) and np.all(matches.depth_m[~ok] == -1)
     assert np.all(matches.right_index[~ok] == -1) and np.all(matches.right_index[ok] >= 0)
 

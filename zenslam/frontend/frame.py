@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from zenslam.camera import PinholeCalibration
-from zenslam.errors import CalibrationError, ImageReadError
+from zenslam.errors import CalibrationError, ImageReadError, ZenslamError
 from zenslam.frontend.orb_extractor import Features, OrbExtractor
 from zenslam.frontend.stereo_matcher import StereoMatchConfig, match_stereo
 
@@ -77,8 +77,10 @@ class Frame:
     def __post_init__(self) -> None:
         n = len(self.features)
         if self.right_u.shape != (n,) or self.depth_m.shape != (n,):
-            raise ValueError(
-                f"frame {self.index}: right_u {self.right_u.shape} and depth_m {self.depth_m.shape} must be ({n},)"
+            raise ZenslamError(
+                f"frame {self.index}: right_u {self.right_u.shape} and depth_m {self.depth_m.shape} must both "
+                f"be ({n},), one entry per keypoint; build frames with make_stereo_frame / make_rgbd_frame / "
+                "make_mono_frame"
             )
         grid = KeypointGrid(self.features.px, self.calibration.width, self.calibration.height)
         object.__setattr__(self, "grid", grid)

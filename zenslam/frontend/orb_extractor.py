@@ -187,7 +187,8 @@ class OrbExtractor:
             xy, response = _detect_distributed(level_image, int(self._per_level[level]), c, fast_ini, fast_min)
             angle = _intensity_centroid_angles(level_image, xy, self._circle_weights)
             descriptors = _describe(orb, level_image, xy, angle)
-            parts.append((xy * self._scale_factors[level], np.full(len(xy), level, np.int16), angle, response, descriptors))
+            level_ids = np.full(len(xy), level, np.int16)
+            parts.append((xy * self._scale_factors[level], level_ids, angle, response, descriptors))
         features = Features(
             px=np.concatenate([p[0] for p in parts]).astype(np.float32).reshape(-1, 2),
             level=np.concatenate([p[1] for p in parts]),
@@ -242,6 +243,7 @@ def _detect_distributed(
     """FAST corners of one level spread by the quadtree: (K, 2) float64 level pixels, (K,) responses."""
     xy, response, width, height = _detect_cells(image, config, fast_ini, fast_min)
     keep = distribute_quadtree(xy, response, width, height, n_target)
+    keep = keep[np.lexsort((xy[keep, 0], xy[keep, 1]))]  # raster order, for a stable output order
     border = _EDGE_THRESHOLD - _FAST_RADIUS
     return xy[keep].astype(np.float64) + border, response[keep]
 
@@ -280,8 +282,7 @@ def _detect_cells(
         cell_xy, cell_response = _fast_in_cells(fast_min, region, empty_row, empty_col, w_cell, h_cell)
         xy = np.concatenate([xy, cell_xy])
         response = np.concatenate([response, cell_response])
-    order = np.lexsort((xy[:, 0], xy[:, 1]))  # raster order, for determinism
-    return xy[order], response[order], width, height
+    return xy, response, width, height
 
 
 def _fast_in_cells(
@@ -352,9 +353,11 @@ def distribute_quadtree(xy: np.ndarray, response: np.ndarray, width: int, height
     ix = np.clip(((xy[:, 0] - ini * step) * (side / step)).astype(np.int64), 0, side - 1)
     iy = np.clip((xy[:, 1] * (side / height)).astype(np.int64), 0, side - 1)
     code = (ini << (2 * _QUADTREE_DEPTH)) | _spread_bits(ix) | (_spread_bits(iy) << 1)
-    order = np.argsort(code, kind="stable")
+    order = np.argsort(code)  # codes of distinct pixels differ: the result does not depend on ties
     code = code[order]
     depth = 0
+    while depth + 1 < _QUADTREE_DEPTH and n_ini * 4 ** (depth + 2) <= n_target:
+        depth += 1  # depth + 1 has too few nodes for either stopping test: skip checking it
     while depth < _QUADTREE_DEPTH:
         depth += 1
         starts = _node_starts(code, depth)

@@ -20,7 +20,7 @@ logger = logging.getLogger(__name__)
 class StereoMatchConfig:
     """Stereo matching parameters; the defaults are ORB-SLAM2's."""
 
-    max_descriptor_distance: int = 75  # bits: accept the best ORB match below this ((TH_HIGH + TH_LOW) / 2 in ORB-SLAM2)
+    max_descriptor_distance: int = 75  # bits: accept the best ORB match below this (ORB-SLAM2: (TH_HIGH+TH_LOW)/2)
     row_tolerance_px: float = 2.0  # level pixels: right keypoints within +-this*scale(level) rows of the left row
     level_tolerance: int = 1  # levels: right keypoint level within +-this of the left keypoint's
     min_depth_m: float = 0.0  # m: nearest depth searched (max disparity = bf / min_depth); 0 = the baseline
