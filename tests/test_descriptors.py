@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from zenslam.frontend.descriptors import hamming_distance, hamming_distance_pairs
+from zenslam.descriptors import hamming_distance, hamming_distance_pairs
 
 
 def test_hamming_matches_unpackbits_reference():

@@ -1,0 +1,82 @@
+"""ORB-SLAM's per-map-point rules as vectorised functions, shared by the frontend and the backend.
+
+Representative descriptor, scale-invariance distance range, predicted pyramid level, mean
+viewing direction and the search-window factor by viewing angle (Mur-Artal et al., ORB-SLAM).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def representative_descriptor(descriptors: np.ndarray) -> np.ndarray:
+    """The descriptor (32,) uint8 with the least median Hamming distance to the others.
+
+    ORB-SLAM's ``ComputeDistinctiveDescriptors``: the median of a row of K sorted distances
+    (itself included, at 0) is element ``(K - 1) // 2``; ties go to the first descriptor.
+    """
+    descriptors = np.asarray(descriptors, dtype=np.uint8)
+    if descriptors.ndim != 2 or descriptors.shape[0] == 0:
+        raise ValueError(f"need a non-empty (K, 32) descriptor array, got shape {descriptors.shape}")
+    return representative_descriptors(descriptors[None])[0]
+
+
+def representative_descriptors(groups: np.ndarray) -> np.ndarray:
+    """Representative descriptors (P, 32) of P groups of K descriptors each, ``groups`` (P, K, 32)."""
+    groups = np.ascontiguousarray(groups, dtype=np.uint8)
+    n_groups, k = groups.shape[:2]
+    if k == 1:
+        return groups[:, 0].copy()
+    words = groups.view(np.uint64).reshape(n_groups, k, 4)
+    dists = np.bitwise_count(words[:, :, None, :] ^ words[:, None, :, :]).sum(axis=3, dtype=np.int32)
+    medians = np.sort(dists, axis=2)[:, :, (k - 1) // 2]
+    best = np.argmin(medians, axis=1)
+    return groups[np.arange(n_groups), best]
+
+
+def scale_invariance_range(
+    distance_m: np.ndarray | float, level: np.ndarray | int, scale_factor: float, n_levels: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Distances (metres) over which a point seen at ``distance_m`` on pyramid ``level`` stays detectable.
+
+    max = distance * scale_factor**level (seen on level 0 from there), min = max /
+    scale_factor**(n_levels - 1) (seen on the top level); ORB-SLAM's ``UpdateNormalAndDepth``.
+    """
+    distance_m = np.asarray(distance_m, dtype=float)
+    level = np.asarray(level)
+    max_m = distance_m * scale_factor ** level.astype(float)
+    min_m = max_m / scale_factor ** (n_levels - 1)
+    return min_m, max_m
+
+
+def predict_scale_level(
+    distance_m: np.ndarray | float, max_distance_m: np.ndarray | float, scale_factor: float, n_levels: int
+) -> np.ndarray:
+    """Pyramid level (int) at which a point with ``max_distance_m`` should appear from ``distance_m``.
+
+    ORB-SLAM's ``PredictScale``: ceil(log(max / distance) / log(scale_factor)), clamped to
+    [0, n_levels - 1].
+    """
+    distance_m = np.maximum(np.asarray(distance_m, dtype=float), 1e-12)
+    ratio = np.asarray(max_distance_m, dtype=float) / distance_m
+    with np.errstate(divide="ignore"):
+        # The tolerance keeps exact level ratios (log 1.44 / log 1.2 = 2.0000000001) on their level.
+        level = np.ceil(np.log(ratio) / math.log(scale_factor) - 1e-9)
+    return np.clip(level, 0, n_levels - 1).astype(np.int64)
+
+
+def mean_viewing_direction(p_world: np.ndarray, centres_world: np.ndarray) -> np.ndarray:
+    """Mean of the unit vectors from the camera centres (K, 3) to the point (3,), world frame.
+
+    Not renormalised, as in ORB-SLAM (the viewing-angle test divides by the point distance only).
+    """
+    rays = np.asarray(p_world, dtype=float)[None, :] - np.asarray(centres_world, dtype=float)
+    rays /= np.maximum(np.linalg.norm(rays, axis=1, keepdims=True), 1e-12)
+    return rays.mean(axis=0)
+
+
+def radius_by_viewing_cos(view_cos: np.ndarray) -> np.ndarray:
+    """ORB-SLAM's search-window factor: 2.5 when seen almost head-on (cos > 0.998), else 4.0."""
+    return np.where(np.asarray(view_cos) > 0.998, 2.5, 4.0)
