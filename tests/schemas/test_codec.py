@@ -16,6 +16,7 @@ from zenslam.errors import CalibrationError
 from zenslam.geometry import make_T, so3_exp
 from zenslam.schemas import codec
 from zenslam.schemas import zenslam_pb2 as pb
+from zenslam.schemas.map_update import BACKEND_POINT_ID_BASE, KeyframeCorrection, MapUpdate
 from zenslam.service.sources.frame import SensorFrame
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -89,6 +90,7 @@ def test_garbage_is_a_message_error():
         (codec.SENSOR_FRAME, codec.decode_sensor_frame),
         (codec.TRACKING_STATE, codec.decode_tracking_state),
         (codec.KEYFRAME, codec.decode_keyframe),
+        (codec.MAP_UPDATE, codec.decode_map_update),
     ],
 )
 def test_end_of_stream_round_trip(schema, decode):
@@ -151,6 +153,38 @@ def test_keyframe_with_mismatched_arrays_is_refused():
     bad_desc = codec.KeyframeMessage(**{**kf.__dict__, "descriptors": np.zeros((10, 31), np.uint8)})
     with pytest.raises(codec.MessageError, match=r"descriptors must have shape \(N, 32\)"):
         codec.encode_keyframe(bad_desc)
+
+
+def test_map_update_round_trip():
+    rng = np.random.default_rng(8)
+    p = 40
+    update = MapUpdate(
+        keyframe_id=9,
+        stamp_ns=77,
+        keyframes=tuple(
+            KeyframeCorrection(k, make_T(so3_exp(rng.normal(size=3)), rng.normal(size=3)), rng.integers(-1, 500, 20 + k))
+            for k in (3, 5)
+        ),
+        point_ids=np.arange(p, dtype=np.int64) + BACKEND_POINT_ID_BASE,
+        p_world=rng.normal(size=(p, 3)),
+        descriptors=rng.integers(0, 256, (p, 32), dtype=np.uint8),
+        normals=rng.normal(size=(p, 3)),
+        min_distance_m=rng.uniform(0.5, 1, p),
+        max_distance_m=rng.uniform(5, 10, p),
+        removed_point_ids=np.array([1, 2, 3], np.int64),
+        removed_keyframe_ids=np.array([4], np.int64),
+    )
+    decoded = codec.decode_map_update(codec.encode_map_update(update))
+    assert (decoded.keyframe_id, decoded.stamp_ns) == (9, 77)
+    assert [kf.id for kf in decoded.keyframes] == [3, 5]
+    for got, want in zip(decoded.keyframes, update.keyframes):
+        np.testing.assert_array_equal(got.map_point_ids, want.map_point_ids)
+        np.testing.assert_allclose(got.T_world_cam, want.T_world_cam, atol=1e-12)
+    for name in ("point_ids", "p_world", "descriptors", "normals", "min_distance_m", "max_distance_m",
+                 "removed_point_ids", "removed_keyframe_ids"):
+        np.testing.assert_array_equal(getattr(decoded, name), getattr(update, name), err_msg=name)
+    empty = codec.decode_map_update(codec.encode_map_update(MapUpdate(keyframe_id=1, stamp_ns=2)))
+    assert empty.keyframes == () and empty.p_world.shape == (0, 3) and empty.descriptors.shape == (0, 32)
 
 
 def test_pose_in_frame_is_foxglove_and_round_trips():

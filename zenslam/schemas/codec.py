@@ -19,12 +19,14 @@ from zenslam.camera import PinholeCalibration, SensorKind
 from zenslam.errors import CalibrationError, ZenslamError
 from zenslam.geometry import R_to_quat_wxyz, quat_wxyz_to_R
 from zenslam.schemas import zenslam_pb2 as pb
+from zenslam.schemas.map_update import KeyframeCorrection, MapUpdate
 from zenslam.service.sources.frame import SensorFrame
 
 # Schema names: the protobuf full names, also used as the zenoh encoding schema and MCAP schema.
 SENSOR_FRAME = "zenslam.SensorFrame"
 TRACKING_STATE = "zenslam.TrackingState"
 KEYFRAME = "zenslam.Keyframe"
+MAP_UPDATE = "zenslam.MapUpdate"
 STAGE_STATUS = "zenslam.StageStatus"
 POSE_IN_FRAME = "foxglove.PoseInFrame"
 
@@ -32,6 +34,7 @@ MESSAGE_CLASSES: dict[str, type[Message]] = {
     SENSOR_FRAME: pb.SensorFrame,
     TRACKING_STATE: pb.TrackingState,
     KEYFRAME: pb.Keyframe,
+    MAP_UPDATE: pb.MapUpdate,
     STAGE_STATUS: pb.StageStatus,
     POSE_IN_FRAME: PoseInFrame,
 }
@@ -252,10 +255,14 @@ def decode_sensor_frame(data: bytes) -> FrameMessage | EndOfStream:
     return FrameMessage(frame, calibration, _sensor_from_pb(msg.sensor, where), msg.source_name)
 
 
+_STREAMS = (SENSOR_FRAME, TRACKING_STATE, KEYFRAME, MAP_UPDATE)
+
+
 def encode_end_of_stream(schema: str, count: int) -> bytes:
-    """The end-of-stream message of the stream whose schema is SENSOR_FRAME, TRACKING_STATE or KEYFRAME."""
-    if schema not in (SENSOR_FRAME, TRACKING_STATE, KEYFRAME):
-        raise MessageError(f"streams of {schema!r} have no end-of-stream message; use {SENSOR_FRAME}, {TRACKING_STATE} or {KEYFRAME}")
+    """The end-of-stream message of the stream whose schema is one of SENSOR_FRAME, TRACKING_STATE,
+    KEYFRAME or MAP_UPDATE."""
+    if schema not in _STREAMS:
+        raise MessageError(f"streams of {schema!r} have no end-of-stream message; use one of {list(_STREAMS)}")
     return MESSAGE_CLASSES[schema](end_of_stream=True, count=count).SerializeToString()
 
 
@@ -347,6 +354,56 @@ def decode_keyframe(data: bytes) -> KeyframeMessage | EndOfStream:
         scale_factors=_unpack(msg.scale_factors, "<f8", (len(msg.scale_factors) // 8,), f"{where} scale_factors"),
         new_point_ids=_unpack(msg.new_point_ids, "<i8", (m,), f"{where} new_point_ids"),
         new_points_world=_unpack(msg.new_points_world, "<f8", (m, 3), f"{where} new_points_world"),
+    )
+
+
+def encode_map_update(update: MapUpdate) -> bytes:
+    """Encode a backend/map_update message."""
+    msg = pb.MapUpdate(keyframe_id=update.keyframe_id, stamp_ns=update.stamp_ns, num_points=len(update.point_ids))
+    for kf in update.keyframes:
+        correction = msg.keyframes.add(id=kf.id, num_keypoints=len(kf.map_point_ids))
+        _transform_to_pb(kf.T_world_cam, correction.T_world_cam)
+        correction.map_point_ids = _pack(kf.map_point_ids, "<i8", (), f"map update keyframe {kf.id} map_point_ids")
+    where = f"map update of keyframe {update.keyframe_id}"
+    msg.point_ids = _pack(update.point_ids, "<i8", (), f"{where} point_ids")
+    msg.p_world = _pack(update.p_world, "<f8", (3,), f"{where} p_world")
+    msg.descriptors = _pack(update.descriptors, "u1", (32,), f"{where} descriptors")
+    msg.normals = _pack(update.normals, "<f8", (3,), f"{where} normals")
+    msg.min_distance_m = _pack(update.min_distance_m, "<f8", (), f"{where} min_distance_m")
+    msg.max_distance_m = _pack(update.max_distance_m, "<f8", (), f"{where} max_distance_m")
+    msg.removed_point_ids = _pack(update.removed_point_ids, "<i8", (), f"{where} removed_point_ids")
+    msg.removed_keyframe_ids = _pack(update.removed_keyframe_ids, "<i8", (), f"{where} removed_keyframe_ids")
+    return msg.SerializeToString()
+
+
+def decode_map_update(data: bytes) -> MapUpdate | EndOfStream:
+    """Decode a backend/map_update message."""
+    msg = _parse(pb.MapUpdate, data)
+    if msg.end_of_stream:
+        return EndOfStream(msg.count)
+    p, where = msg.num_points, f"map update of keyframe {msg.keyframe_id}"
+    keyframes = tuple(
+        KeyframeCorrection(
+            id=kf.id,
+            T_world_cam=_transform_from_pb(kf.T_world_cam),
+            map_point_ids=_unpack(kf.map_point_ids, "<i8", (kf.num_keypoints,), f"{where} keyframe {kf.id} map_point_ids"),
+        )
+        for kf in msg.keyframes
+    )
+    return MapUpdate(
+        keyframe_id=msg.keyframe_id,
+        stamp_ns=msg.stamp_ns,
+        keyframes=keyframes,
+        point_ids=_unpack(msg.point_ids, "<i8", (p,), f"{where} point_ids"),
+        p_world=_unpack(msg.p_world, "<f8", (p, 3), f"{where} p_world"),
+        descriptors=_unpack(msg.descriptors, "u1", (p, 32), f"{where} descriptors"),
+        normals=_unpack(msg.normals, "<f8", (p, 3), f"{where} normals"),
+        min_distance_m=_unpack(msg.min_distance_m, "<f8", (p,), f"{where} min_distance_m"),
+        max_distance_m=_unpack(msg.max_distance_m, "<f8", (p,), f"{where} max_distance_m"),
+        removed_point_ids=_unpack(msg.removed_point_ids, "<i8", (len(msg.removed_point_ids) // 8,), f"{where} removed_point_ids"),
+        removed_keyframe_ids=_unpack(
+            msg.removed_keyframe_ids, "<i8", (len(msg.removed_keyframe_ids) // 8,), f"{where} removed_keyframe_ids"
+        ),
     )
 
 

@@ -2,7 +2,7 @@ from google.protobuf.internal import containers as _containers
 from google.protobuf.internal import enum_type_wrapper as _enum_type_wrapper
 from google.protobuf import descriptor as _descriptor
 from google.protobuf import message as _message
-from collections.abc import Mapping as _Mapping
+from collections.abc import Iterable as _Iterable, Mapping as _Mapping
 from typing import ClassVar as _ClassVar, Optional as _Optional, Union as _Union
 
 DESCRIPTOR: _descriptor.FileDescriptor
@@ -191,6 +191,50 @@ class Keyframe(_message.Message):
     end_of_stream: bool
     count: int
     def __init__(self, id: _Optional[int] = ..., stamp_ns: _Optional[int] = ..., frame_index: _Optional[int] = ..., T_world_cam: _Optional[_Union[RigidTransform, _Mapping]] = ..., calibration: _Optional[_Union[Calibration, _Mapping]] = ..., sensor: _Optional[_Union[SensorKind, str]] = ..., num_keypoints: _Optional[int] = ..., keypoints_px: _Optional[bytes] = ..., levels: _Optional[bytes] = ..., angles_deg: _Optional[bytes] = ..., right_u: _Optional[bytes] = ..., depth_m: _Optional[bytes] = ..., descriptors: _Optional[bytes] = ..., map_point_ids: _Optional[bytes] = ..., scale_factors: _Optional[bytes] = ..., num_new_points: _Optional[int] = ..., new_point_ids: _Optional[bytes] = ..., new_points_world: _Optional[bytes] = ..., end_of_stream: _Optional[bool] = ..., count: _Optional[int] = ...) -> None: ...
+
+class KeyframeCorrection(_message.Message):
+    __slots__ = ("id", "T_world_cam", "num_keypoints", "map_point_ids")
+    ID_FIELD_NUMBER: _ClassVar[int]
+    T_WORLD_CAM_FIELD_NUMBER: _ClassVar[int]
+    NUM_KEYPOINTS_FIELD_NUMBER: _ClassVar[int]
+    MAP_POINT_IDS_FIELD_NUMBER: _ClassVar[int]
+    id: int
+    T_world_cam: RigidTransform
+    num_keypoints: int
+    map_point_ids: bytes
+    def __init__(self, id: _Optional[int] = ..., T_world_cam: _Optional[_Union[RigidTransform, _Mapping]] = ..., num_keypoints: _Optional[int] = ..., map_point_ids: _Optional[bytes] = ...) -> None: ...
+
+class MapUpdate(_message.Message):
+    __slots__ = ("keyframe_id", "stamp_ns", "keyframes", "num_points", "point_ids", "p_world", "descriptors", "normals", "min_distance_m", "max_distance_m", "removed_point_ids", "removed_keyframe_ids", "end_of_stream", "count")
+    KEYFRAME_ID_FIELD_NUMBER: _ClassVar[int]
+    STAMP_NS_FIELD_NUMBER: _ClassVar[int]
+    KEYFRAMES_FIELD_NUMBER: _ClassVar[int]
+    NUM_POINTS_FIELD_NUMBER: _ClassVar[int]
+    POINT_IDS_FIELD_NUMBER: _ClassVar[int]
+    P_WORLD_FIELD_NUMBER: _ClassVar[int]
+    DESCRIPTORS_FIELD_NUMBER: _ClassVar[int]
+    NORMALS_FIELD_NUMBER: _ClassVar[int]
+    MIN_DISTANCE_M_FIELD_NUMBER: _ClassVar[int]
+    MAX_DISTANCE_M_FIELD_NUMBER: _ClassVar[int]
+    REMOVED_POINT_IDS_FIELD_NUMBER: _ClassVar[int]
+    REMOVED_KEYFRAME_IDS_FIELD_NUMBER: _ClassVar[int]
+    END_OF_STREAM_FIELD_NUMBER: _ClassVar[int]
+    COUNT_FIELD_NUMBER: _ClassVar[int]
+    keyframe_id: int
+    stamp_ns: int
+    keyframes: _containers.RepeatedCompositeFieldContainer[KeyframeCorrection]
+    num_points: int
+    point_ids: bytes
+    p_world: bytes
+    descriptors: bytes
+    normals: bytes
+    min_distance_m: bytes
+    max_distance_m: bytes
+    removed_point_ids: bytes
+    removed_keyframe_ids: bytes
+    end_of_stream: bool
+    count: int
+    def __init__(self, keyframe_id: _Optional[int] = ..., stamp_ns: _Optional[int] = ..., keyframes: _Optional[_Iterable[_Union[KeyframeCorrection, _Mapping]]] = ..., num_points: _Optional[int] = ..., point_ids: _Optional[bytes] = ..., p_world: _Optional[bytes] = ..., descriptors: _Optional[bytes] = ..., normals: _Optional[bytes] = ..., min_distance_m: _Optional[bytes] = ..., max_distance_m: _Optional[bytes] = ..., removed_point_ids: _Optional[bytes] = ..., removed_keyframe_ids: _Optional[bytes] = ..., end_of_stream: _Optional[bool] = ..., count: _Optional[int] = ...) -> None: ...
 
 class StageStatus(_message.Message):
     __slots__ = ("stage", "state", "processed", "step_ms", "queue_depth", "dropped", "detail")
