@@ -18,6 +18,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType
@@ -121,11 +122,18 @@ class Supervisor:
     def all_running(self) -> bool:
         return all(child.popen.poll() is None for child in self._children.values())
 
-    def wait_until_alive(self, session: zenoh.Session, names: list[str], timeout_s: float) -> None:
-        """Wait for the named children's liveliness tokens; raise if one dies or the time runs out."""
-        missing = bus.wait_for_alive(session, self.session_name, names, timeout_s, keep_waiting=self.all_running)
+    def wait_until_alive(
+        self, session: zenoh.Session, names: list[str], timeout_s: float, keep_waiting: Callable[[], bool] = lambda: True
+    ) -> None:
+        """Wait for the named children's liveliness tokens; raise if one dies or the time runs out.
+
+        Returns early, without raising, when ``keep_waiting()`` turns false (e.g. on Ctrl-C).
+        """
+        missing = bus.wait_for_alive(
+            session, self.session_name, names, timeout_s, keep_waiting=lambda: self.all_running() and keep_waiting()
+        )
         self.check()
-        if missing:
+        if missing and keep_waiting():
             raise ProcessError(
                 f"process(es) {sorted(missing)} did not come up within {timeout_s:.0f} s; see {self.run_dir / 'logs'}"
             )
