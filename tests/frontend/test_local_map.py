@@ -8,6 +8,7 @@ import pytest
 from zenslam.frontend.keyframe import KeyFrame
 from zenslam.frontend.local_map import IdAllocator, LocalMap, LocalMapConfig
 from zenslam.frontend.map_point import representative_descriptor
+from zenslam.frontend.orb_extractor import Features
 from zenslam.geometry import make_T
 
 
@@ -34,11 +35,15 @@ def add_keyframe(
         frame_index=local_map.n_keyframes,
         stamp_ns=local_map.n_keyframes * 100_000_000,
         T_world_cam=T_world_cam,
-        px=rng.uniform(0, 600, (n, 2)).astype(np.float32),
-        level=np.zeros(n, dtype=np.int16),
-        angle_deg=np.zeros(n, dtype=np.float32),
-        response=np.ones(n, dtype=np.float32),
-        descriptors=descriptors if descriptors is not None else rng.integers(0, 256, (n, 32), dtype=np.uint8),
+        features=Features(
+            px=rng.uniform(0, 600, (n, 2)).astype(np.float32),
+            level=np.zeros(n, dtype=np.int16),
+            angle_deg=np.zeros(n, dtype=np.float32),
+            response=np.ones(n, dtype=np.float32),
+            descriptors=descriptors if descriptors is not None else rng.integers(0, 256, (n, 32), dtype=np.uint8),
+            scale_factors=1.2 ** np.arange(8),
+            inv_level_sigma2=1.2 ** (-2.0 * np.arange(8)),
+        ),
         right_u=np.full(n, -1, dtype=np.float32),
         depth_m=np.full(n, -1, dtype=np.float32),
         map_point_ids=np.concatenate([observed_ids, new_ids]),

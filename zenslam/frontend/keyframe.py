@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from zenslam.camera import PinholeCalibration
+from zenslam.frontend.orb_extractor import Features
 from zenslam.geometry import invert_T, transform_points
 
 
@@ -14,32 +15,57 @@ from zenslam.geometry import invert_T, transform_points
 class KeyFrame:
     """A frame promoted to keyframe by the tracker; immutable once made.
 
-    Arrays are per keypoint (N of them) in the frame's order: ``px`` level-0 pixels (u right,
-    v down), ``level`` pyramid level, ``angle_deg`` orientation, ``descriptors`` (N, 32) uint8,
-    ``right_u`` the right-image (or virtual RGB-D) u coordinate and ``depth_m`` metres (-1 where
-    none), ``map_point_ids`` the map point each keypoint observes (-1 none). ``new_point_ids`` are
-    the points created at this keyframe, at keypoints ``new_point_keypoints``, with positions
-    ``new_points_world`` (P, 3) metres in the world frame. ``T_world_cam`` maps camera coordinates
-    (x right, y down, z forward) to world.
+    ``features`` are the frame's ORB keypoints (N of them: level-0 pixels, levels, angles,
+    descriptors and the pyramid constants). Per keypoint: ``right_u`` the right-image (or virtual
+    RGB-D) u coordinate in pixels and ``depth_m`` metres (-1 where none), ``map_point_ids`` the map
+    point the keypoint observes (-1 none). ``new_point_ids`` are the points created at this
+    keyframe, at keypoints ``new_point_keypoints``, with positions ``new_points_world`` (P, 3)
+    metres in the world frame. ``T_world_cam`` maps camera coordinates (x right, y down,
+    z forward) to world.
     """
 
     id: int
     frame_index: int
     stamp_ns: int
     T_world_cam: np.ndarray  # (4, 4)
-    px: np.ndarray  # (N, 2) float32 pixels
-    level: np.ndarray  # (N,) int16
-    angle_deg: np.ndarray  # (N,) float32 degrees
-    response: np.ndarray  # (N,) float32
-    descriptors: np.ndarray  # (N, 32) uint8
+    features: Features
     right_u: np.ndarray  # (N,) float32 pixels, -1 none
     depth_m: np.ndarray  # (N,) float32 metres, -1 none
     map_point_ids: np.ndarray  # (N,) int64, -1 none
     new_point_ids: np.ndarray  # (P,) int64
     new_point_keypoints: np.ndarray  # (P,) int64 keypoint index of each new point
     new_points_world: np.ndarray  # (P, 3) float64 metres, world frame
-    scale_factor: float = 1.2  # ratio between pyramid levels
-    n_levels: int = 8  # pyramid levels
+
+    @property
+    def px(self) -> np.ndarray:
+        """(N, 2) keypoint pixels at level 0."""
+        return self.features.px
+
+    @property
+    def level(self) -> np.ndarray:
+        """(N,) pyramid level of each keypoint."""
+        return self.features.level
+
+    @property
+    def angle_deg(self) -> np.ndarray:
+        """(N,) keypoint orientation, degrees."""
+        return self.features.angle_deg
+
+    @property
+    def descriptors(self) -> np.ndarray:
+        """(N, 32) uint8 ORB descriptors."""
+        return self.features.descriptors
+
+    @property
+    def scale_factor(self) -> float:
+        """Scale ratio between consecutive pyramid levels."""
+        factors = self.features.scale_factors
+        return float(factors[1]) if len(factors) > 1 else 1.0
+
+    @property
+    def n_levels(self) -> int:
+        """Pyramid levels."""
+        return len(self.features.scale_factors)
 
     @property
     def n_keypoints(self) -> int:

@@ -1,0 +1,158 @@
+"""The tracker on a short synthetic stereo sequence made of keypoints with known 3D truth (no rendering)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from zenslam.camera import PinholeCalibration
+from zenslam.frontend.frame import Frame
+from zenslam.frontend.orb_extractor import Features
+from zenslam.frontend.tracker import Tracker, TrackingConfig
+from zenslam.geometry import invert_T, make_T, so3_exp, so3_log
+
+CAL = PinholeCalibration(fx=450.0, fy=450.0, cx=320.0, cy=240.0, width=640, height=480, baseline_m=0.12)
+SCALES = 1.2 ** np.arange(8)
+
+
+class PointWorld:
+    """Random 3D points with fixed descriptors and physical sizes, seen along a smooth path."""
+
+    def __init__(self, seed: int = 0, n_points: int = 6000) -> None:
+        rng = np.random.default_rng(seed)
+        self.rng = rng
+        self.p_world = np.column_stack(
+            [rng.uniform(-12, 12, n_points), rng.uniform(-4, 4, n_points), rng.uniform(2, 30, n_points)]
+        )
+        self.descriptors = rng.integers(0, 256, (n_points, 32), dtype=np.uint8)
+        # The pyramid level a point is detected at follows its apparent size: c / distance.
+        self.size_constant = rng.uniform(3.0, 3.0 * 1.2**4, n_points)
+
+    @staticmethod
+    def pose(k: int) -> np.ndarray:
+        """T_world_cam of frame k: forward 20 cm per frame with a steady yaw and a little sway."""
+        rotation = so3_exp(np.array([0.0, 0.012 * k, 0.002 * np.sin(0.3 * k)]))
+        return make_T(rotation, np.array([0.05 * np.sin(0.2 * k), 0.0, 0.2 * k]))
+
+    def frame(self, k: int, keep_fraction: float = 0.75, corrupt: bool = False) -> Frame:
+        """The keypoints of frame k: a random ``keep_fraction`` of the visible points, plus distractors."""
+        rng = self.rng
+        T_cam_world = invert_T(self.pose(k))
+        p_cam = self.p_world @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
+        z = p_cam[:, 2]
+        safe_z = np.where(z > 0.1, z, 0.1)
+        u = CAL.fx * p_cam[:, 0] / safe_z + CAL.cx
+        v = CAL.fy * p_cam[:, 1] / safe_z + CAL.cy
+        seen = (z > 0.5) & (u >= 5) & (u < CAL.width - 5) & (v >= 5) & (v < CAL.height - 5)
+        seen &= rng.random(len(seen)) < keep_fraction
+        idx = np.flatnonzero(seen)
+        n_true = len(idx)
+        px = np.column_stack([u[idx], v[idx]]) + rng.normal(0.0, 0.3, (n_true, 2))
+        level = np.clip(np.floor(np.log(self.size_constant[idx] / z[idx]) / np.log(1.2)), 0, 7).astype(np.int16)
+        desc = self.descriptors[idx].copy()
+        flips = rng.integers(0, 256, (n_true, 4))
+        for j in range(4):
+            desc[np.arange(n_true), flips[:, j] // 8] ^= (1 << (flips[:, j] % 8)).astype(np.uint8)
+        disparity = CAL.bf / z[idx] + rng.normal(0.0, 0.2, n_true)
+        stereo = (disparity > 1.0) & (rng.random(n_true) < 0.7)
+        n_fake = 150
+        px = np.vstack([px, rng.uniform([0, 0], [CAL.width, CAL.height], (n_fake, 2))])
+        level = np.concatenate([level, rng.integers(0, 8, n_fake).astype(np.int16)])
+        desc = np.vstack([desc, rng.integers(0, 256, (n_fake, 32), dtype=np.uint8)])
+        right_u = np.concatenate([np.where(stereo, px[:n_true, 0] - disparity, -1.0), np.full(n_fake, -1.0)])
+        depth = np.concatenate([np.where(stereo, CAL.bf / np.maximum(disparity, 1e-6), -1.0), np.full(n_fake, -1.0)])
+        if corrupt:
+            desc = rng.integers(0, 256, desc.shape, dtype=np.uint8)
+        features = Features(
+            px=px.astype(np.float32),
+            level=level,
+            angle_deg=np.zeros(len(px), dtype=np.float32),
+            response=np.ones(len(px), dtype=np.float32),
+            descriptors=desc,
+            scale_factors=SCALES,
+            inv_level_sigma2=1.0 / SCALES**2,
+        )
+        return Frame(k, k * 100_000_000, CAL, features, right_u.astype(np.float32), depth.astype(np.float32))
+
+
+def pose_errors(T_est: np.ndarray, T_true: np.ndarray) -> tuple[float, float]:
+    delta = invert_T(T_true) @ T_est
+    return float(np.linalg.norm(delta[:3, 3])), float(np.degrees(np.linalg.norm(so3_log(delta[:3, :3]))))
+
+
+@pytest.fixture(scope="module")
+def tracked_sequence():
+    world = PointWorld(seed=0)
+    tracker = Tracker(CAL, "stereo", TrackingConfig(), camera_fps=10.0)
+    results = [tracker.track(world.frame(k)) for k in range(25)]
+    return world, tracker, results
+
+
+def test_tracks_every_frame_accurately(tracked_sequence) -> None:
+    world, _, results = tracked_sequence
+    assert [r.state for r in results] == ["ok"] * len(results)
+    T0 = world.pose(0)
+    for k, r in enumerate(results):
+        t_err, r_err = pose_errors(r.T_world_cam, invert_T(T0) @ world.pose(k))
+        # Frame-to-map tracking without bundle adjustment drifts: allow 5 mm + 0.5 % of the 0.2 m/frame path.
+        assert t_err < 0.005 + 0.005 * 0.2 * k, f"frame {k}: position error {t_err:.4f} m"
+        assert r_err < 0.1, f"frame {k}: rotation error {r_err:.3f} deg"
+    assert all(r.n_tracked >= 30 for r in results)
+
+
+def test_keyframes_and_points(tracked_sequence) -> None:
+    _, tracker, results = tracked_sequence
+    keyframes = [r.keyframe for r in results if r.keyframe is not None]
+    assert results[0].keyframe is not None and len(keyframes) >= 2
+    assert [kf.id for kf in keyframes] == list(range(len(keyframes)))
+    all_new = np.concatenate([kf.new_point_ids for kf in keyframes])
+    assert np.array_equal(all_new, np.arange(len(all_new)))  # frontend ids start at 0 and increase
+    lm = tracker.map
+    for kf in keyframes:
+        assert np.array_equal(kf.map_point_ids[kf.new_point_keypoints], kf.new_point_ids)
+        assert np.all(kf.depth_m[kf.new_point_keypoints] > 0)
+        rows = lm.rows_of_ids(kf.new_point_ids)
+        # Points keep the position they were created at (no backend moved them).
+        assert np.allclose(lm.p_world[rows], kf.new_points_world)
+    later = keyframes[1]
+    assert np.count_nonzero(later.map_point_ids >= 0) > len(later.new_point_ids)  # observes older points too
+    assert all(set(r.timings_ms) >= {"motion_model_tracking", "local_map_tracking", "pose_optimization",
+                                     "keyframe_decision"} for r in results)
+
+
+def test_lost_frame_then_recovery_from_the_reference_keyframe() -> None:
+    world = PointWorld(seed=1)
+    tracker = Tracker(CAL, "stereo", TrackingConfig(), camera_fps=10.0)
+    for k in range(6):
+        assert tracker.track(world.frame(k)).state == "ok"
+    lost = tracker.track(world.frame(6, corrupt=True))
+    assert lost.state == "lost" and lost.T_world_cam is None
+    assert lost.lost_reason == "too_few_matches_motion_model_and_reference"
+    assert not tracker.motion.has_velocity
+    back = tracker.track(world.frame(7))
+    assert back.state == "ok"
+    t_err, _ = pose_errors(back.T_world_cam, invert_T(world.pose(0)) @ world.pose(7))
+    assert t_err < 0.02
+    assert tracker.lost_reasons == {"too_few_matches_motion_model_and_reference": 1}
+
+
+def test_restarts_after_a_long_loss_and_waits_for_depth_to_initialise() -> None:
+    world = PointWorld(seed=2)
+    config = TrackingConfig(reinit_after_lost_frames=2)
+    tracker = Tracker(CAL, "stereo", config, camera_fps=10.0)
+    empty = world.frame(0)
+    no_depth = dataclasses.replace(empty, right_u=np.full_like(empty.right_u, -1), depth_m=np.full_like(empty.depth_m, -1))
+    first = tracker.track(no_depth)
+    assert first.state == "initializing" and first.lost_reason == "no_depth_points_for_init"
+    assert tracker.track(world.frame(0)).state == "ok"
+    assert tracker.track(world.frame(1)).state == "ok"
+    assert tracker.track(world.frame(2, corrupt=True)).state == "lost"
+    assert tracker.track(world.frame(3, corrupt=True)).state == "lost"
+    restart = tracker.track(world.frame(4))
+    assert restart.state == "initializing" and restart.keyframe is not None
+    # Restarted at the last good pose (frame 1's), then tracks again from there.
+    assert np.allclose(restart.T_world_cam, invert_T(world.pose(0)) @ world.pose(1), atol=0.01)
+    assert tracker.track(world.frame(5)).state == "ok"
+    assert tracker.n_reinitialisations == 1

@@ -1,0 +1,137 @@
+"""The frontend's step: images in, a tracked pose (and sometimes a keyframe) out, with stage timings."""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from zenslam.camera import PinholeCalibration, SensorKind
+from zenslam.errors import ConfigError
+from zenslam.frontend.frame import Frame, make_rgbd_frame, make_stereo_frame
+from zenslam.frontend.keyframe import KeyFrame
+from zenslam.frontend.keyframe_decision import KeyframeDecisionConfig
+from zenslam.frontend.orb_extractor import OrbConfig, OrbExtractor
+from zenslam.frontend.pose_optimizer import PoseOptimizerConfig
+from zenslam.frontend.stereo_matcher import StereoMatchConfig
+from zenslam.frontend.tracker import Tracker, TrackingConfig
+
+logger = logging.getLogger(__name__)
+
+TIMING_KEYS = (
+    "extraction",
+    "stereo_matching",
+    "motion_model_tracking",
+    "local_map_tracking",
+    "pose_optimization",
+    "keyframe_decision",
+    "total",
+)
+
+
+@dataclass(frozen=True)
+class FrontendConfig:
+    """The frontend's settings, one section per stage (YAML keys equal the field names)."""
+
+    orb: OrbConfig = field(default_factory=OrbConfig)
+    stereo: StereoMatchConfig = field(default_factory=StereoMatchConfig)
+    pose: PoseOptimizerConfig = field(default_factory=PoseOptimizerConfig)
+    tracking: TrackingConfig = field(default_factory=TrackingConfig)
+    keyframe: KeyframeDecisionConfig = field(default_factory=KeyframeDecisionConfig)
+
+
+@dataclass(frozen=True)
+class TrackingOutput:
+    """What the frontend says about one frame.
+
+    ``state`` is "initializing" before a map exists (and on the frame that restarts tracking
+    after a long loss), "ok" when the frame was tracked, "lost" otherwise, with ``lost_reason``.
+    ``T_world_cam`` (4x4, camera -> world) is None when lost. ``n_tracked`` counts inlier matches
+    to map points. ``keyframe`` is the keyframe made at this frame, if any. ``timings_ms`` holds
+    milliseconds per stage (keys in ``TIMING_KEYS``): the tracking stages exclude the pose
+    optimisation, which has its own key; "keyframe_decision" includes making the keyframe.
+    """
+
+    index: int
+    stamp_ns: int
+    state: Literal["ok", "lost", "initializing"]
+    lost_reason: str | None
+    T_world_cam: np.ndarray | None
+    n_tracked: int
+    keyframe: KeyFrame | None
+    timings_ms: dict[str, float]
+
+
+class FrontendPipeline:
+    """Builds a frame from the images (ORB, stereo or RGB-D depth) and tracks it.
+
+    Monocular tracking needs a two-view initialisation that does not exist yet: a mono sensor is
+    a ConfigError.
+    """
+
+    def __init__(self, config: FrontendConfig, calibration: PinholeCalibration, sensor: SensorKind) -> None:
+        if sensor not in ("stereo", "rgbd"):
+            raise ConfigError(
+                f"the frontend tracks stereo or rgbd cameras; sensor {sensor!r} is not supported yet "
+                "(monocular initialisation is not implemented): use a stereo or RGB-D source"
+            )
+        if calibration.baseline_m is None:
+            raise ConfigError(
+                f"a {sensor} frontend needs calibration.baseline_m (stereo baseline or RGB-D virtual baseline)"
+            )
+        self.config = config
+        self.calibration = calibration
+        self.sensor = sensor
+        self.extractor = OrbExtractor(config.orb)
+        self.tracker = Tracker(calibration, sensor, config.tracking, config.pose, config.keyframe)
+        self._first_stamp_ns: int | None = None
+        self._rate_known = False
+
+    def step(
+        self,
+        index: int,
+        stamp_ns: int,
+        left: np.ndarray,
+        right: np.ndarray | None = None,
+        depth_m: np.ndarray | None = None,
+    ) -> TrackingOutput:
+        """Track one capture: ``left`` grey uint8 (H, W), with ``right`` (stereo) or ``depth_m`` (RGB-D, metres)."""
+        start = time.perf_counter()
+        self._update_camera_rate(stamp_ns)
+        timings = {key: 0.0 for key in TIMING_KEYS}
+        frame = self._make_frame(index, stamp_ns, left, right, depth_m, timings)
+        result = self.tracker.track(frame)
+        timings.update(result.timings_ms)
+        timings["total"] = (time.perf_counter() - start) * 1e3
+        return TrackingOutput(
+            index=index,
+            stamp_ns=stamp_ns,
+            state=result.state,
+            lost_reason=result.lost_reason,
+            T_world_cam=result.T_world_cam,
+            n_tracked=result.n_tracked,
+            keyframe=result.keyframe,
+            timings_ms=timings,
+        )
+
+    def _make_frame(self, index, stamp_ns, left, right, depth_m, timings: dict[str, float]) -> Frame:
+        if self.sensor == "stereo":
+            if right is None:
+                raise ConfigError(f"frame {index}: a stereo frontend needs the right image")
+            return make_stereo_frame(
+                index, stamp_ns, left, right, self.calibration, self.extractor, self.config.stereo, timings
+            )
+        if depth_m is None:
+            raise ConfigError(f"frame {index}: an RGB-D frontend needs the depth image")
+        return make_rgbd_frame(index, stamp_ns, left, depth_m, self.calibration, self.extractor, timings)
+
+    def _update_camera_rate(self, stamp_ns: int) -> None:
+        """The keyframe decision's max_frames default is the camera rate: take it from the first two stamps."""
+        if self._first_stamp_ns is None:
+            self._first_stamp_ns = stamp_ns
+        elif not self._rate_known and stamp_ns > self._first_stamp_ns:
+            self.tracker.camera_fps = 1e9 / (stamp_ns - self._first_stamp_ns)
+            self._rate_known = True

@@ -1,0 +1,418 @@
+"""Frame-to-map tracking for stereo and RGB-D: ORB-SLAM2's Tracking without relocalisation.
+
+Per frame: predict the pose with the constant-velocity model and match the last frame's points
+by projection (falling back to descriptor matching against the reference keyframe), optimise the
+pose, then track the local map (points of the keyframes covisible with the frame) and optimise
+again; finally decide whether the frame becomes a keyframe, which creates new points from its
+stereo/RGB-D depths.
+
+Lost frames: there is no relocalisation yet. A lost frame reports ``lost`` with a reason; the next
+frame tries the reference keyframe and the last good pose again. After
+``reinit_after_lost_frames`` consecutive lost frames the tracker starts over from the current
+frame at the last good pose (a new keyframe with fresh points, not connected to the old ones),
+reported as ``initializing``.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from zenslam.camera import PinholeCalibration, SensorKind
+from zenslam.frontend.feature_matcher import match_by_descriptor, rotation_consistent, search_by_projection
+from zenslam.frontend.frame import Frame
+from zenslam.frontend.keyframe import KeyFrame, select_new_point_keypoints, unproject_keypoints
+from zenslam.frontend.keyframe_decision import (
+    KeyframeDecisionConfig,
+    KeyframeDecisionInputs,
+    close_depth_threshold_m,
+    close_point_counts,
+    need_new_keyframe,
+)
+from zenslam.frontend.local_map import LocalMap, LocalMapConfig
+from zenslam.frontend.map_point import project_in_frustum, radius_by_viewing_cos
+from zenslam.frontend.motion_model import ConstantVelocityModel
+from zenslam.frontend.pose_optimizer import PoseOptimizerConfig, optimize_pose
+from zenslam.geometry import invert_T
+
+logger = logging.getLogger(__name__)
+
+TrackingState = Literal["ok", "lost", "initializing"]
+
+
+@dataclass(frozen=True)
+class TrackingConfig:
+    """Tracking thresholds (ORB-SLAM2's defaults unless noted) and the local map's settings."""
+
+    min_init_depth_points: int = 500  # keypoints with depth needed to initialise a map
+    motion_radius_px: float = 15.0  # motion-model search window (pixels at level 0, x level scale)
+    motion_min_matches: int = 20  # fewer matches: retry with a wider window, then give up
+    motion_wide_factor: float = 2.0  # window multiplier of the retry
+    max_descriptor_distance: int = 100  # Hamming bits, ORB-SLAM's TH_HIGH (projection searches)
+    reference_max_distance: int = 50  # Hamming bits, ORB-SLAM's TH_LOW (reference keyframe matching)
+    reference_ratio: float = 0.7  # best / second-best distance ratio (reference keyframe matching)
+    reference_min_matches: int = 15  # descriptor matches needed to try the reference keyframe pose
+    check_orientation: bool = True  # keep only matches in the 3 dominant rotation-histogram bins
+    min_pose_inliers: int = 10  # inliers needed after motion-model / reference tracking
+    local_radius_stereo: float = 1.0  # local-map search window factor for stereo (ORB-SLAM th)
+    local_radius_rgbd: float = 3.0  # the same for RGB-D
+    local_ratio: float = 0.8  # best / second-best ratio in the local-map search (same level only)
+    min_view_cos: float = 0.5  # cos of the largest angle to a point's mean viewing direction
+    min_local_map_inliers: int = 30  # inliers needed after local-map tracking
+    new_points_min: int = 100  # a keyframe gets points for at least this many nearest keypoints
+    new_points_depth_baselines: float = 0.0  # keyframe points up to this many baselines deep; 0 = th_depth
+    reinit_after_lost_frames: int = 10  # consecutive lost frames before starting over (0 = never)
+    local_map: LocalMapConfig = field(default_factory=LocalMapConfig)
+
+
+@dataclass(frozen=True)
+class TrackResult:
+    """What tracking one frame produced."""
+
+    state: TrackingState
+    lost_reason: str | None
+    T_world_cam: np.ndarray | None  # (4, 4) camera -> world, None when lost
+    n_tracked: int  # inlier matches to map points
+    keyframe: KeyFrame | None  # the keyframe made from this frame
+    timings_ms: dict[str, float]  # motion_model_tracking, local_map_tracking, pose_optimization, keyframe_decision
+
+
+@dataclass
+class _LastFrame:
+    frame: Frame
+    rows: np.ndarray  # (N,) map point row per keypoint, -1 none
+    T_cam_world: np.ndarray
+
+
+class Tracker:
+    """Tracks frames of one stereo or RGB-D camera against the frontend's local map."""
+
+    def __init__(
+        self,
+        calibration: PinholeCalibration,
+        sensor: SensorKind,
+        config: TrackingConfig | None = None,
+        pose_config: PoseOptimizerConfig | None = None,
+        keyframe_config: KeyframeDecisionConfig | None = None,
+        camera_fps: float = 10.0,
+    ) -> None:
+        self.calibration = calibration
+        self.sensor = sensor
+        self.config = config or TrackingConfig()
+        self.pose_config = pose_config or PoseOptimizerConfig()
+        self.keyframe_config = keyframe_config or KeyframeDecisionConfig()
+        self.camera_fps = camera_fps
+        self.map = LocalMap(self.config.local_map)
+        self.motion = ConstantVelocityModel()
+        self.th_depth_m = close_depth_threshold_m(calibration.baseline_m or 0.0, self.keyframe_config)
+        self.lost_reasons: Counter[str] = Counter()
+        self.n_reinitialisations = 0
+        self._last: _LastFrame | None = None  # the last successfully tracked frame
+        self._reference_slot = -1
+        self._last_keyframe_index = -1
+        self._lost_streak = 0
+        self._timers: dict[str, float] = {}
+
+    # ---- the per-frame entry point ----------------------------------------------------------------
+    def track(self, frame: Frame) -> TrackResult:
+        """Track one frame: its pose in the world, the inlier count, and a keyframe when one is made."""
+        self._timers = dict.fromkeys(
+            ("motion_model_tracking", "local_map_tracking", "pose_optimization", "keyframe_decision"), 0.0
+        )
+        if self._last is None:
+            return self._initialise(frame, np.eye(4), "no_depth_points_for_init")
+        if self.config.reinit_after_lost_frames and self._lost_streak >= self.config.reinit_after_lost_frames:
+            n_lost = self._lost_streak
+            result = self._initialise(frame, invert_T(self._last.T_cam_world), "no_depth_points_for_reinit")
+            if result.state == "ok":
+                self.n_reinitialisations += 1
+                logger.warning("tracking restarted at frame %d after %d lost frames", frame.index, n_lost)
+                return TrackResult("initializing", None, result.T_world_cam, result.n_tracked, result.keyframe,
+                                   result.timings_ms)
+            return result
+        start, pose_ms = time.perf_counter(), self._timers["pose_optimization"]
+        first = self._track_last_frame_or_reference(frame)
+        self._add_time("motion_model_tracking", start, pose_ms)
+        if first is None:
+            return self._lost(frame, "too_few_matches_motion_model_and_reference", 0)
+        start, pose_ms = time.perf_counter(), self._timers["pose_optimization"]
+        T_cam_world, rows, n_inliers = self._track_local_map(frame, first[0], first[1])
+        self._add_time("local_map_tracking", start, pose_ms)
+        if n_inliers < self.config.min_local_map_inliers:
+            return self._lost(frame, f"local_map_inliers_below_{self.config.min_local_map_inliers}", n_inliers)
+        start = time.perf_counter()
+        keyframe = None
+        if self._need_keyframe(frame, rows, n_inliers):
+            keyframe = self._make_keyframe(frame, T_cam_world, rows)
+        self._timers["keyframe_decision"] += (time.perf_counter() - start) * 1e3
+        self.motion.update(self._last.T_cam_world, T_cam_world)
+        self._last = _LastFrame(frame, rows, T_cam_world)
+        self._lost_streak = 0
+        return TrackResult("ok", None, invert_T(T_cam_world), n_inliers, keyframe, dict(self._timers))
+
+    def _add_time(self, key: str, start: float, pose_ms_at_start: float) -> None:
+        """Charge the time since ``start`` to ``key``, less the pose optimisation done meanwhile."""
+        pose_ms = self._timers["pose_optimization"] - pose_ms_at_start
+        self._timers[key] += (time.perf_counter() - start) * 1e3 - pose_ms
+
+    def _optimize(self, T_cam_world: np.ndarray, frame: Frame, rows: np.ndarray):
+        """Pose optimisation of ``frame`` matched to map rows (N,) -1 none; returns (T, inlier mask (N,))."""
+        start = time.perf_counter()
+        kps = np.flatnonzero(rows >= 0)
+        feats = frame.features
+        right = frame.right_u[kps].astype(float)
+        result = optimize_pose(
+            T_cam_world,
+            self.map.p_world[rows[kps]],
+            feats.px[kps].astype(float),
+            np.where(right >= 0, right, np.nan),
+            feats.inv_level_sigma2[feats.level[kps]],
+            self.calibration,
+            self.pose_config,
+        )
+        inliers = np.zeros(len(rows), dtype=bool)
+        inliers[kps] = result.inliers
+        self._timers["pose_optimization"] += (time.perf_counter() - start) * 1e3
+        return result.T_cam_world, inliers
+
+    # ---- initialisation and loss ----------------------------------------------------------------
+    def _initialise(self, frame: Frame, T_world_cam: np.ndarray, reason: str) -> TrackResult:
+        """A new map from one frame's depths at ``T_world_cam``: one keyframe, a point per depth."""
+        n_depth = int(np.count_nonzero(frame.depth_m > 0))
+        if n_depth < self.config.min_init_depth_points:
+            self.lost_reasons[reason] += 1
+            self._lost_streak += 1
+            return TrackResult("initializing", reason, None, 0, None, dict(self._timers))
+        start = time.perf_counter()
+        rows = np.full(len(frame.features), -1, dtype=np.int64)
+        new_kps = np.flatnonzero(frame.depth_m > 0)
+        T_cam_world = invert_T(T_world_cam)
+        keyframe = self._make_keyframe(frame, T_cam_world, rows, new_kps)
+        self._timers["keyframe_decision"] += (time.perf_counter() - start) * 1e3
+        self.motion.reset()
+        self._last = _LastFrame(frame, rows, T_cam_world)
+        self._lost_streak = 0
+        logger.info("map initialised at frame %d with %d points", frame.index, len(new_kps))
+        return TrackResult("ok", None, np.asarray(T_world_cam, dtype=float).copy(), len(new_kps), keyframe,
+                           dict(self._timers))
+
+    def _lost(self, frame: Frame, reason: str, n_tracked: int) -> TrackResult:
+        self.lost_reasons[reason] += 1
+        self._lost_streak += 1
+        self.motion.reset()
+        logger.debug("frame %d lost: %s", frame.index, reason)
+        return TrackResult("lost", reason, None, n_tracked, None, dict(self._timers))
+
+    # ---- stage 1: last frame (motion model) or reference keyframe ---------------------------------
+    def _track_last_frame_or_reference(self, frame: Frame):
+        """(T_cam_world, rows, inliers) from the motion model or the reference keyframe, or None."""
+        last = self._last
+        predicted = self.motion.predict(last.T_cam_world)
+        if predicted is not None:
+            found = self._track_motion_model(frame, predicted)
+            if found is not None:
+                return found
+        found = self._track_reference_keyframe(frame)
+        if found is None and predicted is None:
+            found = self._track_motion_model(frame, last.T_cam_world)
+        return found
+
+    def _track_motion_model(self, frame: Frame, T_predicted: np.ndarray):
+        """Project the last frame's points with the predicted pose and match them (ORB-SLAM2)."""
+        last = self._last
+        kps_last = np.flatnonzero(last.rows >= 0)
+        kps_last = kps_last[self.map.valid[last.rows[kps_last]]]
+        if len(kps_last) < self.config.motion_min_matches:
+            return None
+        rows_last = last.rows[kps_last]
+        radius = self.config.motion_radius_px
+        rows = self._search_last_frame(frame, T_predicted, kps_last, rows_last, radius)
+        if np.count_nonzero(rows >= 0) < self.config.motion_min_matches:
+            rows = self._search_last_frame(frame, T_predicted, kps_last, rows_last,
+                                           radius * self.config.motion_wide_factor)
+        if np.count_nonzero(rows >= 0) < self.config.motion_min_matches:
+            return None
+        return self._optimize_and_filter(frame, T_predicted, rows)
+
+    def _search_last_frame(self, frame, T_predicted, kps_last, rows_last, radius_px) -> np.ndarray:
+        """Rows (N,) of the current keypoints matched to the last frame's points, -1 none."""
+        cal = self.calibration
+        feats, last_feats = frame.features, self._last.frame.features
+        p_cam = self.map.p_world[rows_last] @ T_predicted[:3, :3].T + T_predicted[:3, 3]
+        z = p_cam[:, 2]
+        safe_z = np.where(z > 1e-9, z, 1e-9)
+        u = cal.fx * p_cam[:, 0] / safe_z + cal.cx
+        v = cal.fy * p_cam[:, 1] / safe_z + cal.cy
+        ok = (z > 0) & (u >= 0) & (u < cal.width) & (v >= 0) & (v < cal.height)
+        # ORB-SLAM: moving forward, points get nearer and appear on the same or coarser levels.
+        T_last_cur = self._last.T_cam_world @ invert_T(T_predicted)
+        forward = T_last_cur[2, 3] > (cal.baseline_m or 0.0)
+        backward = -T_last_cur[2, 3] > (cal.baseline_m or 0.0)
+        min_off, max_off = (0, None) if forward else (None, 0) if backward else (-1, 1)
+        levels = last_feats.level[kps_last].astype(np.int64)
+        idx = np.flatnonzero(ok)
+        match = search_by_projection(
+            np.column_stack([u, v])[idx],
+            levels[idx],
+            self.map.descriptors[rows_last[idx]],
+            feats.px,
+            feats.level,
+            feats.descriptors,
+            radius_px * feats.scale_factors[levels[idx]],
+            max_distance=self.config.max_descriptor_distance,
+            ratio=None,
+            min_level_offset=min_off,
+            max_level_offset=max_off,
+            kp_right_u=frame.right_u,
+            proj_right_u=(u - cal.bf / safe_z)[idx] if cal.baseline_m is not None else None,
+        )
+        hit = match >= 0
+        matched_kps = match[hit].astype(np.int64)
+        source = idx[hit]
+        if self.config.check_orientation and len(matched_kps):
+            keep = rotation_consistent(last_feats.angle_deg[kps_last[source]] - feats.angle_deg[matched_kps])
+            matched_kps, source = matched_kps[keep], source[keep]
+        rows = np.full(len(feats), -1, dtype=np.int64)
+        rows[matched_kps] = rows_last[source]
+        return rows
+
+    def _track_reference_keyframe(self, frame: Frame):
+        """Match the frame to the reference keyframe's points by descriptor; pose from the last frame."""
+        if self._reference_slot < 0:
+            return None
+        keyframe = self.map.keyframe(self._reference_slot)
+        kf_rows = self.map.rows_of_ids(keyframe.map_point_ids)
+        kf_kps = np.flatnonzero(kf_rows >= 0)
+        kf_kps = kf_kps[self.map.valid[kf_rows[kf_kps]]]
+        feats = frame.features
+        pairs = match_by_descriptor(
+            keyframe.descriptors[kf_kps], feats.descriptors,
+            max_distance=self.config.reference_max_distance, ratio=self.config.reference_ratio,
+        )
+        if self.config.check_orientation and len(pairs):
+            keep = rotation_consistent(keyframe.angle_deg[kf_kps[pairs[:, 0]]] - feats.angle_deg[pairs[:, 1]])
+            pairs = pairs[keep]
+        if len(pairs) < self.config.reference_min_matches:
+            return None
+        rows = np.full(len(feats), -1, dtype=np.int64)
+        rows[pairs[:, 1]] = kf_rows[kf_kps[pairs[:, 0]]]
+        return self._optimize_and_filter(frame, self._last.T_cam_world, rows)
+
+    def _optimize_and_filter(self, frame: Frame, T_init: np.ndarray, rows: np.ndarray):
+        """Optimise, drop outlier matches; (T, rows, n_inliers) or None below ``min_pose_inliers``."""
+        T_cam_world, inliers = self._optimize(T_init, frame, rows)
+        rows = np.where(inliers, rows, -1)
+        n_inliers = int(np.count_nonzero(inliers))
+        if n_inliers < self.config.min_pose_inliers:
+            return None
+        return T_cam_world, rows, n_inliers
+
+    # ---- stage 2: local map -------------------------------------------------------------------------
+    def _track_local_map(self, frame: Frame, T_cam_world: np.ndarray, rows: np.ndarray):
+        """ORB-SLAM2's TrackLocalMap: match local points by projection, optimise; (T, rows, inliers)."""
+        window = self.map.local_window(rows)
+        if window.reference_slot >= 0:
+            self._reference_slot = window.reference_slot
+        local_rows = self.map.local_point_rows(window.keyframe_slots)
+        matched = rows >= 0
+        self.map.increase_visible(rows[matched])
+        candidates = local_rows[~np.isin(local_rows, rows[matched])]
+        self._search_local_points(frame, T_cam_world, rows, candidates)
+        T_cam_world, inliers = self._optimize(T_cam_world, frame, rows)
+        self.map.increase_found(rows[inliers])
+        rows = np.where(inliers, rows, -1)
+        return T_cam_world, rows, int(np.count_nonzero(inliers))
+
+    def _search_local_points(self, frame: Frame, T_cam_world, rows: np.ndarray, candidates: np.ndarray) -> None:
+        """Match the visible candidate points into the frame's free keypoints; fills ``rows`` in place."""
+        if len(candidates) == 0:
+            return
+        feats = frame.features
+        lm = self.map
+        proj = project_in_frustum(
+            T_cam_world, lm.p_world[candidates], lm.normals[candidates], lm.min_distance_m[candidates],
+            lm.max_distance_m[candidates], self.calibration, float(feats.scale_factors[1]) if len(
+                feats.scale_factors) > 1 else 1.2, len(feats.scale_factors), self.config.min_view_cos,
+        )
+        visible = np.flatnonzero(proj.visible)
+        lm.increase_visible(candidates[visible])
+        if len(visible) == 0:
+            return
+        th = self.config.local_radius_rgbd if self.sensor == "rgbd" else self.config.local_radius_stereo
+        level = proj.level[visible]
+        radius = th * radius_by_viewing_cos(proj.view_cos[visible]) * feats.scale_factors[level]
+        match = search_by_projection(
+            proj.px[visible],
+            level,
+            lm.descriptors[candidates[visible]],
+            feats.px,
+            feats.level,
+            feats.descriptors,
+            radius,
+            max_distance=self.config.max_descriptor_distance,
+            ratio=self.config.local_ratio,
+            already_matched=rows >= 0,
+            min_level_offset=-1,
+            max_level_offset=0,
+            kp_right_u=frame.right_u,
+            proj_right_u=proj.right_u[visible] if self.calibration.baseline_m is not None else None,
+        )
+        hit = match >= 0
+        rows[match[hit].astype(np.int64)] = candidates[visible[hit]]
+
+    # ---- keyframes ----------------------------------------------------------------------------------
+    def _need_keyframe(self, frame: Frame, rows: np.ndarray, n_inliers: int) -> bool:
+        n_kfs = self.map.n_keyframes
+        min_obs = 1 if n_kfs <= 2 else 2
+        n_ref = self.map.tracked_points(self._reference_slot, min_obs) if self._reference_slot >= 0 else 0
+        tracked_close, untracked_close = close_point_counts(frame.depth_m, rows >= 0, self.th_depth_m)
+        inputs = KeyframeDecisionInputs(
+            frames_since_last_keyframe=frame.index - self._last_keyframe_index,
+            n_keyframes_in_map=n_kfs,
+            n_inliers=n_inliers,
+            n_reference_tracked=n_ref,
+            n_tracked_close=tracked_close,
+            n_untracked_close=untracked_close,
+            camera_fps=self.camera_fps,
+            sensor=self.sensor,
+        )
+        return need_new_keyframe(inputs, self.keyframe_config)
+
+    def _make_keyframe(self, frame: Frame, T_cam_world: np.ndarray, rows: np.ndarray,
+                       new_kps: np.ndarray | None = None) -> KeyFrame:
+        """Make the frame a keyframe with new points at its close keypoints; updates ``rows`` in place."""
+        if new_kps is None:
+            limit = self.config.new_points_depth_baselines * (self.calibration.baseline_m or 0.0)
+            new_kps = select_new_point_keypoints(frame.depth_m, rows >= 0, limit or self.th_depth_m,
+                                                 self.config.new_points_min)
+        T_world_cam = invert_T(T_cam_world)
+        feats = frame.features
+        new_ids = self.map.new_point_ids(len(new_kps))
+        point_ids = np.where(rows >= 0, self.map.point_ids[np.maximum(rows, 0)], -1) if self.map.n_points else \
+            np.full(len(rows), -1, dtype=np.int64)
+        point_ids[new_kps] = new_ids
+        keyframe = KeyFrame(
+            id=self.map.new_keyframe_id(),
+            frame_index=frame.index,
+            stamp_ns=frame.stamp_ns,
+            T_world_cam=T_world_cam,
+            features=feats,
+            right_u=frame.right_u,
+            depth_m=frame.depth_m,
+            map_point_ids=point_ids.astype(np.int64),
+            new_point_ids=new_ids,
+            new_point_keypoints=new_kps.astype(np.int64),
+            new_points_world=unproject_keypoints(feats.px[new_kps], frame.depth_m[new_kps], self.calibration,
+                                                 T_world_cam),
+        )
+        new_rows = self.map.insert_keyframe(keyframe)
+        rows[new_kps] = new_rows
+        self.map.cull_recent_points()
+        self._reference_slot = self.map.n_keyframes - 1
+        self._last_keyframe_index = frame.index
+        return keyframe
