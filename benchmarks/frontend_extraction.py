@@ -4,7 +4,8 @@ Per frame: wall time of ``OrbExtractor.extract_pair`` (left and right, with the 
 worker thread when ``threads=2``), of ``match_stereo``, and their sum; also the number of stereo
 points with depth in [0.5, 200] m. Variants: 1200 features (the default) and 2000 (ORB-SLAM2's
 KITTI setting), each with 1 and 2 extraction threads. The machine's load average is recorded
-because the figures are wall times on a shared 2-core machine.
+because the figures are wall times on a shared 2-core machine; the calling thread's CPU time is
+recorded too (with threads=1 it is the whole work, and does not depend on the load).
 
 Run: ``/work/venv/bin/python benchmarks/frontend_extraction.py [--data ../shared/data] [--repeats 2]``
 (writes benchmarks/results/frontend_extraction.json).
@@ -45,17 +46,18 @@ def run_variant(
 ) -> dict:
     extractor = OrbExtractor(OrbConfig(n_features=n_features, threads=threads))
     extractor.extract_pair(*pairs[0])  # warm-up: thread start, OpenCV allocations
-    extraction, stereo, total, points = [], [], [], []
+    extraction, stereo, total, cpu, points = [], [], [], [], []
     for _ in range(repeats):
         for left, right in pairs:
-            t0 = time.perf_counter()
+            c0, t0 = time.thread_time(), time.perf_counter()
             (f_left, p_left), (f_right, p_right) = extractor.extract_pair(left, right)
             t1 = time.perf_counter()
             matches = match_stereo(f_left, f_right, p_left, p_right, source.calibration)
-            t2 = time.perf_counter()
+            t2, c2 = time.perf_counter(), time.thread_time()
             extraction.append((t1 - t0) * 1e3)
             stereo.append((t2 - t1) * 1e3)
             total.append((t2 - t0) * 1e3)
+            cpu.append((c2 - c0) * 1e3)
             points.append(int(((matches.depth_m >= 0.5) & (matches.depth_m <= 200.0)).sum()))
     return {
         "n_features": n_features,
@@ -64,6 +66,8 @@ def run_variant(
         "extract_pair_ms": summary(extraction),
         "stereo_matching_ms": summary(stereo),
         "extract_pair_plus_stereo_ms": summary(total),
+        # CPU time of the calling thread (with threads=1: the whole pair + stereo, independent of load)
+        "calling_thread_cpu_ms": summary(cpu),
         "stereo_points_median": statistics.median(points),
         "stereo_points_min": min(points),
     }
@@ -99,7 +103,8 @@ def main() -> None:
             f"n_features={r['n_features']} threads={r['threads']}: "
             f"extract_pair median {r['extract_pair_ms']['median']:.1f} ms (mean {r['extract_pair_ms']['mean']:.1f}), "
             f"stereo median {r['stereo_matching_ms']['median']:.1f} ms (mean {r['stereo_matching_ms']['mean']:.1f}), "
-            f"sum median {r['extract_pair_plus_stereo_ms']['median']:.1f} ms, "
+            f"sum median {r['extract_pair_plus_stereo_ms']['median']:.1f} ms "
+            f"(calling-thread CPU {r['calling_thread_cpu_ms']['median']:.1f} ms), "
             f"stereo points median {r['stereo_points_median']}"
         )
     print(f"load average before {load_before}, after {report['load_average_1_5_15_after']}; wrote {RESULTS}")

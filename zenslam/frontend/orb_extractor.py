@@ -56,7 +56,7 @@ class OrbConfig:
             raise ConfigError("invalid OrbConfig: " + "; ".join(problems))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # arrays: compare fields explicitly
 class Features:
     """N ORB keypoints of one image, with the pyramid constants needed to weigh them.
 

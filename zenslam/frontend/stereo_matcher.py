@@ -51,7 +51,7 @@ class StereoMatchConfig:
             raise ConfigError("invalid StereoMatchConfig: " + "; ".join(problems))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # arrays: compare fields explicitly
 class StereoMatches:
     """Per left keypoint: the right image coordinate and depth of its match, -1 where none.
 
