@@ -303,7 +303,7 @@ def _fast_in_cells(
     win_h, win_w = h_cell + 2 * _FAST_RADIUS, w_cell + 2 * _FAST_RADIUS
     pad_y = max(0, int(cell_row.max()) * h_cell + win_h - height)
     pad_x = max(0, int(cell_col.max()) * w_cell + win_w - width)
-    padded = np.pad(region, ((0, pad_y), (0, pad_x)), mode="edge") if pad_x or pad_y else region
+    padded = cv2.copyMakeBorder(region, 0, pad_y, 0, pad_x, cv2.BORDER_REPLICATE) if pad_x or pad_y else region
     windows = np.lib.stride_tricks.sliding_window_view(padded, (win_h, win_w))[cell_row * h_cell, cell_col * w_cell]
     xy, response = _fast(detector, windows.reshape(-1, win_w))
     tile, local_y = np.divmod(xy[:, 1].astype(np.int64), win_h)
