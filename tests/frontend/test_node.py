@@ -1,0 +1,136 @@
+"""The frontend node with a stand-in tracker: what it sends per frame, and a lockstep exchange with the source over the bus."""
+
+from __future__ import annotations
+
+import threading
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from zenslam.camera import PinholeCalibration
+from zenslam.errors import CalibrationError
+from zenslam.frontend.node import FrontendNode, serve
+from zenslam.geometry import make_T
+from zenslam.schemas import codec, keys
+from zenslam.service import bus
+from zenslam.service.run_config import SourceConfig
+from zenslam.service.source_node import play
+from zenslam.service.sources.frame import SensorFrame
+
+CAL = PinholeCalibration(fx=100.0, fy=100.0, cx=16.0, cy=12.0, width=32, height=24, baseline_m=0.1)
+
+
+def _keyframe(index: int, stamp_ns: int, n: int = 5) -> SimpleNamespace:
+    return SimpleNamespace(
+        id=index // 2, frame_index=index, stamp_ns=stamp_ns, T_world_cam=make_T(np.eye(3), [index, 0, 0]),
+        px=np.full((n, 2), 3.0, np.float32), level=np.zeros(n, np.int16), angle_deg=np.zeros(n, np.float32),
+        descriptors=np.zeros((n, 32), np.uint8), right_u=np.full(n, -1, np.float32), depth_m=np.ones(n, np.float32),
+        map_point_ids=np.arange(n, dtype=np.int64), features=SimpleNamespace(scale_factors=1.2 ** np.arange(8)),
+        new_point_ids=np.arange(2, dtype=np.int64), new_points_world=np.zeros((2, 3)),
+    )
+
+
+class StubPipeline:
+    """Tracks every frame: a keyframe on even frames, lost on every frame whose index ends in 7."""
+
+    def __init__(self, calibration: PinholeCalibration, sensor: str):
+        self.calibration, self.sensor, self.seen = calibration, sensor, []
+
+    def step(self, index, stamp_ns, left, right=None, depth_m=None):
+        assert left.shape == (24, 32) and right is not None and depth_m is None
+        self.seen.append(index)
+        lost = index % 10 == 7
+        return SimpleNamespace(
+            index=index, stamp_ns=stamp_ns, state="lost" if lost else "ok", lost_reason="stub says lost" if lost else None,
+            T_world_cam=None if lost else make_T(np.eye(3), [index * 0.1, 0, 0]), n_tracked=0 if lost else 100 + index,
+            keyframe=None if lost or index % 2 else _keyframe(index, stamp_ns),
+            timings_ms={"extraction": 1.0, "total": 2.0 + index},
+        )
+
+
+def _frames(n: int) -> list[SensorFrame]:
+    rng = np.random.default_rng(0)
+    return [
+        SensorFrame(i, 1_000_000 * i, rng.integers(0, 256, (24, 32), dtype=np.uint8), rng.integers(0, 256, (24, 32), dtype=np.uint8))
+        for i in range(n)
+    ]
+
+
+def _message(frame: SensorFrame, calibration: PinholeCalibration = CAL) -> codec.FrameMessage:
+    return codec.decode_sensor_frame(codec.encode_sensor_frame(frame, calibration, "stereo"))
+
+
+def test_handle_encodes_pose_state_and_keyframe():
+    pipelines = []
+    node = FrontendNode(lambda cal, sensor: pipelines.append(StubPipeline(cal, sensor)) or pipelines[-1])
+    frames = _frames(8)
+    out0 = node.handle(_message(frames[0]))
+    assert pipelines[0].calibration == CAL and pipelines[0].sensor == "stereo"
+    state = codec.decode_tracking_state(out0.state)
+    assert (state.index, state.state, state.n_tracked, state.has_pose, state.keyframe_id) == (0, "ok", 100, True, 0)
+    assert state.timings_ms == {"extraction": 1.0, "total": 2.0}
+    kf = codec.decode_keyframe(out0.keyframe)
+    assert (kf.id, kf.frame_index, len(kf.keypoints_px), len(kf.new_point_ids)) == (0, 0, 5, 2)
+    np.testing.assert_allclose(kf.scale_factors, 1.2 ** np.arange(8))
+    assert codec.decode_pose_in_frame(out0.pose).frame_id == "world"
+    for frame in frames[1:]:
+        out = node.handle(_message(frame))
+    lost = codec.decode_tracking_state(out.state)
+    assert (lost.index, lost.state, lost.lost_reason, lost.has_pose) == (7, "lost", "stub says lost", False)
+    assert out.pose is None and out.keyframe is None
+    assert len(pipelines) == 1 and node.frames == 8 and node.keyframes == 4
+
+
+def test_gaps_in_frame_indices_count_as_skipped():
+    node = FrontendNode(StubPipeline)
+    frames = _frames(6)
+    for i in (0, 1, 4, 5):
+        node.handle(_message(frames[i]))
+    assert node.skipped == 2
+
+
+def test_a_camera_change_mid_run_is_refused():
+    node = FrontendNode(StubPipeline)
+    frames = _frames(2)
+    node.handle(_message(frames[0]))
+    other = PinholeCalibration(fx=101.0, fy=100.0, cx=16.0, cy=12.0, width=32, height=24, baseline_m=0.1)
+    with pytest.raises(CalibrationError, match="one run tracks one camera"):
+        node.handle(_message(frames[1], other))
+
+
+def test_lockstep_source_and_frontend_over_the_bus():
+    """Every frame is tracked in order, every announced pose arrives, and both streams end."""
+    n, session_name = 25, "node-test"
+    hub_endpoint = bus.free_tcp_endpoint()
+    config = bus.BusConfig()
+    with bus.open_session(bus.BusConfig(listen=(hub_endpoint,))) as hub, bus.open_session(bus.BusConfig(connect=(hub_endpoint,))) as peer:
+        states = bus.subscribe(hub, keys.frontend_state(session_name), codec.decode_tracking_state, "lossless", 64)
+        poses = bus.subscribe(hub, keys.frontend_pose(session_name), codec.decode_pose_in_frame, "lossless", 64)
+        keyframes = bus.subscribe(hub, keys.frontend_keyframe(session_name), codec.decode_keyframe, "lossless", 64)
+        node = FrontendNode(StubPipeline)
+        stop = threading.Event()
+        result = {}
+        frontend = threading.Thread(target=lambda: result.setdefault("ended", serve(peer, session_name, node, True, config, stop.is_set)))
+        frontend.start()
+        try:
+            assert bus.wait_for_alive(hub, session_name, ["frontend"], timeout_s=10.0) == set()
+            source_config = SourceConfig(lockstep=True, start_timeout_s=10.0, answer_timeout_s=10.0)
+            sent = play(hub, session_name, _frames(n), CAL, "stereo", source_config, lambda: False, "stub")
+            frontend.join(timeout=10.0)
+        finally:
+            stop.set()
+            frontend.join(timeout=10.0)
+        assert sent == n and result["ended"] is True
+        received = [states.get(timeout_s=2.0) for _ in range(n + 1)]
+        assert [s.index for s in received[:n]] == list(range(n))
+        assert received[n] == codec.EndOfStream(n)
+        got_poses = [poses.get(timeout_s=2.0) for _ in range(sum(s.has_pose for s in received[:n]))]
+        assert [p.stamp_ns for p in got_poses] == [s.stamp_ns for s in received[:n] if s.has_pose]
+        got_keyframes = []
+        while not isinstance(message := keyframes.get(timeout_s=2.0), codec.EndOfStream):
+            got_keyframes.append(message.frame_index)
+        assert got_keyframes == [i for i in range(n) if i % 2 == 0 and i % 10 != 7]
+        assert message == codec.EndOfStream(len(got_keyframes))
+        for inbox in (states, poses, keyframes):
+            inbox.close()

@@ -1,0 +1,180 @@
+"""Run configuration: YAML sections round-trip strictly; ORB-SLAM2/3 settings files give calibration and ORB values."""
+
+from __future__ import annotations
+
+import textwrap
+
+import pytest
+
+from zenslam.camera import PinholeCalibration
+from zenslam.errors import CalibrationError, ConfigError
+from zenslam.service.bus import BusConfig
+from zenslam.service.run_config import (
+    RunConfig,
+    SourceConfig,
+    apply_orbslam_settings,
+    load_run_config,
+    read_orbslam_settings,
+    run_config_to_yaml,
+)
+
+# ORB-SLAM3's own format (File.version 1.0), with the values of its KITTI 04-12 example.
+ORBSLAM3_KITTI = """\
+%YAML:1.0
+File.version: "1.0"
+Camera.type: "Rectified"
+Camera1.fx: 707.0912
+Camera1.fy: 707.0912
+Camera1.cx: 601.8873
+Camera1.cy: 183.1104
+Camera.width: 1226
+Camera.height: 370
+Camera.fps: 10
+Stereo.b: 0.53715
+Camera.RGB: 1
+Stereo.ThDepth: 40.0
+ORBextractor.nFeatures: 2000
+ORBextractor.scaleFactor: 1.2
+ORBextractor.nLevels: 8
+ORBextractor.iniThFAST: 12
+ORBextractor.minThFAST: 7
+Viewer.PointSize:2
+"""
+
+# ORB-SLAM2's format with a stereo rectification (the EuRoC example's LEFT.P / RIGHT.P).
+ORBSLAM2_EUROC = """\
+%YAML:1.0
+Camera.fx: 435.2046959714599
+Camera.fy: 435.2046959714599
+Camera.cx: 367.4517211914062
+Camera.cy: 252.2008514404297
+Camera.k1: 0.0
+Camera.k2: 0.0
+Camera.p1: 0.0
+Camera.p2: 0.0
+Camera.width: 752
+Camera.height: 480
+Camera.fps: 20.0
+Camera.bf: 47.90639384423901
+ThDepth: 35
+LEFT.D: !!opencv-matrix
+   rows: 1
+   cols: 5
+   dt: d
+   data:[-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05, 0.0]
+LEFT.P:  !!opencv-matrix
+   rows: 3
+   cols: 4
+   dt: d
+   data: [435.2046959714599, 0, 367.4517211914062, 0,  0, 435.2046959714599, 252.2008514404297, 0,  0, 0, 1, 0]
+RIGHT.P:  !!opencv-matrix
+   rows: 3
+   cols: 4
+   dt: d
+   data: [435.2046959714599, 0, 367.4517211914062, -47.90639384423901, 0, 435.2046959714599, 252.2008514404297, 0, 0, 0, 1, 0]
+ORBextractor.nFeatures: 1200
+"""
+
+RGBD_DISTORTED = """\
+%YAML:1.0
+Camera.fx: 517.3
+Camera.fy: 516.5
+Camera.cx: 318.6
+Camera.cy: 255.3
+Camera.k1: 0.2624
+Camera.k2: -0.9531
+Camera.width: 640
+Camera.height: 480
+Camera.bf: 40.0
+DepthMapFactor: 5000.0
+"""
+
+
+def test_defaults_round_trip_through_yaml(tmp_path):
+    path = tmp_path / "config.yaml"
+    path.write_text(run_config_to_yaml(RunConfig()))
+    assert load_run_config(path) == RunConfig()
+    assert load_run_config(None) == RunConfig()
+
+
+def test_a_full_config_round_trips(tmp_path):
+    calibration = PinholeCalibration(400.0, 401.0, 320.0, 240.0, 640, 480, 0.1)
+    config = RunConfig(
+        bus=BusConfig(listen=("tcp/127.0.0.1:7447",), connect=("tcp/127.0.0.1:7448",)),
+        source=SourceConfig(spec="synthetic:still/rgbd", lockstep=True, max_frames=5, calibration=calibration),
+    )
+    path = tmp_path / "config.yaml"
+    path.write_text(run_config_to_yaml(config))
+    assert load_run_config(path) == config
+
+
+def test_sections_take_partial_mappings(tmp_path):
+    path = tmp_path / "config.yaml"
+    path.write_text("source:\n  rate: 2.0\nfrontend:\n  orb:\n    n_features: 500\n")
+    config = load_run_config(path)
+    assert config.source.rate == 2.0 and config.frontend.orb.n_features == 500
+    assert config.bus == BusConfig()
+
+
+def test_unknown_keys_are_named(tmp_path):
+    path = tmp_path / "config.yaml"
+    path.write_text("source:\n  speed: 2.0\nbakend: {}\n")
+    with pytest.raises(ConfigError) as info:
+        load_run_config(path)
+    assert "'bakend'" in str(info.value) and "'speed'" in str(info.value)
+
+
+def test_source_values_are_checked():
+    with pytest.raises(ConfigError, match="source.rate=-1"):
+        SourceConfig(rate=-1.0)
+    with pytest.raises(ConfigError, match="max_frames=0"):
+        SourceConfig(max_frames=0)
+
+
+def test_orbslam3_settings(tmp_path):
+    path = tmp_path / "KITTI06.yaml"
+    path.write_text(ORBSLAM3_KITTI)
+    settings = read_orbslam_settings(path)
+    assert settings.calibration == PinholeCalibration(707.0912, 707.0912, 601.8873, 183.1104, 1226, 370, 0.53715)
+    assert settings.fps == 10.0 and settings.th_depth == 40.0
+    assert settings.orb == {"n_features": 2000, "scale_factor": 1.2, "n_levels": 8, "ini_fast_threshold": 12, "min_fast_threshold": 7}
+    config = apply_orbslam_settings(RunConfig(), settings)
+    assert config.source.calibration == settings.calibration
+    assert config.frontend.orb.n_features == 2000 and config.frontend.orb.ini_fast_threshold == 12
+    assert config.frontend.keyframe.close_depth_baselines == 40.0
+    assert config.frontend.keyframe.max_frames == 10
+
+
+def test_orbslam2_settings_with_stereo_rectification(tmp_path):
+    path = tmp_path / "EuRoC.yaml"
+    path.write_text(ORBSLAM2_EUROC)
+    settings = read_orbslam_settings(path)
+    cal = settings.calibration
+    assert (cal.fx, cal.cx, cal.cy, cal.width, cal.height) == (435.2046959714599, 367.4517211914062, 252.2008514404297, 752, 480)
+    assert cal.baseline_m == pytest.approx(47.90639384423901 / 435.2046959714599, rel=1e-12)  # 0.110 m
+    assert settings.th_depth == 35.0 and settings.orb == {"n_features": 1200}
+
+
+def test_distorted_camera_without_rectification_is_refused(tmp_path):
+    path = tmp_path / "TUM1.yaml"
+    path.write_text(RGBD_DISTORTED)
+    with pytest.raises(CalibrationError, match=r"TUM1.yaml: distortion \{'k1': 0.2624, 'k2': -0.9531\}"):
+        read_orbslam_settings(path)
+
+
+def test_settings_without_intrinsics_say_what_is_missing(tmp_path):
+    path = tmp_path / "bad.yaml"
+    path.write_text("%YAML:1.0\nCamera.width: 640\nCamera.height: 480\nCamera.fx: 500.0\n")
+    with pytest.raises(CalibrationError, match="missing Camera.fy"):
+        read_orbslam_settings(path)
+
+
+def test_missing_settings_file(tmp_path):
+    with pytest.raises(ConfigError, match="nope.yaml does not exist"):
+        read_orbslam_settings(tmp_path / "nope.yaml")
+
+
+def test_yaml_is_readable_by_people():
+    text = run_config_to_yaml(RunConfig())
+    assert text.index("bus:") < text.index("source:") < text.index("frontend:")
+    assert textwrap.dedent(text) == text

@@ -1,0 +1,126 @@
+"""Run outputs: which poses go in the trajectories, the timing table, and the files metrics.json and the plot."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from zenslam.errors import ConfigError
+from zenslam.geometry import make_T, so3_exp
+from zenslam.schemas import codec
+from zenslam.service.evaluation.metrics import EvaluationConfig
+from zenslam.service.evaluation.trajectory_io import read_tum
+from zenslam.service.run_config import RunConfig, load_run_config
+from zenslam.service.run_output import (
+    RunLog,
+    evaluation_config_for,
+    prepare_run_dir,
+    write_config,
+    write_outputs,
+)
+from zenslam.trajectory import Trajectory
+
+PERIOD_NS = 50_000_000
+
+
+def _truth(n: int) -> Trajectory:
+    stamps = np.arange(n, dtype=np.int64) * PERIOD_NS + 1_000_000_000
+    poses = np.stack([make_T(so3_exp(np.array([0.0, 0.02 * i, 0.0])), [0.1 * i, 0.0, 0.01 * i * i]) for i in range(n)])
+    return Trajectory(stamps, poses)
+
+
+def _log(truth: Trajectory, lost: set[int], keyframes: set[int], rng: np.random.Generator) -> RunLog:
+    """States and poses as the run command receives them; estimates are the truth with 1 mm noise."""
+    log = RunLog()
+    for i, stamp in enumerate(truth.stamps_ns):
+        ok = i not in lost
+        log.add_state(
+            codec.TrackingStateMessage(
+                index=i, stamp_ns=int(stamp), state="ok" if ok else "lost", lost_reason=None if ok else "too few matches",
+                n_tracked=100, timings_ms={"total": 10.0 + i, "extraction": 5.0}, has_pose=ok,
+                keyframe_id=sorted(keyframes).index(i) if i in keyframes else -1,
+            )
+        )
+        if ok:
+            T = truth.T_world_cam[i].copy()
+            T[:3, 3] += rng.normal(scale=0.001, size=3)
+            log.add_pose(codec.StampedPose(int(stamp), T))
+    return log
+
+
+def test_trajectories_hold_ok_frames_and_keyframes():
+    truth = _truth(10)
+    log = _log(truth, lost={3, 4}, keyframes={0, 5, 9}, rng=np.random.default_rng(0))
+    assert log.missing_poses() == 0
+    est = log.trajectory()
+    assert list(est.stamps_ns) == [s for i, s in enumerate(truth.stamps_ns) if i not in (3, 4)]
+    assert list(log.keyframe_trajectory().stamps_ns) == [truth.stamps_ns[i] for i in (0, 5, 9)]
+
+
+def test_missing_poses_are_counted():
+    log = RunLog()
+    log.add_state(codec.TrackingStateMessage(0, 10, "ok", has_pose=True))
+    log.add_state(codec.TrackingStateMessage(1, 20, "lost", has_pose=False))
+    assert log.missing_poses() == 1
+    log.add_pose(codec.StampedPose(10, np.eye(4)))
+    assert log.missing_poses() == 0
+
+
+def test_timing_table_and_frame_counts():
+    log = _log(_truth(5), lost={2}, keyframes={0}, rng=np.random.default_rng(1))
+    timing = log.timing()
+    assert timing["total"] == {"mean_ms": 12.0, "median_ms": 12.0, "max_ms": 14.0, "frames": 5}
+    assert timing["extraction"]["max_ms"] == 5.0
+    counts = log.frame_counts()
+    assert counts == {"frames": 5, "tracked_ok": 4, "lost_frames": 1, "lost_reasons": {"too few matches": 1}, "keyframes": 1}
+
+
+def test_outputs_with_ground_truth(tmp_path):
+    truth = _truth(20)
+    log = _log(truth, lost={7}, keyframes={0, 10}, rng=np.random.default_rng(2))
+    result = write_outputs(tmp_path, log, truth, EvaluationConfig(), extra={"run": {"run_id": "x"}})
+    assert {p.name for p in result.files} == {"trajectory.tum", "keyframes.tum", "metrics.json", "trajectory_top.png"}
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["ate"]["rmse_m"] < 0.003  # 1 mm noise per axis: about 1.7 mm
+    assert metrics["ate"]["matched_poses"] == 19
+    assert metrics["frames"] == 20 and metrics["lost_frames"] == 1 and metrics["run"] == {"run_id": "x"}
+    assert metrics["timing"]["total"]["frames"] == 20
+    written = read_tum(tmp_path / "trajectory.tum")
+    np.testing.assert_array_equal(written.stamps_ns, log.trajectory().stamps_ns)
+    np.testing.assert_allclose(written.T_world_cam, log.trajectory().T_world_cam, atol=1e-6)
+
+
+def test_outputs_without_ground_truth_have_no_ate_and_no_plot(tmp_path):
+    log = _log(_truth(5), lost=set(), keyframes={0}, rng=np.random.default_rng(3))
+    result = write_outputs(tmp_path, log, None, EvaluationConfig())
+    assert result.evaluation is None and result.evaluation_error is None
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert "ate" not in metrics and metrics["frames"] == 5
+    assert not (tmp_path / "trajectory_top.png").exists()
+
+
+def test_too_few_poses_give_a_reason_instead_of_an_ate(tmp_path):
+    truth = _truth(6)
+    log = _log(truth, lost={0, 1, 2, 3, 4}, keyframes=set(), rng=np.random.default_rng(4))
+    result = write_outputs(tmp_path, log, truth, EvaluationConfig())
+    assert result.evaluation is None and result.evaluation_error
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["evaluation_error"] == result.evaluation_error
+
+
+def test_run_folders_are_never_reused(tmp_path):
+    run_dir = prepare_run_dir(tmp_path, "r1")
+    path = write_config(run_dir, RunConfig())
+    assert load_run_config(path) == RunConfig()
+    with pytest.raises(ConfigError, match="already holds files"):
+        prepare_run_dir(tmp_path, "r1")
+    with pytest.raises(ConfigError, match="key chunk"):
+        prepare_run_dir(tmp_path, "a/b")
+
+
+def test_monocular_runs_are_aligned_with_scale():
+    assert evaluation_config_for(EvaluationConfig(), "mono").alignment == "sim3"
+    assert evaluation_config_for(EvaluationConfig(), "stereo").alignment == "se3"
+    assert evaluation_config_for(EvaluationConfig(alignment="none"), "mono").alignment == "none"

@@ -1,0 +1,83 @@
+"""The source process's playback: paced at the recorded rate, limited in frames, and always ending its stream."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from zenslam.camera import PinholeCalibration
+from zenslam.schemas import codec, keys
+from zenslam.service import bus
+from zenslam.service.run_config import SourceConfig
+from zenslam.service.source_node import play
+from zenslam.service.sources.frame import SensorFrame
+
+CAL = PinholeCalibration(fx=100.0, fy=100.0, cx=8.0, cy=6.0, width=16, height=12)
+
+
+def _frames(n: int, period_ns: int) -> list[SensorFrame]:
+    return [SensorFrame(i, 5_000 + i * period_ns, np.full((12, 16), i, np.uint8)) for i in range(n)]
+
+
+@pytest.fixture(scope="module")
+def session():
+    with bus.open_session(bus.BusConfig()) as s:
+        yield s
+
+
+def _collect(inbox: bus.Inbox) -> list:
+    out = []
+    while not isinstance(message := inbox.get(timeout_s=2.0), codec.EndOfStream):
+        assert message is not None, "the stream did not end"
+        out.append(message.frame.index)
+    return out + [message]
+
+
+def _play(session, name: str, frames, config: SourceConfig, should_stop=lambda: False):
+    # Lossless on the receiving side, so the test sees everything the source sent.
+    inbox = bus.subscribe(session, keys.sensor_frame(name), codec.decode_sensor_frame, "lossless", 64)
+    started = time.monotonic()
+    sent = play(session, name, frames, CAL, "mono", config, should_stop, "test")
+    elapsed = time.monotonic() - started
+    received = _collect(inbox)
+    inbox.close()
+    return sent, received, elapsed
+
+
+def test_live_playback_keeps_the_recorded_rate(session):
+    sent, received, elapsed = _play(session, "paced", _frames(6, 40_000_000), SourceConfig(rate=1.0, start_timeout_s=5.0))
+    assert sent == 6 and received == [0, 1, 2, 3, 4, 5, codec.EndOfStream(6)]
+    assert 0.19 <= elapsed < 1.0  # five 40 ms gaps
+
+
+def test_rate_scales_the_pace_and_zero_means_as_fast_as_possible(session):
+    frames = _frames(6, 100_000_000)  # 0.5 s of recording
+    _, _, doubled = _play(session, "fast", frames, SourceConfig(rate=2.0, start_timeout_s=5.0))
+    _, _, unpaced = _play(session, "fastest", frames, SourceConfig(rate=0.0, start_timeout_s=5.0))
+    assert 0.24 <= doubled < 0.45
+    assert unpaced < 0.2
+
+
+def test_max_frames_stops_early_and_still_ends_the_stream(session):
+    sent, received, _ = _play(session, "limited", _frames(10, 1), SourceConfig(rate=0.0, max_frames=3, start_timeout_s=5.0))
+    assert sent == 3 and received == [0, 1, 2, codec.EndOfStream(3)]
+
+
+def test_a_stop_request_still_ends_the_stream(session):
+    stop = {"now": False}
+
+    def frames():
+        for frame in _frames(10, 1):
+            if frame.index == 2:
+                stop["now"] = True  # as if SIGINT arrived while frame 2 was being read
+            yield frame
+
+    sent, received, _ = _play(session, "stopped", frames(), SourceConfig(rate=0.0, start_timeout_s=5.0), lambda: stop["now"])
+    assert sent == 2 and received == [0, 1, codec.EndOfStream(2)]
+
+
+def test_no_subscriber_is_an_error_naming_the_key(session):
+    with pytest.raises(bus.BusError, match="no subscriber to zenslam/lonely/sensor/frame"):
+        play(session, "lonely", _frames(2, 1), CAL, "mono", SourceConfig(start_timeout_s=0.2), lambda: False)

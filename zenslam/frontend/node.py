@@ -1,0 +1,229 @@
+"""The frontend process: sensor/frame in, tracking out (frontend/pose, frontend/state, frontend/keyframe).
+
+``FrontendNode.handle`` turns one decoded frame into the encoded messages to send and is testable
+without the bus; ``serve`` is the loop that receives, handles and publishes. The tracking itself
+is ``zenslam.frontend.pipeline.FrontendPipeline``, built on the first frame from the calibration
+and sensor kind that every sensor/frame message carries.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+import zenoh
+
+from zenslam.camera import PinholeCalibration, SensorKind
+from zenslam.errors import CalibrationError, ZenslamError
+from zenslam.schemas import codec, keys
+from zenslam.service import bus
+from zenslam.service.run_config import load_run_config
+from zenslam.service.supervisor import StopFlag, add_process_arguments, bus_config_with, setup_process_logging
+
+logger = logging.getLogger(__name__)
+
+STAGE = "frontend"
+
+
+class Pipeline(Protocol):
+    """What the node needs of the tracker (FrontendPipeline satisfies it)."""
+
+    def step(self, index: int, stamp_ns: int, left: np.ndarray, right: np.ndarray | None = None, depth_m: np.ndarray | None = None) -> Any: ...
+
+
+PipelineFactory = Callable[[PinholeCalibration, SensorKind], Pipeline]
+
+
+@dataclass(frozen=True)
+class FrontendMessages:
+    """The encoded messages one frame produces, in the order they are sent."""
+
+    keyframe: bytes | None  # frontend/keyframe, when the frame made a keyframe
+    pose: bytes | None  # frontend/pose, when tracking gave a pose
+    state: bytes  # frontend/state, always (sent last: it tells lockstep sources the frame is done)
+    step_ms: float  # wall time of the tracking step, milliseconds
+
+
+def keyframe_message(keyframe: Any, calibration: PinholeCalibration, sensor: SensorKind) -> codec.KeyframeMessage:
+    """The bus form of the pipeline's KeyFrame."""
+    return codec.KeyframeMessage(
+        id=int(keyframe.id),
+        stamp_ns=int(keyframe.stamp_ns),
+        frame_index=int(keyframe.frame_index),
+        T_world_cam=np.asarray(keyframe.T_world_cam),
+        calibration=calibration,
+        sensor=sensor,
+        keypoints_px=keyframe.px,
+        levels=keyframe.level,
+        angles_deg=keyframe.angle_deg,
+        right_u=keyframe.right_u,
+        depth_m=keyframe.depth_m,
+        descriptors=keyframe.descriptors,
+        map_point_ids=keyframe.map_point_ids,
+        scale_factors=np.asarray(keyframe.features.scale_factors, dtype=np.float64),
+        new_point_ids=keyframe.new_point_ids,
+        new_points_world=np.asarray(keyframe.new_points_world).reshape(-1, 3),
+    )
+
+
+class FrontendNode:
+    """Runs the pipeline on decoded frames and encodes its outputs; no transport in here."""
+
+    def __init__(self, make_pipeline: PipelineFactory):
+        self._make_pipeline = make_pipeline
+        self._pipeline: Pipeline | None = None
+        self._camera: tuple[PinholeCalibration, SensorKind] | None = None
+        self.frames = 0  # frames handled
+        self.keyframes = 0  # keyframes sent
+        self.skipped = 0  # frames never seen (gaps in the indices: dropped in live mode)
+        self._last_index: int | None = None
+
+    def handle(self, message: codec.FrameMessage) -> FrontendMessages:
+        """Track one frame; the pipeline is built on the first one, from its calibration and sensor."""
+        camera = (message.calibration, message.sensor)
+        if self._pipeline is None:
+            logger.info("first frame: %s camera, %s", message.sensor, message.calibration.summary())
+            self._pipeline, self._camera = self._make_pipeline(*camera), camera
+        elif camera != self._camera:
+            raise CalibrationError(
+                f"frame {message.frame.index} has camera {camera} but the run started with {self._camera}; "
+                "one run tracks one camera: start a new run"
+            )
+        frame = message.frame
+        if self._last_index is not None and frame.index > self._last_index + 1:
+            self.skipped += frame.index - self._last_index - 1
+        self._last_index = frame.index
+        started = time.perf_counter()
+        out = self._pipeline.step(frame.index, frame.stamp_ns, frame.left, right=frame.right, depth_m=frame.depth_m)
+        step_ms = (time.perf_counter() - started) * 1e3
+        self.frames += 1
+        keyframe_bytes, keyframe_id = None, -1
+        if out.keyframe is not None:
+            keyframe_id = int(out.keyframe.id)
+            kf = keyframe_message(out.keyframe, message.calibration, message.sensor)
+            keyframe_bytes = codec.encode_keyframe(kf)
+            self.keyframes += 1
+        pose_bytes = None
+        if out.T_world_cam is not None:
+            pose_bytes = codec.encode_pose_in_frame(codec.StampedPose(frame.stamp_ns, np.asarray(out.T_world_cam), "world"))
+        state = codec.TrackingStateMessage(
+            index=frame.index,
+            stamp_ns=frame.stamp_ns,
+            state=out.state,
+            lost_reason=out.lost_reason,
+            n_tracked=int(out.n_tracked),
+            timings_ms=dict(out.timings_ms),
+            has_pose=pose_bytes is not None,
+            keyframe_id=keyframe_id,
+        )
+        return FrontendMessages(keyframe_bytes, pose_bytes, codec.encode_tracking_state(state), step_ms)
+
+
+class _Outputs:
+    """The frontend's publishers: everything it sends is lossless (poses, states and keyframes must arrive)."""
+
+    def __init__(self, session: zenoh.Session, session_name: str):
+        self.pose = bus.declare_publisher(session, keys.frontend_pose(session_name), codec.POSE_IN_FRAME, "lossless")
+        self.state = bus.declare_publisher(session, keys.frontend_state(session_name), codec.TRACKING_STATE, "lossless")
+        self.keyframe = bus.declare_publisher(session, keys.frontend_keyframe(session_name), codec.KEYFRAME, "lossless")
+        self.status = bus.declare_publisher(session, keys.status(session_name, STAGE), codec.STAGE_STATUS, "lossless")
+
+    def send(self, messages: FrontendMessages) -> None:
+        if messages.keyframe is not None:
+            self.keyframe.put(messages.keyframe)
+        if messages.pose is not None:
+            self.pose.put(messages.pose)
+        self.state.put(messages.state)
+
+    def send_status(self, status: codec.StageStatusMessage) -> None:
+        self.status.put(codec.encode_stage_status(status))
+
+    def end_streams(self, frames: int, keyframes: int) -> None:
+        self.keyframe.put(codec.encode_end_of_stream(codec.KEYFRAME, keyframes))
+        self.state.put(codec.encode_end_of_stream(codec.TRACKING_STATE, frames))
+
+
+def serve(
+    session: zenoh.Session,
+    session_name: str,
+    node: FrontendNode,
+    lockstep: bool,
+    bus_config: bus.BusConfig,
+    should_stop: Callable[[], bool],
+) -> bool:
+    """Receive frames until end of stream (True) or ``should_stop()`` (False); the streams are ended either way."""
+    outputs = _Outputs(session, session_name)
+    if lockstep:
+        # Lockstep: every frame, in order; the source waits for our state before sending more.
+        frames = bus.subscribe(session, keys.sensor_frame(session_name), codec.decode_sensor_frame, "lossless", bus_config.lossless_queue)
+    else:
+        # Live: keep the newest frames and drop the oldest, as a tracker must keep up with its camera.
+        frames = bus.subscribe(session, keys.sensor_frame(session_name), codec.decode_sensor_frame, "live", bus_config.live_queue)
+    outputs.send_status(codec.StageStatusMessage(STAGE, "starting"))
+    ended = False
+    try:
+        with bus.declare_alive(session, session_name, STAGE):
+            while not should_stop():
+                message = frames.get(timeout_s=0.1)
+                if message is None:
+                    continue
+                if isinstance(message, codec.EndOfStream):
+                    logger.info("end of stream after %d frames from the source (%d tracked)", message.count, node.frames)
+                    ended = True
+                    break
+                try:
+                    sent = node.handle(message)
+                except Exception as exc:
+                    outputs.send_status(codec.StageStatusMessage(STAGE, "failed", node.frames, detail=f"{type(exc).__name__}: {exc}"))
+                    raise
+                outputs.send(sent)
+                status = codec.StageStatusMessage(STAGE, "running", node.frames, sent.step_ms, frames.depth, node.skipped)
+                outputs.send_status(status)
+                logger.debug("frame %d: %.1f ms, queue %d", message.frame.index, sent.step_ms, status.queue_depth)
+    finally:
+        outputs.end_streams(node.frames, node.keyframes)
+        outputs.send_status(codec.StageStatusMessage(STAGE, "finished", node.frames, dropped=node.skipped))
+        frames.close()
+    return ended
+
+
+def default_pipeline_factory(frontend_config: Any) -> PipelineFactory:
+    """Builds the real tracker, FrontendPipeline(config, calibration, sensor)."""
+    from zenslam.frontend.pipeline import FrontendPipeline
+
+    def make(calibration: PinholeCalibration, sensor: SensorKind) -> Pipeline:
+        return FrontendPipeline(frontend_config, calibration, sensor)
+
+    return make
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point: ``python -m zenslam.frontend.node --session S [--config FILE] [--connect EP] ...``."""
+    parser = argparse.ArgumentParser(prog="zenslam-frontend", description=__doc__.splitlines()[0])
+    add_process_arguments(parser)
+    args = parser.parse_args(argv)
+    setup_process_logging(args.verbose, STAGE)
+    stop = StopFlag(args.parent_pid).install()
+    try:
+        config = load_run_config(args.config)
+        if config.source.lockstep:
+            import cv2
+
+            cv2.setNumThreads(1)  # single-threaded numerics: lockstep runs are deterministic
+        node = FrontendNode(default_pipeline_factory(config.frontend))
+        with bus.open_session(bus_config_with(config.bus, args.connect)) as session:
+            serve(session, args.session, node, config.source.lockstep, config.bus, stop)
+    except ZenslamError as exc:
+        logger.error("%s", exc)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

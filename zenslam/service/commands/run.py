@@ -1,0 +1,209 @@
+"""``zenslam run [SOURCE]``: run the source and frontend processes over zenoh and write recordings/<run-id>/.
+
+This process is the run's hub: it opens the session the stages connect to, subscribes to
+frontend/pose and frontend/state like any other consumer would, starts and supervises the stage
+processes, shows progress from the states arriving, and writes the outputs when the stream ends.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import logging
+import os
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from tqdm import tqdm
+
+from zenslam.schemas import codec, keys
+from zenslam.service import bus
+from zenslam.service.run_config import RunConfig, apply_orbslam_settings, load_run_config, read_orbslam_settings
+from zenslam.service.run_output import (
+    RunLog,
+    RunResult,
+    evaluation_config_for,
+    new_run_id,
+    prepare_run_dir,
+    write_config,
+    write_outputs,
+)
+from zenslam.service.sources import Source, open_source
+from zenslam.service.supervisor import ProcessError, ProcessSpec, StopFlag, Supervisor
+
+logger = logging.getLogger(__name__)
+
+_EXIT_INTERRUPTED = 130
+_POSE_GRACE_S = 5.0  # seconds to wait, after the end of stream, for poses still in flight
+_EXIT_WAIT_S = 30.0  # seconds the stages get to exit by themselves after the end of stream
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "run",
+        help="run SLAM on a dataset or synthetic scene and write recordings/<run-id>/",
+        description="Start the source and tracking processes over zenoh, follow the poses, and write the "
+        "trajectories, metrics.json (ATE/RPE when there is ground truth) and a plot to OUTPUT/<run-id>/.",
+    )
+    parser.add_argument(
+        "source", nargs="?", default=None,
+        help="kitti:<root>/sequences/NN | euroc:<folder> | tum:<folder> | synthetic[:<scene>[/<sensor>]] "
+        "(default: source.spec of the config, which defaults to synthetic)",
+    )
+    parser.add_argument("--output", type=Path, default=Path("recordings"), help="folder of the run folders (default recordings)")
+    parser.add_argument("--config", type=Path, default=None, help="YAML with sections bus, source, frontend, evaluation")
+    parser.add_argument("--orbslam-settings", type=Path, default=None, help="ORB-SLAM2/3 settings file: calibration and ORB values")
+    parser.add_argument("--lockstep", action="store_true", help="deterministic: each frame waits for the previous one's tracking")
+    parser.add_argument("--rate", type=float, default=None, help="live playback speed, multiple of the recorded rate (0: fastest)")
+    parser.add_argument("--max-frames", type=int, default=None, help="stop after this many frames")
+    parser.add_argument("--run-id", default=None, help="name of the run folder and bus session (default: date-time-pid)")
+    parser.add_argument("--bus-config", type=Path, default=None, help="zenoh JSON5 config file (routers, other machines)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.set_defaults(handler=run)
+
+
+def resolve_config(args: argparse.Namespace) -> RunConfig:
+    """The run's configuration: the file (or defaults), then the ORB-SLAM settings, then the options."""
+    config = load_run_config(args.config)
+    if args.orbslam_settings is not None:
+        config = apply_orbslam_settings(config, read_orbslam_settings(args.orbslam_settings))
+    source = config.source
+    if args.source is not None:
+        source = dataclasses.replace(source, spec=args.source)
+    if args.lockstep:
+        source = dataclasses.replace(source, lockstep=True)
+    if args.rate is not None:
+        source = dataclasses.replace(source, rate=args.rate)
+    if args.max_frames is not None:
+        source = dataclasses.replace(source, max_frames=args.max_frames)
+    bus_config = config.bus
+    if args.bus_config is not None:
+        bus_config = dataclasses.replace(bus_config, zenoh_config_file=str(args.bus_config))
+    return dataclasses.replace(config, source=source, bus=bus_config)
+
+
+def _child_env(config: RunConfig) -> dict[str, str]:
+    env = dict(os.environ)
+    if config.source.lockstep:
+        # Single-threaded numerics in lockstep runs: same input, same bytes out.
+        for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+            env[name] = "1"
+    return env
+
+
+class _Follower:
+    """Receives frontend/state and frontend/pose into a RunLog, with a progress bar."""
+
+    def __init__(self, session, run_id: str, config: RunConfig, total: int | None, progress: bool):
+        capacity = max(config.bus.lossless_queue, 256)
+        # Lossless: every pose and state is needed for the trajectory and the metrics.
+        self.poses = bus.subscribe(session, keys.frontend_pose(run_id), codec.decode_pose_in_frame, "lossless", capacity)
+        self.states = bus.subscribe(session, keys.frontend_state(run_id), codec.decode_tracking_state, "lossless", capacity)
+        self.log = RunLog()
+        self.bar = tqdm(total=total, unit="frame", desc="tracking", disable=not progress)
+
+    def poll(self, timeout_s: float) -> None:
+        """Take what has arrived (waiting up to ``timeout_s`` seconds for a state)."""
+        while (pose := self.poses.get(0)) is not None:
+            self.log.add_pose(pose)
+        state = self.states.get(timeout_s)
+        if isinstance(state, codec.EndOfStream):
+            self.log.ended = True
+        elif state is not None:
+            self.log.add_state(state)
+            self.bar.update(1)
+            self.bar.set_postfix(state=state.state, tracked=state.n_tracked, refresh=False)
+
+    def drain(self, until: float) -> None:
+        """Keep taking messages until the poses announced by the states have all arrived, or ``until``."""
+        while time.monotonic() < until and (not self.log.ended or self.log.missing_poses() > 0):
+            self.poll(0.05)
+
+    def close(self) -> None:
+        self.bar.close()
+        self.poses.close()
+        self.states.close()
+
+
+def _follow(follower: _Follower, supervisor: Supervisor, stop: StopFlag) -> bool:
+    """Follow the run until the frontend's end of stream (True) or an interrupt (False)."""
+    while not follower.log.ended:
+        if stop():
+            supervisor.request_stop()
+            follower.drain(time.monotonic() + 10.0)
+            return False
+        supervisor.check()
+        if supervisor.returncode("frontend") is not None:
+            follower.drain(time.monotonic() + 1.0)
+            if not follower.log.ended:
+                raise ProcessError(f"the frontend exited before the end of stream:\n{supervisor.log_tail('frontend')}")
+        follower.poll(0.05)
+    follower.drain(time.monotonic() + _POSE_GRACE_S)
+    return True
+
+
+@contextmanager
+def _restoring(stop: StopFlag) -> Iterator[None]:
+    try:
+        yield
+    finally:
+        stop.uninstall()
+
+
+def track(config: RunConfig, run_id: str, run_dir: Path, config_path: Path, source: Source, progress: bool) -> tuple[RunLog, bool]:
+    """Start the stages, follow them to the end of stream, and see them exit; returns (log, completed)."""
+    hub = None if config.bus.zenoh_config_file else bus.free_tcp_endpoint()
+    hub_bus = config.bus if hub is None else dataclasses.replace(config.bus, listen=(hub,))
+    total = len(source) if config.source.max_frames is None else min(len(source), config.source.max_frames)
+    stop = StopFlag().install()
+    with _restoring(stop), bus.open_session(hub_bus) as session:
+        follower = _Follower(session, run_id, config, total, progress)
+        try:
+            supervisor = Supervisor(run_dir, run_id, config_path, hub, env=_child_env(config))
+            with supervisor, bus.declare_alive(session, run_id, "run"):
+                supervisor.start(ProcessSpec("frontend", "zenslam.frontend.node"))
+                supervisor.wait_until_alive(session, ["frontend"], config.source.start_timeout_s, stop.keep_going)
+                supervisor.start(ProcessSpec("source", "zenslam.service.source_node", ("--wait-for", "frontend")))
+                completed = _follow(follower, supervisor, stop)
+                statuses = supervisor.wait_exit(_EXIT_WAIT_S if completed else 10.0)
+                supervisor.check()
+                stuck = [name for name, code in statuses.items() if code is None]
+                if stuck:
+                    logger.warning("stage(s) %s still running %.0f s after the end of stream; stopping them", stuck, _EXIT_WAIT_S)
+        finally:
+            follower.close()
+    return follower.log, completed
+
+
+def _summary(result: RunResult, log: RunLog) -> list[str]:
+    counts = log.frame_counts()
+    lines = [
+        f"frames {counts['frames']}: {counts['tracked_ok']} tracked, {counts['lost_frames']} lost, {counts['keyframes']} keyframes",
+    ]
+    if result.evaluation is not None:
+        ate, rpe = result.evaluation.ate, result.evaluation.rpe
+        lines.append(f"ATE RMSE {ate.rmse_m:.4f} m ({ate.alignment} alignment, {ate.matched_poses} poses)")
+        lines.append(f"RPE {rpe.trans_rmse_m:.4f} m, {rpe.rot_rmse_deg:.3f} deg per {rpe.delta:g} {rpe.delta_unit}")
+    else:
+        lines.append(f"ATE not available: {result.evaluation_error or 'the source has no ground truth'}")
+    lines.append(f"wrote {result.run_dir}")
+    return lines
+
+
+def run(args: argparse.Namespace) -> int:
+    """Resolve the config, prepare the run folder, track, write the outputs, print the accuracy."""
+    config = resolve_config(args)
+    source = open_source(config.source.spec)
+    run_id = args.run_id or new_run_id()
+    run_dir = prepare_run_dir(args.output, run_id)
+    config_path = write_config(run_dir, config)
+    logger.info("run %s: %s (%s, %d frames) -> %s", run_id, source.name, source.sensor, len(source), run_dir)
+    log, completed = track(config, run_id, run_dir, config_path, source, progress=not args.no_progress)
+    extra = {"run": {"run_id": run_id, "source": config.source.spec, "lockstep": config.source.lockstep, "completed": completed}}
+    evaluation_config = evaluation_config_for(config.evaluation, source.sensor)
+    result = write_outputs(run_dir, log, source.ground_truth(), evaluation_config, extra)
+    for line in _summary(result, log):
+        print(line)
+    return 0 if completed else _EXIT_INTERRUPTED

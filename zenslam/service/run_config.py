@@ -1,0 +1,211 @@
+"""The configuration of one run: a YAML file with one section per stage, and ORB-SLAM3 settings files.
+
+``load_run_config`` reads the YAML (sections ``bus``, ``source``, ``frontend``, ``evaluation``; unknown keys are an
+error). ``read_orbslam_settings`` reads an ORB-SLAM3 (or ORB-SLAM2) settings file with OpenCV's
+FileStorage, and ``apply_orbslam_settings`` makes its rectified calibration override the source's
+and its ORB/threshold values override the frontend's, so users can bring their existing files.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import cv2
+import numpy as np
+
+from zenslam.camera import PinholeCalibration
+from zenslam.errors import CalibrationError, ConfigError
+from zenslam.frontend.pipeline import FrontendConfig
+from zenslam.service.bus import BusConfig
+from zenslam.service.config import from_mapping, load_yaml, to_mapping
+from zenslam.service.evaluation.metrics import EvaluationConfig
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class SourceConfig:
+    """What the source process plays and how (the ``source`` section)."""
+
+    spec: str = "synthetic"  # kitti:<root>/sequences/NN | euroc:<folder> | tum:<folder> | synthetic[:<scene>[/<sensor>]]
+    lockstep: bool = False  # send frame i+1 only after the frontend reported frame i (deterministic runs)
+    rate: float = 1.0  # live mode: playback speed as a multiple of the recorded rate; 0 = as fast as possible
+    max_frames: int | None = None  # frames; stop after this many (None: the whole sequence)
+    depth_encoding: Literal["float32_m", "uint16_mm"] = "float32_m"  # how RGB-D depth travels on the bus
+    start_timeout_s: float = 60.0  # seconds to wait for the frontend to come up before giving up
+    answer_timeout_s: float = 120.0  # lockstep: seconds to wait for the frontend's answer to one frame
+    calibration: PinholeCalibration | None = None  # rectified intrinsics overriding the source's own (None: keep)
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.rate) and self.rate >= 0):
+            raise ConfigError(f"source.rate={self.rate} must be >= 0 (1 = recorded rate, 0 = as fast as possible)")
+        if self.max_frames is not None and self.max_frames < 1:
+            raise ConfigError(f"source.max_frames={self.max_frames} must be >= 1, or null for all frames")
+        for name in ("start_timeout_s", "answer_timeout_s"):
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"source.{name}={getattr(self, name)} must be a positive number of seconds")
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Everything a run needs, one section per stage; written resolved next to the run's outputs."""
+
+    bus: BusConfig = field(default_factory=BusConfig)
+    source: SourceConfig = field(default_factory=SourceConfig)
+    frontend: FrontendConfig = field(default_factory=FrontendConfig)
+    # Monocular runs are compared after a Sim(3) alignment whatever ``alignment`` says (no metric scale).
+    evaluation: EvaluationConfig = field(default_factory=EvaluationConfig)
+
+
+def load_run_config(path: str | Path | None) -> RunConfig:
+    """The run configuration in the YAML file ``path`` (defaults for missing keys), or all defaults for None."""
+    if path is None:
+        return RunConfig()
+    return from_mapping(RunConfig, load_yaml(Path(path)), "")
+
+
+def run_config_to_yaml(config: RunConfig) -> str:
+    """The YAML text of ``config`` (load_run_config reads it back to an equal config)."""
+    import yaml
+
+    return yaml.safe_dump(to_mapping(config), sort_keys=False)
+
+
+@dataclass(frozen=True)
+class OrbSlamSettings:
+    """What zenslam takes from an ORB-SLAM2/3 settings file; None where the file does not say."""
+
+    calibration: PinholeCalibration  # rectified intrinsics (and baseline for stereo/RGB-D)
+    fps: float | None = None  # Camera.fps, frames per second
+    th_depth: float | None = None  # ThDepth / Stereo.ThDepth: close/far threshold, in baselines
+    depth_map_factor: float | None = None  # DepthMapFactor / RGBD.DepthMapFactor: depth image units per metre
+    orb: dict[str, float] = field(default_factory=dict)  # OrbConfig field -> value from ORBextractor.*
+
+
+# ORB-SLAM settings key -> OrbConfig field.
+_ORB_KEYS = {
+    "ORBextractor.nFeatures": ("n_features", int),
+    "ORBextractor.scaleFactor": ("scale_factor", float),
+    "ORBextractor.nLevels": ("n_levels", int),
+    "ORBextractor.iniThFAST": ("ini_fast_threshold", int),
+    "ORBextractor.minThFAST": ("min_fast_threshold", int),
+}
+
+
+def _read_node(fs: cv2.FileStorage, *names: str) -> Any:
+    """The first of ``names`` present in the file: a float, a string, or a matrix; None if none is."""
+    for name in names:
+        node = fs.getNode(name)
+        if node.empty() or node.isNone():
+            continue
+        if node.isString():
+            return node.string()
+        if node.isMap():
+            return node.mat()
+        return node.real()
+    return None
+
+
+def read_orbslam_settings(path: str | Path) -> OrbSlamSettings:
+    """Read an ORB-SLAM2 (``Camera.fx``) or ORB-SLAM3 (``Camera1.fx``, ``File.version``) settings file.
+
+    The calibration must describe rectified images, as zenslam's sources deliver them: either the
+    ``Camera`` intrinsics with zero distortion, or the stereo rectification ``LEFT.P``/``RIGHT.P``.
+    The baseline comes from ``Stereo.b`` (metres), ``Camera.bf`` (metres x fx) or ``RIGHT.P``.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"ORB-SLAM settings file {path} does not exist")
+    try:
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_FORMAT_YAML)
+    except cv2.error as exc:
+        raise ConfigError(f"ORB-SLAM settings file {path} cannot be parsed by OpenCV: {exc}") from exc
+    if not fs.isOpened():
+        raise ConfigError(f"ORB-SLAM settings file {path} cannot be opened as an OpenCV YAML file")
+    try:
+        calibration = _read_calibration(fs, path)
+        orb = {}
+        for key, (name, kind) in _ORB_KEYS.items():
+            value = _read_node(fs, key)
+            if value is not None:
+                orb[name] = kind(value)
+        return OrbSlamSettings(
+            calibration=calibration,
+            fps=_read_node(fs, "Camera.fps"),
+            th_depth=_read_node(fs, "Stereo.ThDepth", "ThDepth"),
+            depth_map_factor=_read_node(fs, "RGBD.DepthMapFactor", "DepthMapFactor"),
+            orb=orb,
+        )
+    finally:
+        fs.release()
+
+
+def _read_calibration(fs: cv2.FileStorage, path: Path) -> PinholeCalibration:
+    size = [_read_node(fs, f"Camera.{k}", f"Camera1.{k}") for k in ("width", "height")]
+    if None in size:
+        raise CalibrationError(f"{path}: Camera.width and Camera.height are required to check the images' size")
+    width, height = int(size[0]), int(size[1])
+    left_p, right_p = _read_node(fs, "LEFT.P"), _read_node(fs, "RIGHT.P")
+    if isinstance(left_p, np.ndarray) and left_p.shape == (3, 4):
+        # Stereo rectification given: the rectified projection is what the images will have.
+        fx, fy, cx, cy = left_p[0, 0], left_p[1, 1], left_p[0, 2], left_p[1, 2]
+        baseline = None
+        if isinstance(right_p, np.ndarray) and right_p.shape == (3, 4) and right_p[0, 3] != 0:
+            baseline = -float(right_p[0, 3]) / float(right_p[0, 0])
+        return PinholeCalibration(float(fx), float(fy), float(cx), float(cy), width, height, baseline or _baseline(fs, fx))
+    values = {k: _read_node(fs, f"Camera1.{k}", f"Camera.{k}") for k in ("fx", "fy", "cx", "cy")}
+    missing = [k for k, v in values.items() if v is None]
+    if missing:
+        raise CalibrationError(f"{path}: missing Camera.{missing[0]} (or Camera1.{missing[0]}); cannot build the calibration")
+    distortion = {k: _read_node(fs, f"Camera1.{k}", f"Camera.{k}") for k in ("k1", "k2", "p1", "p2", "k3")}
+    nonzero = {k: v for k, v in distortion.items() if isinstance(v, float) and v != 0.0}
+    if nonzero:
+        raise CalibrationError(
+            f"{path}: distortion {nonzero} is not zero, but zenslam's sources deliver rectified images; give the "
+            "rectified intrinsics (LEFT.P/RIGHT.P, or Camera.* with zero distortion)"
+        )
+    fx = float(values["fx"])
+    return PinholeCalibration(fx, float(values["fy"]), float(values["cx"]), float(values["cy"]), width, height, _baseline(fs, fx))
+
+
+def _baseline(fs: cv2.FileStorage, fx: float) -> float | None:
+    b = _read_node(fs, "Stereo.b")
+    if isinstance(b, float):
+        return b
+    bf = _read_node(fs, "Camera.bf")
+    return float(bf) / fx if isinstance(bf, float) else None
+
+
+def apply_orbslam_settings(config: RunConfig, settings: OrbSlamSettings) -> RunConfig:
+    """``config`` with the settings' calibration overriding the source's and their values the frontend's.
+
+    ThDepth sets the frontend's close/far threshold (in baselines) and Camera.fps its keyframe
+    rate; a value the frontend has no field for is logged and skipped.
+    """
+    overrides: dict[str, Any] = {f"orb.{name}": value for name, value in settings.orb.items()}
+    if settings.th_depth is not None:
+        overrides["keyframe.close_depth_baselines"] = float(settings.th_depth)
+    if settings.fps is not None:
+        overrides["keyframe.max_frames"] = int(round(settings.fps))
+    frontend = config.frontend
+    for dotted, value in overrides.items():
+        frontend = _replace_path(frontend, dotted.split("."), value)
+    if settings.depth_map_factor is not None:
+        logger.info("settings DepthMapFactor=%s not used: zenslam's RGB-D sources already give metres", settings.depth_map_factor)
+    source = dataclasses.replace(config.source, calibration=settings.calibration)
+    return dataclasses.replace(config, source=source, frontend=frontend)
+
+
+def _replace_path(obj: Any, path: list[str], value: Any) -> Any:
+    name = path[0]
+    if not dataclasses.is_dataclass(obj) or name not in {f.name for f in dataclasses.fields(obj)}:
+        logger.warning("the frontend configuration has no field %r; ORB-SLAM setting value %r skipped", name, value)
+        return obj
+    if len(path) == 1:
+        return dataclasses.replace(obj, **{name: value})
+    return dataclasses.replace(obj, **{name: _replace_path(getattr(obj, name), path[1:], value)})

@@ -1,0 +1,174 @@
+"""What a run leaves in recordings/<run-id>/: the resolved config, trajectories, metrics.json and a plot.
+
+``RunLog`` collects the frontend/state and frontend/pose messages the run command receives;
+``write_outputs`` turns them into ``trajectory.tum`` (every frame tracked ok), ``keyframes.tum``,
+``metrics.json`` (ATE/RPE when there is ground truth, plus timing and frame counts) and
+``trajectory_top.png``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from zenslam.errors import ConfigError, TrajectoryError
+from zenslam.schemas import codec, keys
+from zenslam.service.evaluation.metrics import Evaluation, EvaluationConfig, evaluate
+from zenslam.service.evaluation.plot import save_evaluation_plot
+from zenslam.service.evaluation.report import METRICS_FILENAME, write_metrics
+from zenslam.service.evaluation.trajectory_io import write_tum
+from zenslam.service.run_config import RunConfig, run_config_to_yaml
+from zenslam.trajectory import Trajectory
+
+logger = logging.getLogger(__name__)
+
+CONFIG_FILENAME = "config.yaml"
+TRAJECTORY_FILENAME = "trajectory.tum"
+KEYFRAMES_FILENAME = "keyframes.tum"
+PLOT_FILENAME = "trajectory_top.png"
+
+
+def new_run_id() -> str:
+    """A fresh run id: local date and time plus the process id, e.g. ``20260314-091502-4242``."""
+    return f"{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}"
+
+
+def prepare_run_dir(output_root: Path, run_id: str) -> Path:
+    """Create ``output_root/run_id``; an existing non-empty folder is an error (runs never overwrite)."""
+    keys.session_prefix(run_id)  # the run id is also the bus session name: it must be a valid key chunk
+    run_dir = Path(output_root) / run_id
+    if run_dir.exists() and any(run_dir.iterdir()):
+        raise ConfigError(f"run folder {run_dir} already holds files; choose another --run-id or --output")
+    run_dir.mkdir(parents=True, exist_ok=True)
+    return run_dir
+
+
+def write_config(run_dir: Path, config: RunConfig) -> Path:
+    """Write the resolved configuration as ``config.yaml`` (the stage processes read this very file)."""
+    path = Path(run_dir) / CONFIG_FILENAME
+    path.write_text(run_config_to_yaml(config))
+    return path
+
+
+class RunLog:
+    """The tracking states and poses a run received, keyed by frame index and stamp."""
+
+    def __init__(self) -> None:
+        self.states: dict[int, codec.TrackingStateMessage] = {}
+        self.poses: dict[int, np.ndarray] = {}  # stamp_ns -> T_world_cam
+        self.ended = False  # the frontend's end of stream arrived
+
+    def add_state(self, state: codec.TrackingStateMessage) -> None:
+        self.states[state.index] = state
+
+    def add_pose(self, pose: codec.StampedPose) -> None:
+        self.poses[pose.stamp_ns] = pose.T_world_cam
+
+    def missing_poses(self) -> int:
+        """Poses announced by a state (has_pose) that have not arrived."""
+        return sum(1 for s in self.states.values() if s.has_pose and s.stamp_ns not in self.poses)
+
+    def _trajectory(self, keep: Callable[[codec.TrackingStateMessage], bool]) -> Trajectory | None:
+        chosen = sorted(
+            (s.stamp_ns, self.poses[s.stamp_ns]) for s in self.states.values() if keep(s) and s.stamp_ns in self.poses
+        )
+        if not chosen:
+            return None
+        return Trajectory(np.array([c[0] for c in chosen], dtype=np.int64), np.stack([c[1] for c in chosen]))
+
+    def trajectory(self) -> Trajectory | None:
+        """T_world_cam of every frame tracked ok, by stamp; None if there is none."""
+        return self._trajectory(lambda s: s.state == "ok")
+
+    def keyframe_trajectory(self) -> Trajectory | None:
+        """T_world_cam of the frames that made a keyframe, as tracked when they were made."""
+        return self._trajectory(lambda s: s.keyframe_id >= 0)
+
+    def timing(self) -> dict[str, dict[str, float]]:
+        """Per tracking step: mean, median and max milliseconds over the frames that ran it."""
+        samples: dict[str, list[float]] = {}
+        for index in sorted(self.states):
+            for name, ms in self.states[index].timings_ms.items():
+                samples.setdefault(name, []).append(ms)
+        return {
+            name: {
+                "mean_ms": float(np.mean(v)),
+                "median_ms": float(np.median(v)),
+                "max_ms": float(np.max(v)),
+                "frames": len(v),
+            }
+            for name, v in sorted(samples.items())
+        }
+
+    def frame_counts(self) -> dict[str, object]:
+        """The ``frames``, ``lost_frames``, ``lost_reasons`` and ``keyframes`` sections of metrics.json."""
+        states = [self.states[i] for i in sorted(self.states)]
+        lost = [s for s in states if s.state == "lost"]
+        reasons = Counter(s.lost_reason or "unknown" for s in lost)
+        return {
+            "frames": len(states),
+            "tracked_ok": sum(1 for s in states if s.state == "ok"),
+            "lost_frames": len(lost),
+            "lost_reasons": dict(sorted(reasons.items())),
+            "keyframes": sum(1 for s in states if s.keyframe_id >= 0),
+        }
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """What ``write_outputs`` wrote, and the evaluation when there was ground truth."""
+
+    run_dir: Path
+    evaluation: Evaluation | None
+    evaluation_error: str | None  # why there is no evaluation despite ground truth
+    files: tuple[Path, ...]
+
+
+def write_outputs(
+    run_dir: Path,
+    log: RunLog,
+    ground_truth: Trajectory | None,
+    evaluation_config: EvaluationConfig,
+    extra: dict[str, object] | None = None,
+) -> RunResult:
+    """Write trajectory.tum, keyframes.tum, metrics.json and (with ground truth) trajectory_top.png."""
+    run_dir = Path(run_dir)
+    files: list[Path] = []
+    estimate = log.trajectory()
+    keyframes = log.keyframe_trajectory()
+    for name, trajectory in ((TRAJECTORY_FILENAME, estimate), (KEYFRAMES_FILENAME, keyframes)):
+        if trajectory is not None:
+            files.append(write_tum(run_dir / name, trajectory))
+        else:
+            logger.warning("no pose to write to %s", run_dir / name)
+    evaluation, error = None, None
+    if ground_truth is not None and estimate is not None:
+        try:
+            evaluation = evaluate(estimate, ground_truth, evaluation_config)
+        except TrajectoryError as exc:
+            error = str(exc)
+            logger.warning("no ATE for this run: %s", exc)
+    elif ground_truth is not None:
+        error = "no frame was tracked, so there is nothing to compare with the ground truth"
+    sections: dict[str, object] = {"timing": log.timing(), **log.frame_counts(), **(extra or {})}
+    if error is not None:
+        sections["evaluation_error"] = error
+    files.append(write_metrics(run_dir / METRICS_FILENAME, evaluation, **sections))
+    if evaluation is not None:
+        files.append(save_evaluation_plot(run_dir / PLOT_FILENAME, evaluation))
+    return RunResult(run_dir, evaluation, error, tuple(files))
+
+
+def evaluation_config_for(config: EvaluationConfig, sensor: str) -> EvaluationConfig:
+    """Monocular runs have no metric scale: compare them after a Sim(3) alignment, others after SE(3)."""
+    if sensor == "mono" and config.alignment == "se3":
+        return dataclasses.replace(config, alignment="sim3")
+    return config

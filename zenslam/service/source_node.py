@@ -1,0 +1,151 @@
+"""The source process: plays a Source onto sensor/frame, paced at the recorded rate or in lockstep.
+
+Live mode sends frame i at its recorded time (scaled by ``source.rate``) whether or not anyone
+keeps up, with DROP congestion control, like a camera. Lockstep mode sends frame i+1 only after the
+frontend's frontend/state for frame i has arrived, with lossless delivery: every frame is tracked,
+in order, and the run is deterministic. Either way the stream ends with an end-of-stream message.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import time
+from collections.abc import Callable, Iterable
+
+import zenoh
+
+from zenslam.camera import PinholeCalibration, SensorKind
+from zenslam.errors import ZenslamError
+from zenslam.schemas import codec, keys
+from zenslam.service import bus
+from zenslam.service.run_config import SourceConfig, load_run_config
+from zenslam.service.sources import SensorFrame, open_source
+from zenslam.service.supervisor import StopFlag, add_process_arguments, bus_config_with, setup_process_logging
+
+logger = logging.getLogger(__name__)
+
+STAGE = "source"
+
+
+class _Pacer:
+    """Sleeps until each frame's recorded time, scaled by ``rate`` (0: never sleeps)."""
+
+    def __init__(self, rate: float, should_stop: Callable[[], bool]):
+        self._rate = rate
+        self._should_stop = should_stop
+        self._origin: tuple[float, int] | None = None  # (monotonic s, stamp ns) of the first frame
+
+    def wait_for(self, stamp_ns: int) -> None:
+        if self._rate == 0:
+            return
+        if self._origin is None:
+            self._origin = (time.monotonic(), stamp_ns)
+            return
+        due = self._origin[0] + (stamp_ns - self._origin[1]) * 1e-9 / self._rate
+        while not self._should_stop():
+            remaining = due - time.monotonic()
+            if remaining <= 0:
+                return
+            time.sleep(min(remaining, 0.05))
+
+
+def _wait_for_answer(states: bus.Inbox, index: int, timeout_s: float, should_stop: Callable[[], bool]) -> None:
+    """Lockstep: wait for the frontend's state of frame ``index``."""
+    deadline = time.monotonic() + timeout_s
+    while not should_stop():
+        state = states.get(timeout_s=0.1)
+        if isinstance(state, codec.TrackingStateMessage) and state.index == index:
+            return
+        if isinstance(state, codec.EndOfStream):
+            raise bus.BusError(f"the frontend ended its stream while the source waited for frame {index}")
+        if time.monotonic() > deadline:
+            raise bus.BusError(
+                f"lockstep: the frontend did not report frame {index} within {timeout_s:.0f} s "
+                "(source.answer_timeout_s); check the frontend's log"
+            )
+
+
+def play(
+    session: zenoh.Session,
+    session_name: str,
+    frames: Iterable[SensorFrame],
+    calibration: PinholeCalibration,
+    sensor: SensorKind,
+    config: SourceConfig,
+    should_stop: Callable[[], bool],
+    source_name: str = "",
+) -> int:
+    """Publish ``frames`` on sensor/frame, then an end-of-stream message; returns the frames sent.
+
+    The caller has made sure the consumers are up. Stops early (still sending end-of-stream) when
+    ``should_stop()`` turns true or after ``config.max_frames`` frames.
+    """
+    key = keys.sensor_frame(session_name)
+    # Lockstep frames must all arrive, in order; live frames may be dropped when a link is congested.
+    frame_pub = bus.declare_publisher(session, key, codec.SENSOR_FRAME, "lossless" if config.lockstep else "live")
+    # End of stream goes on the same key, lossless, so it arrives, and after the frames.
+    end_pub = bus.declare_publisher(session, key, codec.SENSOR_FRAME, "lossless")
+    status_pub = bus.declare_publisher(session, keys.status(session_name, STAGE), codec.STAGE_STATUS, "lossless")
+    states = None
+    if config.lockstep:
+        # Lossless: the answer to every frame must be seen, or the source would wait forever.
+        states = bus.subscribe(session, keys.frontend_state(session_name), codec.decode_tracking_state, "lossless", 64)
+    if not bus.wait_for_subscribers(frame_pub, config.start_timeout_s, keep_waiting=lambda: not should_stop()):
+        if not should_stop():
+            raise bus.BusError(f"no subscriber to {key} within {config.start_timeout_s:.0f} s; is the frontend running?")
+    pacer = _Pacer(0.0 if config.lockstep else config.rate, should_stop)
+    sent = 0
+    try:
+        for frame in frames:
+            if should_stop() or (config.max_frames is not None and sent >= config.max_frames):
+                break
+            pacer.wait_for(frame.stamp_ns)
+            started = time.perf_counter()
+            frame_pub.put(codec.encode_sensor_frame(frame, calibration, sensor, source_name, config.depth_encoding))
+            sent += 1
+            if states is not None:
+                _wait_for_answer(states, frame.index, config.answer_timeout_s, should_stop)
+            status = codec.StageStatusMessage(STAGE, "running", sent, (time.perf_counter() - started) * 1e3)
+            status_pub.put(codec.encode_stage_status(status))
+    finally:
+        end_pub.put(codec.encode_end_of_stream(codec.SENSOR_FRAME, sent))
+        status_pub.put(codec.encode_stage_status(codec.StageStatusMessage(STAGE, "finished", sent)))
+        if states is not None:
+            states.close()
+    logger.info("sent %d frames and the end of stream on %s", sent, key)
+    return sent
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point: ``python -m zenslam.service.source_node --session S [--config FILE] [--connect EP] ...``."""
+    parser = argparse.ArgumentParser(prog="zenslam-source", description=__doc__.splitlines()[0])
+    add_process_arguments(parser)
+    parser.add_argument("--source", default=None, help="source spec overriding source.spec of the config")
+    parser.add_argument(
+        "--wait-for", action="append", default=[], metavar="STAGE",
+        help="stage whose liveliness token must be present before the first frame (repeatable)",
+    )
+    args = parser.parse_args(argv)
+    setup_process_logging(args.verbose, STAGE)
+    stop = StopFlag(args.parent_pid).install()
+    try:
+        config = load_run_config(args.config)
+        source = open_source(args.source or config.source.spec)
+        calibration = config.source.calibration or source.calibration
+        with bus.open_session(bus_config_with(config.bus, args.connect)) as session:
+            with bus.declare_alive(session, args.session, STAGE):
+                timeout_s = config.source.start_timeout_s
+                missing = bus.wait_for_alive(session, args.session, args.wait_for, timeout_s, stop.keep_going)
+                if missing and not stop():
+                    raise bus.BusError(f"stage(s) {sorted(missing)} did not come up within {timeout_s:.0f} s")
+                play(session, args.session, source, calibration, source.sensor, config.source, stop, source.name)
+    except ZenslamError as exc:
+        logger.error("%s", exc)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
