@@ -7,8 +7,10 @@ KITTI setting), each with 1 and 2 extraction threads. The machine's load average
 because the figures are wall times on a shared 2-core machine; the calling thread's CPU time is
 recorded too (with threads=1 it is the whole work, and does not depend on the load).
 
-Run: ``/work/venv/bin/python benchmarks/frontend_extraction.py [--data ../shared/data] [--repeats 2]``
-(writes benchmarks/results/frontend_extraction.json).
+Run: ``/work/venv/bin/python benchmarks/frontend_extraction.py [--data ../shared/data] [--repeats 2]
+[--cv-threads 1]`` (writes benchmarks/results/frontend_extraction.json). ``--cv-threads 1`` turns off
+OpenCV's internal thread pool, which only adds synchronisation when the pair is already split
+over two threads.
 """
 
 from __future__ import annotations
@@ -77,7 +79,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, default=REPO.parent / "shared" / "data", help="benchmark clips root")
     parser.add_argument("--repeats", type=int, default=2, help="passes over the 51 frames per variant")
+    parser.add_argument(
+        "--cv-threads", type=int, default=-1, help="cv2.setNumThreads value (-1: leave OpenCV's default)"
+    )
     args = parser.parse_args()
+    if args.cv_threads >= 0:
+        cv2.setNumThreads(args.cv_threads)
     source = KittiSource(args.data / "kitti_odometry" / "sequences" / "06")
     pairs = [(frame.left, frame.right) for frame in source]
     load_before = os.getloadavg()
@@ -90,6 +97,7 @@ def main() -> None:
         "machine": platform.platform(),
         "python": platform.python_version(),
         "opencv": cv2.__version__,
+        "opencv_threads": cv2.getNumThreads(),
         "cpu_count": os.cpu_count(),
         "load_average_1_5_15_before": load_before,
         "load_average_1_5_15_after": os.getloadavg(),

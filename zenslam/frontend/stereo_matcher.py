@@ -80,12 +80,13 @@ def match_stereo(
 ) -> StereoMatches:
     """Match left keypoints to right keypoints along rectified rows, refine by SAD, give depth.
 
-    Follows ORB-SLAM2: for each left keypoint the best ORB match among right keypoints on the
-    same rows (+-2 * scale) at adjacent levels inside the disparity range [0, bf / min_depth],
-    then an 11x11 SAD window slid +-5 px on the left keypoint's level with a parabola through
+    Follows ORB-SLAM2: for each left keypoint the best ORB match (Hamming < 75 bits) among right
+    keypoints on the same rows (+-2 * scale) at adjacent levels inside the disparity range
+    [0, bf / min_depth], then an 11x11 SAD window slid +-5 px on the left keypoint's level with a parabola through
     the three best costs, then rejection of matches whose SAD exceeds 2.1 x the median (ORB-SLAM2
     applies that test to the SAD cost, not the descriptor distance). Coordinates are level-0
-    pixels of the rectified images; depth is in metres along the left camera's z axis.
+    pixels of the rectified images; depth is in metres along the left camera's z axis. As in
+    ORB-SLAM2, a zero disparity is kept as 0.01 px (depth 100 * bf): callers decide what is far.
     """
     config = config or StereoMatchConfig()
     if calibration.baseline_m is None:
