@@ -1,0 +1,313 @@
+"""Local mapping as ORB-SLAM's ``LocalMapping::Run`` does it, one keyframe message at a time.
+
+``LocalMapper.process`` inserts the keyframe (its associations become observations, its new points
+map points on the recent list), culls recent points, triangulates new points with the neighbours,
+fuses duplicates, runs local bundle adjustment over the covisibility window and culls redundant
+keyframes; it returns the ``MapUpdate`` the frontend applies: every keyframe whose pose or
+associations changed, every point created, moved or re-described, and the removed ids.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections import Counter
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from zenslam.backend.keyframe_culling import KeyframeCullingConfig, cull_redundant_keyframes
+from zenslam.backend.local_ba import BAProblem, BAResult
+from zenslam.backend.map import BackendKeyframe, BackendMap, MapChanges
+from zenslam.backend.point_culling import PointCullingConfig, count_visibility, cull_recent_points
+from zenslam.backend.point_fusion import FusionConfig, fuse_with_neighbours
+from zenslam.backend.triangulation import TriangulationConfig, create_new_points
+from zenslam.errors import ConfigError
+from zenslam.schemas.codec import KeyframeMessage
+from zenslam.schemas.map_update import KeyframeCorrection, MapUpdate
+
+logger = logging.getLogger(__name__)
+
+TIMING_STEPS = ("insertion", "point_culling", "triangulation", "fusion", "local_ba", "keyframe_culling", "total")
+
+
+@dataclass(frozen=True)
+class BAWindowConfig:
+    """Which keyframes and points go into local bundle adjustment (ORB-SLAM's LocalBundleAdjustment)."""
+
+    enabled: bool = True  # run local BA at all
+    max_local_keyframes: int = 20  # optimised poses: the new keyframe and its best connected ones
+    max_fixed_keyframes: int = 10  # other keyframes seeing local points, held fixed, most points first
+    min_keyframes: int = 3  # BA runs once the map holds this many keyframes (ORB-SLAM: more than 2)
+
+
+@dataclass(frozen=True)
+class LocalMappingConfig:
+    """Settings of the backend's local mapping, one section per step."""
+
+    min_covisibility_weight: int = 15  # shared points for a covisibility edge (ORB-SLAM: 15; 15-30 allowed)
+    essential_min_weight: int = 100  # shared points for a covisibility edge of the essential graph
+    min_keyframes_per_point: int = 2  # a point losing observations (BA outliers, culled keyframe) below this goes
+    point_culling: PointCullingConfig = field(default_factory=PointCullingConfig)
+    triangulation: TriangulationConfig = field(default_factory=TriangulationConfig)
+    fusion: FusionConfig = field(default_factory=FusionConfig)
+    ba_window: BAWindowConfig = field(default_factory=BAWindowConfig)
+    keyframe_culling: KeyframeCullingConfig = field(default_factory=KeyframeCullingConfig)
+
+    def __post_init__(self) -> None:
+        if not 15 <= self.min_covisibility_weight <= 30:
+            raise ConfigError(
+                f"local_mapping.min_covisibility_weight={self.min_covisibility_weight} must be within 15..30 "
+                "(ORB-SLAM's covisibility threshold)"
+            )
+
+
+class BundleAdjuster(Protocol):
+    """What local mapping needs from local BA (``zenslam.backend.local_ba.LocalBundleAdjuster``)."""
+
+    def optimize(self, problem: BAProblem) -> BAResult: ...
+
+
+@dataclass(frozen=True)
+class LocalMappingStats:
+    """Counts of what one ``process`` call did."""
+
+    associations_dropped: int = 0  # keyframe associations naming removed points (or one point twice)
+    points_received: int = 0  # new points created by the frontend at this keyframe
+    points_created: int = 0  # triangulated here
+    points_culled: int = 0  # recent points culled
+    fusion_matches: int = 0  # observations added or points merged by fusion
+    points_fused: int = 0  # points merged away by fusion
+    ba_outliers: int = 0  # observations dropped by local BA
+    points_removed_after_ba: int = 0  # points dropped by BA or left with too few observations
+    keyframes_culled: int = 0
+
+
+class LocalMapper:
+    """The backend's map and the local mapping steps run on it for each keyframe."""
+
+    def __init__(self, config: LocalMappingConfig, bundle_adjuster: BundleAdjuster) -> None:
+        self.config = config
+        self.bundle_adjuster = bundle_adjuster
+        self.map = BackendMap(config.min_covisibility_weight, config.essential_min_weight)
+        self.recent_points: list[int] = []  # ids on ORB-SLAM's recently-added list
+        self.last_timings_ms: dict[str, float] = {}  # per step of the last call, milliseconds
+        self.last_stats = LocalMappingStats()
+        self.last_ba_stats: dict = {}  # the bundle adjuster's stats of the last call
+        self.totals: Counter[str] = Counter()  # LocalMappingStats fields summed over all calls
+
+    def process(self, keyframe: KeyframeMessage) -> MapUpdate:
+        """Run local mapping on one keyframe; returns what changed in the map."""
+        timings: dict[str, float] = {}
+        started = time.perf_counter()
+        counts: dict[str, int] = {}
+        with _timed(timings, "insertion"):
+            counts.update(self._insert(keyframe))
+        kf_id = int(keyframe.id)
+        monocular = keyframe.sensor == "mono"
+        with _timed(timings, "point_culling"):
+            serial = self.map.keyframe(kf_id).serial
+            self.recent_points, culled = cull_recent_points(
+                self.map, self.recent_points, serial, monocular, self.config.point_culling
+            )
+        with _timed(timings, "triangulation"):
+            created = create_new_points(self.map, kf_id, self.config.triangulation)
+            self.recent_points.extend(created)
+        with _timed(timings, "fusion"):
+            before = len(self.map.changes.removed_points)
+            counts["fusion_matches"] = fuse_with_neighbours(self.map, kf_id, self.config.fusion)
+            counts["points_fused"] = len(self.map.changes.removed_points) - before
+        with _timed(timings, "local_ba"):
+            counts.update(self._local_ba(kf_id))
+        with _timed(timings, "keyframe_culling"):
+            culled_kfs, touched = cull_redundant_keyframes(self.map, kf_id, self.config.keyframe_culling)
+            self.map.remove_weak_points(touched, self.config.min_keyframes_per_point)
+        update = _map_update(self.map, kf_id, keyframe.stamp_ns, self.map.take_changes())
+        timings["total"] = (time.perf_counter() - started) * 1e3
+        counts.update(points_created=len(created), points_culled=len(culled), keyframes_culled=len(culled_kfs))
+        self.last_stats = LocalMappingStats(**counts)
+        self.totals.update(counts)
+        self.last_timings_ms = timings
+        logger.debug("keyframe %d: %s, %.1f ms", kf_id, self.last_stats, timings["total"])
+        return update
+
+    # ---- steps ---------------------------------------------------------------------------------------
+    def _insert(self, msg: KeyframeMessage) -> dict[str, int]:
+        """Add the keyframe, its associations and its new points; count visibility of recent points."""
+        kf = BackendKeyframe.from_message(msg)
+        requested = np.asarray(msg.map_point_ids, dtype=np.int64)
+        new_ids = {int(p) for p in np.asarray(msg.new_point_ids).tolist()}
+        keypoint_of_new: dict[int, int] = {}
+        seen: set[int] = set()
+        dropped = 0
+        for keypoint in np.flatnonzero(requested >= 0).tolist():
+            point_id = int(requested[keypoint])
+            if point_id in new_ids:
+                keypoint_of_new.setdefault(point_id, keypoint)
+                continue
+            live = self.map.resolve(point_id)
+            if live < 0 or live in seen:
+                dropped += 1
+                continue
+            seen.add(live)
+            kf.map_point_ids[keypoint] = live
+        self.map.add_keyframe(kf)
+        received = []
+        for point_id, p_world in zip(np.asarray(msg.new_point_ids).tolist(), np.asarray(msg.new_points_world)):
+            keypoint = keypoint_of_new.get(int(point_id))
+            if keypoint is None:
+                logger.warning("keyframe %d: new point %d is at no keypoint; ignored", kf.id, point_id)
+                continue
+            self.map.add_point(int(point_id), p_world, kf.id)
+            self.map.add_observation(int(point_id), kf.id, keypoint)
+            received.append(int(point_id))
+        self.map.refresh_points()
+        count_visibility(self.map, kf.id, self.recent_points, self.config.point_culling)
+        self.recent_points.extend(received)
+        return {"associations_dropped": dropped, "points_received": len(received)}
+
+    def _local_ba(self, kf_id: int) -> dict[str, int]:
+        """Build the BA window around ``kf_id``, optimise it and apply the result to the map."""
+        cfg = self.config.ba_window
+        self.last_ba_stats = {}
+        if not cfg.enabled or len(self.map.keyframes) < cfg.min_keyframes:
+            return {}
+        window = local_ba_window(self.map, kf_id, cfg)
+        if window is None:
+            return {}
+        problem, obs_point_ids, obs_kf_ids = window
+        result = self.bundle_adjuster.optimize(problem)
+        self.last_ba_stats = dict(result.stats)
+        return apply_ba_result(self.map, problem, result, obs_point_ids, obs_kf_ids, self.config.min_keyframes_per_point)
+
+
+@contextmanager
+def _timed(timings: dict[str, float], name: str) -> Iterator[None]:
+    start = time.perf_counter()
+    try:
+        yield
+    finally:
+        timings[name] = (time.perf_counter() - start) * 1e3
+
+
+def local_ba_window(
+    bmap: BackendMap, kf_id: int, config: BAWindowConfig
+) -> tuple[BAProblem, np.ndarray, np.ndarray] | None:
+    """ORB-SLAM's local BA window around ``kf_id``: the problem, and each observation's point and keyframe id.
+
+    Local keyframes: ``kf_id`` and its best connected keyframes (up to ``max_local_keyframes``);
+    local points: those they observe; fixed keyframes: the others observing local points, most
+    such points first (up to ``max_fixed_keyframes``). The first keyframe is fixed whenever it
+    is in the window (gauge); if no keyframe is fixed, the oldest local one is.
+    """
+    local = [kf_id] + bmap.covisibility.connected(kf_id)[: max(config.max_local_keyframes - 1, 0)]
+    local_set = set(local)
+    point_ids = sorted({int(p) for k in local for p in bmap.keyframe_point_ids(k).tolist()})
+    if not point_ids:
+        return None
+    seen_by = Counter(k for p in point_ids for k in bmap.points[p].observations if k not in local_set)
+    fixed = sorted(seen_by, key=lambda k: (-seen_by[k], k))[: config.max_fixed_keyframes]
+    first = bmap.first_keyframe_id
+    if first is not None and first in seen_by and first not in fixed:
+        fixed.append(first)
+    kf_ids = local + fixed
+    is_fixed = np.array([k in fixed or k == first for k in kf_ids], dtype=bool)
+    if not is_fixed.any():
+        is_fixed[int(np.argmin([bmap.keyframes[k].serial for k in kf_ids]))] = True
+    row_of_kf = {k: i for i, k in enumerate(kf_ids)}
+    obs_kf, obs_pt, obs_kp = [], [], []
+    for row, point_id in enumerate(point_ids):
+        for k, keypoint in sorted(bmap.points[point_id].observations.items()):
+            if k in row_of_kf:
+                obs_kf.append(row_of_kf[k])
+                obs_pt.append(row)
+                obs_kp.append(keypoint)
+    obs_kf_arr, obs_pt_arr, obs_kp_arr = (np.asarray(a, dtype=np.int64) for a in (obs_kf, obs_pt, obs_kp))
+    px, right_u, inv_sigma2 = _observation_arrays(bmap, kf_ids, obs_kf_arr, obs_kp_arr)
+    ids = np.asarray(point_ids, dtype=np.int64)
+    problem = BAProblem(
+        calibration=bmap.keyframes[kf_id].calibration,
+        keyframe_ids=np.asarray(kf_ids, dtype=np.int64),
+        T_world_cam=np.stack([bmap.keyframes[k].T_world_cam for k in kf_ids]),
+        fixed=is_fixed,
+        point_ids=ids,
+        p_world=np.stack([bmap.points[p].p_world for p in point_ids]),
+        obs_keyframe=obs_kf_arr,
+        obs_point=obs_pt_arr,
+        obs_px=px,
+        obs_right_u=right_u,
+        obs_inv_sigma2=inv_sigma2,
+    )
+    return problem, ids[obs_pt_arr], np.asarray(kf_ids, dtype=np.int64)[obs_kf_arr]
+
+
+def _observation_arrays(bmap: BackendMap, kf_ids: list[int], obs_kf: np.ndarray, obs_kp: np.ndarray):
+    """Pixels (O, 2), right u (O,) (NaN mono) and 1/sigma^2 (O,) of observations, gathered per keyframe."""
+    px = np.zeros((len(obs_kf), 2))
+    right_u = np.full(len(obs_kf), np.nan)
+    inv_sigma2 = np.zeros(len(obs_kf))
+    for row, k in enumerate(kf_ids):
+        sel = np.flatnonzero(obs_kf == row)
+        kf, kps = bmap.keyframes[k], obs_kp[sel]
+        px[sel] = kf.keypoints_px[kps]
+        right_u[sel] = np.where(kf.right_u[kps] >= 0, kf.right_u[kps], np.nan)
+        inv_sigma2[sel] = 1.0 / kf.level_sigma2[kf.levels[kps]]
+    return px, right_u, inv_sigma2
+
+
+def apply_ba_result(
+    bmap: BackendMap,
+    problem: BAProblem,
+    result: BAResult,
+    obs_point_ids: np.ndarray,
+    obs_kf_ids: np.ndarray,
+    min_keyframes_per_point: int,
+) -> dict[str, int]:
+    """Write optimised poses and points into the map, drop outlier observations (both sides) and the
+    points the optimiser removed or left with fewer than ``min_keyframes_per_point`` observers."""
+    for row in np.flatnonzero(~problem.fixed).tolist():
+        bmap.set_keyframe_pose(int(problem.keyframe_ids[row]), result.T_world_cam[row])
+    removed = {int(p) for p in np.asarray(result.removed_point_ids).tolist()}
+    for row, point_id in enumerate(problem.point_ids.tolist()):
+        if point_id not in removed and not np.array_equal(result.p_world[row], problem.p_world[row]):
+            bmap.set_point_position(point_id, result.p_world[row])
+    touched: list[int] = []
+    outliers = np.flatnonzero(~np.asarray(result.inlier_obs, dtype=bool))
+    for o in outliers.tolist():
+        point_id, kf_id = int(obs_point_ids[o]), int(obs_kf_ids[o])
+        if point_id not in removed and kf_id in bmap.points[point_id].observations:
+            bmap.remove_observation(point_id, kf_id)
+            touched.append(point_id)
+    for point_id in sorted(removed):
+        if point_id in bmap.points:
+            bmap.remove_point(point_id)
+    weak = bmap.remove_weak_points(touched, min_keyframes_per_point)
+    bmap.refresh_points()
+    return {"ba_outliers": len(outliers), "points_removed_after_ba": len(removed) + len(weak)}
+
+
+def _map_update(bmap: BackendMap, kf_id: int, stamp_ns: int, changes: MapChanges) -> MapUpdate:
+    """The replacement-semantics update of ``changes``; backend points born and removed in the same
+    step never reach the frontend, so they are not listed as removed."""
+    kf_ids = sorted(k for k in changes.keyframes if k in bmap.keyframes)
+    point_ids = sorted(p for p in changes.points if p in bmap.points)
+    points = [bmap.points[p] for p in point_ids]
+    return MapUpdate(
+        keyframe_id=kf_id,
+        stamp_ns=int(stamp_ns),
+        keyframes=tuple(
+            KeyframeCorrection(k, bmap.keyframes[k].T_world_cam.copy(), bmap.keyframes[k].map_point_ids.copy())
+            for k in kf_ids
+        ),
+        point_ids=np.asarray(point_ids, dtype=np.int64),
+        p_world=np.array([p.p_world for p in points], dtype=float).reshape(-1, 3),
+        descriptors=np.array([p.descriptor for p in points], dtype=np.uint8).reshape(-1, 32),
+        normals=np.array([p.normal for p in points], dtype=float).reshape(-1, 3),
+        min_distance_m=np.array([p.min_distance_m for p in points], dtype=float),
+        max_distance_m=np.array([p.max_distance_m for p in points], dtype=float),
+        removed_point_ids=np.asarray(sorted(changes.removed_points - changes.created_points), dtype=np.int64),
+        removed_keyframe_ids=np.asarray(sorted(changes.removed_keyframes), dtype=np.int64),
+    )

@@ -1,0 +1,127 @@
+"""Duplicate map point fusion with the neighbours (ORB-SLAM's ``SearchInNeighbors`` and ``Fuse``).
+
+The new keyframe's points are projected into its first and second covisible neighbours, and
+theirs into it. A projected point matches the keypoint with the closest descriptor inside a
+square window (3 px x the predicted level's scale) whose level fits the prediction and whose
+reprojection error passes the chi-square gate. If that keypoint has no point, it gets an
+observation of the projected one; if it has another point, the two are merged, keeping the one
+with more observations.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from zenslam.backend.map import BackendKeyframe, BackendMap, MapPoint, frustum_projection
+from zenslam.descriptors import hamming_distance_pairs
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class FusionConfig:
+    """ORB-SLAM's neighbour fusion settings."""
+
+    neighbours_stereo: int = 10  # first neighbours, stereo/RGB-D
+    neighbours_mono: int = 20  # first neighbours, monocular
+    second_neighbours: int = 5  # best covisible keyframes of each first neighbour added as targets
+    search_radius_px: float = 3.0  # window half-size at level 0, x the predicted level's scale factor
+    max_descriptor_distance: int = 50  # bits (ORB-SLAM TH_LOW)
+    chi2_mono: float = 5.991  # reprojection gate, px^2 / level sigma^2
+    chi2_stereo: float = 7.815  # same with the right-image u
+    min_view_cos: float = 0.5  # viewing ray within 60 degrees of the point's mean viewing direction
+
+
+def fusion_targets(bmap: BackendMap, kf_id: int, config: FusionConfig) -> list[int]:
+    """The best covisible keyframes of ``kf_id`` and, after each, its own best ones (each once)."""
+    mono = bmap.keyframe(kf_id).sensor == "mono"
+    seen, targets = {kf_id}, []
+    for first in bmap.covisibility.best_covisible(kf_id, config.neighbours_mono if mono else config.neighbours_stereo):
+        if first in seen:
+            continue
+        seen.add(first)
+        targets.append(first)
+        for second in bmap.covisibility.best_covisible(first, config.second_neighbours):
+            if second not in seen:
+                seen.add(second)
+                targets.append(second)
+    return targets
+
+
+def match_by_projection(kf: BackendKeyframe, points: list[MapPoint], config: FusionConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Best keypoint of ``kf`` for each projected point: (indices into ``points``, keypoint indices)."""
+    empty = np.zeros(0, dtype=np.int64)
+    if not points or kf.n_keypoints == 0:
+        return empty, empty
+    proj = frustum_projection(kf, points, config.min_view_cos)
+    rows = np.flatnonzero(proj.visible)
+    radius = config.search_radius_px * kf.scale_factors[proj.level[rows]]
+    order = np.argsort(kf.keypoints_px[:, 0], kind="stable")
+    sorted_u = kf.keypoints_px[order, 0]
+    lo = np.searchsorted(sorted_u, proj.px[rows, 0] - radius, side="right")
+    hi = np.searchsorted(sorted_u, proj.px[rows, 0] + radius, side="left")
+    counts = np.maximum(hi - lo, 0)
+    pair_row = np.repeat(np.arange(len(rows)), counts)
+    offsets = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    kp = order[np.repeat(lo, counts) + offsets]
+    p = rows[pair_row]
+    d = kf.keypoints_px[kp] - proj.px[p]
+    level = kf.levels[kp]
+    keep = (np.abs(d[:, 1]) < radius[pair_row]) & (level >= proj.level[p] - 1) & (level <= proj.level[p])
+    stereo = kf.has_right[kp]
+    err2 = np.sum(d**2, axis=1) + np.where(stereo, (np.nan_to_num(proj.right_u[p]) - kf.right_u[kp]) ** 2, 0.0)
+    inv_sigma2 = 1.0 / kf.level_sigma2[level]
+    keep &= np.where(stereo, err2 * inv_sigma2 <= config.chi2_stereo, err2 * inv_sigma2 <= config.chi2_mono)
+    p, kp = p[keep], kp[keep]
+    if len(p) == 0:
+        return empty, empty
+    descriptors = np.stack([points[i].descriptor for i in p.tolist()])
+    dist = hamming_distance_pairs(descriptors, kf.descriptors[kp])
+    order = np.lexsort((kp, dist, p))
+    p, kp, dist = p[order], kp[order], dist[order]
+    first = np.r_[True, p[1:] != p[:-1]]
+    good = first & (dist <= config.max_descriptor_distance)
+    return p[good].astype(np.int64), kp[good].astype(np.int64)
+
+
+def fuse_into_keyframe(bmap: BackendMap, kf_id: int, point_ids: list[int], config: FusionConfig) -> int:
+    """Project ``point_ids`` into ``kf_id`` and add observations or merge duplicates; returns matches applied."""
+    kf = bmap.keyframe(kf_id)
+    points = [bmap.points[p] for p in point_ids if p in bmap.points and kf_id not in bmap.points[p].observations]
+    rows, keypoints = match_by_projection(kf, points, config)
+    fused = 0
+    for row, keypoint in zip(rows.tolist(), keypoints.tolist()):
+        point_id = points[row].id
+        if point_id not in bmap.points or kf_id in bmap.points[point_id].observations:
+            continue  # merged away, or moved into this keyframe by an earlier merge
+        there = int(kf.map_point_ids[keypoint])
+        if there < 0:
+            bmap.add_observation(point_id, kf_id, keypoint)
+        elif bmap.points[there].weighted_observations > bmap.points[point_id].weighted_observations:
+            bmap.replace_point(point_id, there)
+        else:
+            bmap.replace_point(there, point_id)
+        fused += 1
+    return fused
+
+
+def fuse_with_neighbours(bmap: BackendMap, kf_id: int, config: FusionConfig) -> int:
+    """ORB-SLAM's ``SearchInNeighbors`` for keyframe ``kf_id``; returns matches applied both ways."""
+    bmap.refresh_points()
+    targets = fusion_targets(bmap, kf_id, config)
+    fused = 0
+    for target in targets:
+        fused += fuse_into_keyframe(bmap, target, bmap.keyframe_point_ids(kf_id).tolist(), config)
+    candidates, seen = [], set()
+    for target in targets:
+        for point_id in bmap.keyframe_point_ids(target).tolist():
+            if point_id not in seen:
+                seen.add(point_id)
+                candidates.append(point_id)
+    fused += fuse_into_keyframe(bmap, kf_id, candidates, config)
+    bmap.refresh_points()
+    logger.debug("keyframe %d: %d fusion matches over %d target keyframes", kf_id, fused, len(targets))
+    return fused

@@ -1,0 +1,246 @@
+"""New map points from the new keyframe's unmatched keypoints (ORB-SLAM's ``CreateNewMapPoints``).
+
+For each of the keyframe's best covisible neighbours (with enough baseline), unmatched keypoints
+of both are matched by descriptor under the epipolar constraint (``SearchForTriangulation``), then
+triangulated linearly (SVD) or, when the rays are nearly parallel and a stereo depth is more
+precise, back-projected from that depth (ORB-SLAM2's parallax rule). A point is kept when it is in
+front of both cameras, reprojects within the chi-square gate in both and its distances to the two
+cameras agree with the keypoints' pyramid levels.
+
+ORB-SLAM compares only keypoints sharing a vocabulary node; without a vocabulary here, every
+unmatched pair inside the epipolar band is a candidate and the assignment is one-to-one, greedy
+by increasing descriptor distance (ties by keypoint index).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from zenslam.backend.map import BackendKeyframe, BackendMap
+from zenslam.descriptors import hamming_distance_pairs
+from zenslam.geometry import skew, transform_points
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class TriangulationConfig:
+    """ORB-SLAM2's new-point creation settings."""
+
+    neighbours_stereo: int = 10  # best covisible keyframes searched, stereo/RGB-D
+    neighbours_mono: int = 20  # best covisible keyframes searched, monocular
+    max_descriptor_distance: int = 50  # bits (ORB-SLAM TH_LOW)
+    match_ratio: float = 1.0  # best / second-best distance must be below this; 1.0 = off, as ORB-SLAM
+    epipolar_chi2: float = 3.84  # squared px distance to the epipolar line / level sigma^2 (chi2 1 dof, 95%)
+    epipole_min_distance_px: float = 10.0  # mono pairs: keypoints nearer the epipole than this x sqrt(scale) skipped
+    min_baseline_depth_ratio: float = 0.01  # mono: baseline / neighbour's median scene depth below this -> skip it
+    max_cos_parallax_mono: float = 0.9998  # without stereo, rays must diverge more (cos below this, about 1.1 deg)
+    chi2_mono: float = 5.991  # reprojection gate, px^2 / level sigma^2 (chi2 2 dof, 95%)
+    chi2_stereo: float = 7.815  # reprojection gate with the right-image u (chi2 3 dof, 95%)
+    scale_consistency_factor: float = 1.5  # distance ratio vs octave ratio tolerance, x scale factor
+    block_rows: int = 256  # keypoints of the new keyframe per block of the epipolar test (memory bound)
+
+
+@dataclass(frozen=True)
+class TriangulatedPoints:
+    """Triangulation of matched keypoint pairs."""
+
+    p_world: np.ndarray  # (M, 3) metres, world frame (undefined where not ok)
+    ok: np.ndarray  # (M,) bool: passed parallax, depth, reprojection and scale checks
+
+
+def fundamental_matrix(kf1: BackendKeyframe, kf2: BackendKeyframe) -> np.ndarray:
+    """F12 (3, 3) with x1^T F12 x2 = 0 for pixels x1 in kf1 and x2 in kf2 of one world point."""
+    T_1_2 = kf1.T_cam_world @ kf2.T_world_cam
+    E = skew(T_1_2[:3, 3]) @ T_1_2[:3, :3]
+    return np.linalg.inv(kf1.calibration.K).T @ E @ np.linalg.inv(kf2.calibration.K)
+
+
+def _epipolar_pairs(kf1, idx1, kf2, idx2, F12, config) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs (into idx1, idx2) whose kf2 keypoint lies within the epipolar band."""
+    # float32 halves the memory traffic; distances stay exact to ~1e-4 px at image scale
+    x2 = kf2.keypoints_px[idx2].astype(np.float32)
+    gate = (config.epipolar_chi2 * kf2.level_sigma2[kf2.levels[idx2]]).astype(np.float32)
+    rows, cols = [], []
+    for start in range(0, len(idx1), config.block_rows):
+        block = idx1[start : start + config.block_rows]
+        x1h = np.column_stack([kf1.keypoints_px[block], np.ones(len(block))])
+        lines = (x1h @ F12).astype(np.float32)  # (B, 3): line a x + b y + c = 0 in kf2 per kf1 keypoint
+        num = lines[:, :2] @ x2.T + lines[:, 2:]
+        den = lines[:, 0] ** 2 + lines[:, 1] ** 2
+        # squared distance to the line num^2 / den under the gate, without dividing
+        r, c = np.nonzero(num * num < gate[None, :] * den[:, None])
+        rows.append(r + start)
+        cols.append(c)
+    return np.concatenate(rows), np.concatenate(cols)
+
+
+def match_for_triangulation(
+    kf1: BackendKeyframe, kf2: BackendKeyframe, F12: np.ndarray, config: TriangulationConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """One-to-one matches (keypoint indices idx1 in kf1, idx2 in kf2) between keypoints without a map point."""
+    empty = np.zeros(0, dtype=np.int64)
+    idx1 = np.flatnonzero(kf1.map_point_ids < 0)
+    idx2 = np.flatnonzero(kf2.map_point_ids < 0)
+    if len(idx1) == 0 or len(idx2) == 0:
+        return empty, empty
+    r, c = _epipolar_pairs(kf1, idx1, kf2, idx2, F12, config)
+    i1, i2 = idx1[r], idx2[c]
+    dist = hamming_distance_pairs(kf1.descriptors[i1], kf2.descriptors[i2])
+    keep = dist <= config.max_descriptor_distance
+    both_mono = ~kf1.has_right[i1] & ~kf2.has_right[i2]
+    if np.any(both_mono):
+        # Keypoints next to the epipole triangulate badly without stereo (rays nearly parallel).
+        centre1_in_2 = transform_points(kf2.T_cam_world, kf1.centre_world[None])[0]
+        if centre1_in_2[2] > 1e-9:
+            epipole = kf2.calibration.K @ (centre1_in_2 / centre1_in_2[2])
+            d2 = np.sum((kf2.keypoints_px[i2] - epipole[:2]) ** 2, axis=1)
+            near = d2 < config.epipole_min_distance_px**2 * kf2.scale_factors[kf2.levels[i2]]
+            keep &= ~(both_mono & near)
+    i1, i2, dist = i1[keep], i2[keep], dist[keep]
+    if config.match_ratio < 1.0 and len(i1):
+        i1, i2, dist = _ratio_test(i1, i2, dist, config.match_ratio)
+    order = np.lexsort((i2, i1, dist))
+    used1, used2 = set(), set()
+    out1, out2 = [], []
+    for a, b in zip(i1[order].tolist(), i2[order].tolist()):
+        if a in used1 or b in used2:
+            continue
+        used1.add(a)
+        used2.add(b)
+        out1.append(a)
+        out2.append(b)
+    order = np.argsort(out1, kind="stable")
+    return np.asarray(out1, dtype=np.int64)[order], np.asarray(out2, dtype=np.int64)[order]
+
+
+def _ratio_test(i1, i2, dist, ratio):
+    """Keep the candidates of kf1 keypoints whose best distance beats ratio x the second best."""
+    order = np.lexsort((i2, dist, i1))
+    i1, i2, dist = i1[order], i2[order], dist[order]
+    first = np.flatnonzero(np.r_[True, i1[1:] != i1[:-1]])
+    counts = np.diff(np.r_[first, len(i1)])
+    second = np.where(counts > 1, dist[np.minimum(first + 1, len(i1) - 1)], np.iinfo(np.int32).max)
+    good = dist[first] < ratio * second
+    return i1[first[good]], i2[first[good]], dist[first[good]]
+
+
+def _linear_triangulation(P1: np.ndarray, P2: np.ndarray, xn1: np.ndarray, xn2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """DLT from normalised coordinates (M, 2) and world -> camera 3x4 matrices; (points (M, 3), valid)."""
+    A = np.stack(
+        [
+            xn1[:, :1] * P1[2] - P1[0],
+            xn1[:, 1:2] * P1[2] - P1[1],
+            xn2[:, :1] * P2[2] - P2[0],
+            xn2[:, 1:2] * P2[2] - P2[1],
+        ],
+        axis=1,
+    )
+    X = np.linalg.svd(A)[2][:, 3]
+    w = X[:, 3]
+    valid = np.abs(w) > 1e-12
+    return X[:, :3] / np.where(valid, w, 1.0)[:, None], valid
+
+
+def _normalised(kf: BackendKeyframe, idx: np.ndarray) -> np.ndarray:
+    c = kf.calibration
+    uv = kf.keypoints_px[idx]
+    return np.column_stack([(uv[:, 0] - c.cx) / c.fx, (uv[:, 1] - c.cy) / c.fy])
+
+
+def _stereo_parallax_cos(kf: BackendKeyframe, idx: np.ndarray, stereo: np.ndarray) -> np.ndarray:
+    """cos of the angle the stereo baseline subtends at the keypoint's depth (2 where no stereo)."""
+    baseline = kf.calibration.baseline_m or 0.0
+    depth = np.where(stereo, kf.depth_m[idx], 1.0)
+    return np.where(stereo, np.cos(2.0 * np.arctan2(baseline / 2.0, depth)), 2.0)
+
+
+def triangulate_matches(
+    kf1: BackendKeyframe, kf2: BackendKeyframe, idx1: np.ndarray, idx2: np.ndarray, config: TriangulationConfig
+) -> TriangulatedPoints:
+    """Triangulate matched keypoints (idx1 of kf1, idx2 of kf2) and apply ORB-SLAM2's checks."""
+    xn1, xn2 = _normalised(kf1, idx1), _normalised(kf2, idx2)
+    R1, R2 = kf1.T_world_cam[:3, :3], kf2.T_world_cam[:3, :3]
+    ray1 = np.column_stack([xn1, np.ones(len(idx1))]) @ R1.T
+    ray2 = np.column_stack([xn2, np.ones(len(idx2))]) @ R2.T
+    cos_rays = np.einsum("ij,ij->i", ray1, ray2) / (np.linalg.norm(ray1, axis=1) * np.linalg.norm(ray2, axis=1))
+    stereo1 = kf1.has_right[idx1] & (kf1.depth_m[idx1] > 0)
+    stereo2 = kf2.has_right[idx2] & (kf2.depth_m[idx2] > 0)
+    cos_s1 = np.where(stereo1, _stereo_parallax_cos(kf1, idx1, stereo1), cos_rays + 1.0)
+    cos_s2 = np.where(~stereo1 & stereo2, _stereo_parallax_cos(kf2, idx2, stereo2), cos_rays + 1.0)
+    cos_stereo = np.minimum(cos_s1, cos_s2)
+    linear = (cos_rays < cos_stereo) & (cos_rays > 0) & (stereo1 | stereo2 | (cos_rays < config.max_cos_parallax_mono))
+    from1 = ~linear & stereo1 & (cos_s1 < cos_s2)
+    from2 = ~linear & ~from1 & stereo2 & (cos_s2 < cos_s1)
+    p_world = np.zeros((len(idx1), 3))
+    ok = linear | from1 | from2
+    if np.any(linear):
+        X, valid = _linear_triangulation(kf1.T_cam_world[:3], kf2.T_cam_world[:3], xn1[linear], xn2[linear])
+        p_world[linear] = X
+        ok[np.flatnonzero(linear)[~valid]] = False
+    if np.any(from1):
+        p_world[from1] = kf1.unproject(idx1[from1])
+    if np.any(from2):
+        p_world[from2] = kf2.unproject(idx2[from2])
+    ok &= _reprojection_ok(kf1, idx1, p_world, config) & _reprojection_ok(kf2, idx2, p_world, config)
+    dist1 = np.linalg.norm(p_world - kf1.centre_world, axis=1)
+    dist2 = np.linalg.norm(p_world - kf2.centre_world, axis=1)
+    ratio_dist = dist2 / np.maximum(dist1, 1e-12)
+    ratio_octave = kf1.scale_factors[kf1.levels[idx1]] / kf2.scale_factors[kf2.levels[idx2]]
+    factor = config.scale_consistency_factor * kf1.scale_factor
+    ok &= (dist1 > 0) & (dist2 > 0) & (ratio_dist * factor >= ratio_octave) & (ratio_dist <= ratio_octave * factor)
+    return TriangulatedPoints(p_world, ok)
+
+
+def _reprojection_ok(kf: BackendKeyframe, idx: np.ndarray, p_world: np.ndarray, config: TriangulationConfig) -> np.ndarray:
+    """In front of the camera and inside the chi-square gate (stereo keypoints include right u)."""
+    px, right_u, z = kf.project(p_world)
+    err2 = np.sum((px - kf.keypoints_px[idx]) ** 2, axis=1)
+    stereo = kf.has_right[idx]
+    err2_stereo = err2 + np.where(stereo, (np.nan_to_num(right_u) - kf.right_u[idx]) ** 2, 0.0)
+    sigma2 = kf.level_sigma2[kf.levels[idx]]
+    gate = np.where(stereo, err2_stereo <= config.chi2_stereo * sigma2, err2 <= config.chi2_mono * sigma2)
+    return (z > 0) & gate
+
+
+def scene_median_depth(bmap: BackendMap, kf: BackendKeyframe) -> float | None:
+    """Median depth (metres) of the keyframe's map points in its camera, None without points."""
+    ids = kf.map_point_ids[kf.map_point_ids >= 0]
+    if len(ids) == 0:
+        return None
+    p_world = np.stack([bmap.points[int(p)].p_world for p in ids])
+    return float(np.median(transform_points(kf.T_cam_world, p_world)[:, 2]))
+
+
+def create_new_points(bmap: BackendMap, kf_id: int, config: TriangulationConfig) -> list[int]:
+    """Triangulate new map points between ``kf_id`` and its best covisible keyframes; returns their ids.
+
+    Each new point is observed by both keyframes; ids come from the map's backend id space.
+    """
+    kf1 = bmap.keyframe(kf_id)
+    mono = kf1.sensor == "mono"
+    created: list[int] = []
+    for kf2_id in bmap.covisibility.best_covisible(kf_id, config.neighbours_mono if mono else config.neighbours_stereo):
+        kf2 = bmap.keyframe(kf2_id)
+        baseline = float(np.linalg.norm(kf2.centre_world - kf1.centre_world))
+        if not mono:
+            if baseline < (kf2.calibration.baseline_m or 0.0):
+                continue
+        else:
+            median = scene_median_depth(bmap, kf2)
+            if median is None or median <= 0 or baseline / median < config.min_baseline_depth_ratio:
+                continue
+        idx1, idx2 = match_for_triangulation(kf1, kf2, fundamental_matrix(kf1, kf2), config)
+        if len(idx1) == 0:
+            continue
+        result = triangulate_matches(kf1, kf2, idx1, idx2, config)
+        for k in np.flatnonzero(result.ok).tolist():
+            pt = bmap.new_point(result.p_world[k], kf_id)
+            bmap.add_observation(pt.id, kf_id, int(idx1[k]))
+            bmap.add_observation(pt.id, kf2_id, int(idx2[k]))
+            created.append(pt.id)
+        logger.debug("keyframe %d x %d: %d matches, %d new points", kf_id, kf2_id, len(idx1), int(result.ok.sum()))
+    return created
