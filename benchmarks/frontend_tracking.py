@@ -1,0 +1,120 @@
+"""Benchmark the tracking frontend end to end: per-stage timing, frames/s, lost frames and ATE.
+
+Runs ``FrontendPipeline`` (ORB extraction, stereo matching or RGB-D depth, motion-model and
+local-map tracking, pose optimisation, keyframes) over the KITTI 06 clip and the EuRoC V1_01 micro
+clip, and optionally the full synthetic loop (stereo and RGB-D, 601 frames each). For every stage
+the mean / median / max milliseconds per frame are printed; ATE (evo, SE(3) alignment) against
+the ground truth. The figures are wall times on a shared machine, so the load average before and
+after each run is recorded with them.
+
+Run: ``/work/venv/bin/python benchmarks/frontend_tracking.py [--data ../shared/data] [--synthetic]``
+(writes benchmarks/results/frontend_tracking.json).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+
+from zenslam.frontend.pipeline import TIMING_KEYS, FrontendConfig, FrontendPipeline
+from zenslam.service.evaluation.metrics import evaluate
+from zenslam.trajectory import Trajectory
+
+REPO = Path(__file__).resolve().parents[1]
+RESULTS = REPO / "benchmarks" / "results" / "frontend_tracking.json"
+
+
+def summary(values_ms: list[float]) -> dict[str, float]:
+    return {"mean": statistics.fmean(values_ms), "median": statistics.median(values_ms), "max": max(values_ms)}
+
+
+def run(name: str, source) -> dict:
+    """Track every frame of ``source`` once (images loaded beforehand, so reading is not timed)."""
+    frames = list(source)
+    pipeline = FrontendPipeline(FrontendConfig(), source.calibration, source.sensor)
+    load_before = os.getloadavg()
+    outputs = []
+    start = time.perf_counter()
+    for frame in frames:
+        outputs.append(pipeline.step(frame.index, frame.stamp_ns, frame.left, right=frame.right, depth_m=frame.depth_m))
+    wall_s = time.perf_counter() - start
+    tracked = [o for o in outputs if o.T_world_cam is not None]
+    estimate = Trajectory(np.array([o.stamp_ns for o in tracked], np.int64), np.stack([o.T_world_cam for o in tracked]))
+    evaluation = evaluate(estimate, source.ground_truth())
+    tracker = pipeline.tracker
+    return {
+        "name": name,
+        "sensor": source.sensor,
+        "frames": len(outputs),
+        "image_size": [source.calibration.width, source.calibration.height],
+        "frames_per_s": len(outputs) / wall_s,
+        "states": {s: sum(o.state == s for o in outputs) for s in ("ok", "lost", "initializing")},
+        "lost_reasons": dict(tracker.lost_reasons),
+        "keyframes": sum(o.keyframe is not None for o in outputs),
+        "map_points": tracker.map.n_valid_points,
+        "n_tracked_median": statistics.median(o.n_tracked for o in outputs if o.state == "ok"),
+        "timing_ms": {key: summary([o.timings_ms[key] for o in outputs]) for key in TIMING_KEYS},
+        "ate": evaluation.to_json()["ate"],
+        "path_length_m": evaluation.path_length_m,
+        "load_average_1_5_15_before": load_before,
+        "load_average_1_5_15_after": os.getloadavg(),
+    }
+
+
+def sources(data: Path, synthetic: bool):
+    from zenslam.service.sources.euroc import EurocSource
+    from zenslam.service.sources.kitti import KittiSource
+
+    yield "kitti_06_clip", KittiSource(data / "kitti_odometry" / "sequences" / "06")
+    yield "euroc_v1_01_micro", EurocSource(data / "euroc" / "V1_01_easy_micro")
+    if synthetic:
+        from zenslam.service.sources.synthetic import SyntheticSource, scene_config
+
+        for sensor in ("stereo", "rgbd"):
+            yield f"synthetic_loop_{sensor}", SyntheticSource(scene_config("loop", sensor=sensor))
+
+
+def print_run(r: dict) -> None:
+    ate = r["ate"]
+    print(
+        f"{r['name']} ({r['sensor']}, {r['frames']} frames): {r['frames_per_s']:.1f} frames/s, "
+        f"states {r['states']}, keyframes {r['keyframes']}, median inliers {r['n_tracked_median']}, "
+        f"ATE rmse {ate['rmse_m'] * 100:.2f} cm (max {ate['max_m'] * 100:.2f} cm, "
+        f"{ate['rmse_percent_of_path']:.2f} % of {r['path_length_m']:.2f} m); "
+        f"load {r['load_average_1_5_15_before'][0]:.1f}"
+    )
+    for key in TIMING_KEYS:
+        t = r["timing_ms"][key]
+        print(f"    {key:<22} mean {t['mean']:6.1f}  median {t['median']:6.1f}  max {t['max']:6.1f} ms")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, default=REPO.parent / "shared" / "data", help="benchmark clips root")
+    parser.add_argument("--synthetic", action="store_true", help="also run the full synthetic loop (stereo, RGB-D)")
+    args = parser.parse_args()
+    runs = []
+    for name, source in sources(args.data, args.synthetic):
+        runs.append(run(name, source))
+        print_run(runs[-1])
+    report = {
+        "machine": platform.platform(),
+        "python": platform.python_version(),
+        "cpu_count": os.cpu_count(),
+        "config": "FrontendConfig() defaults",
+        "runs": runs,
+    }
+    RESULTS.parent.mkdir(parents=True, exist_ok=True)
+    RESULTS.write_text(json.dumps(report, indent=2) + "\n")
+    print(f"wrote {RESULTS}")
+
+
+if __name__ == "__main__":
+    main()
