@@ -8,7 +8,7 @@ because the figures are wall times on a shared 2-core machine; the calling threa
 recorded too (with threads=1 it is the whole work, and does not depend on the load).
 
 Run: ``/work/venv/bin/python benchmarks/frontend_extraction.py [--data ../shared/data] [--repeats 2]
-[--cv-threads 1]`` (writes benchmarks/results/frontend_extraction.json). ``--cv-threads 1`` turns off
+[--cv-threads 1]`` (writes benchmarks/results/frontend_extraction[_cv_threads_N].json). ``--cv-threads 1`` turns off
 OpenCV's internal thread pool, which only adds synchronisation when the pair is already split
 over two threads.
 """
@@ -104,8 +104,9 @@ def main() -> None:
         "clip": "KITTI 06 frames 0-50, 1226x370",
         "results": results,
     }
-    RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    RESULTS.write_text(json.dumps(report, indent=2) + "\n")
+    output = RESULTS if args.cv_threads < 0 else RESULTS.with_name(f"{RESULTS.stem}_cv_threads_{args.cv_threads}.json")
+    output.parent.mkdir(parents=True, exist_ok=True)
+    output.write_text(json.dumps(report, indent=2) + "\n")
     for r in results:
         print(
             f"n_features={r['n_features']} threads={r['threads']}: "
@@ -115,7 +116,7 @@ def main() -> None:
             f"(calling-thread CPU {r['calling_thread_cpu_ms']['median']:.1f} ms), "
             f"stereo points median {r['stereo_points_median']}"
         )
-    print(f"load average before {load_before}, after {report['load_average_1_5_15_after']}; wrote {RESULTS}")
+    print(f"load average before {load_before}, after {report['load_average_1_5_15_after']}; wrote {output}")
 
 
 if __name__ == "__main__":
