@@ -190,11 +190,13 @@ class LocalMap:
         return self.point_id_allocator.take(n)
 
     # ---- insertion -------------------------------------------------------------------------------
-    def insert_keyframe(self, keyframe: KeyFrame) -> np.ndarray:
+    def insert_keyframe(self, keyframe: KeyFrame, point_rows: np.ndarray | None = None) -> np.ndarray:
         """Add a keyframe, create its new points, record its observations, update covisibility.
 
         ``keyframe.map_point_ids`` must name points already in the map or among
-        ``keyframe.new_point_ids``. Returns the rows (P,) of the new points. Observations refresh
+        ``keyframe.new_point_ids``. ``point_rows`` (N,), when the caller knows them, are the rows of
+        the already-known points per keypoint (-1 elsewhere, including at the new points), which
+        saves looking the ids up. Returns the rows (P,) of the new points. Observations refresh
         the observed points' representative descriptors and viewing directions.
         """
         slot = len(self._keyframes)
@@ -202,7 +204,11 @@ class LocalMap:
         self._slot_of_id[int(keyframe.id)] = slot
         self._kf_centres = np.vstack([self._kf_centres, keyframe.centre_world[None]])
         new_rows = self._append_new_points(keyframe, slot)
-        rows = self.rows_of_ids(keyframe.map_point_ids)
+        if point_rows is None:
+            rows = self.rows_of_ids(keyframe.map_point_ids)
+        else:
+            rows = np.asarray(point_rows, dtype=np.int64).copy()
+            rows[np.asarray(keyframe.new_point_keypoints, dtype=np.int64)] = new_rows
         rows[rows >= 0] = np.where(self.valid[rows[rows >= 0]], rows[rows >= 0], -1)
         keypoints = np.flatnonzero(rows >= 0)
         _, first = np.unique(rows[keypoints], return_index=True)  # one observation per point
@@ -364,8 +370,10 @@ class LocalMap:
         """ORB-SLAM's ``UpdateLocalPoints``: sorted unique rows of valid points seen by the keyframes."""
         if len(keyframe_slots) == 0:
             return np.zeros(0, dtype=np.int64)
-        rows = np.unique(np.concatenate([self._kf_rows[int(s)] for s in keyframe_slots]))
-        return rows[self.valid[rows]]
+        seen = np.zeros(self._n_points, dtype=bool)
+        for slot in keyframe_slots:
+            seen[self._kf_rows[int(slot)]] = True
+        return np.flatnonzero(seen & self.valid)
 
     def tracked_points(self, slot: int, min_observations: int) -> int:
         """Valid points of the keyframe seen by at least ``min_observations`` keyframes."""

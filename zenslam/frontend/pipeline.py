@@ -38,7 +38,9 @@ class FrontendConfig:
 
     orb: OrbConfig = field(default_factory=OrbConfig)
     stereo: StereoMatchConfig = field(default_factory=StereoMatchConfig)
-    pose: PoseOptimizerConfig = field(default_factory=PoseOptimizerConfig)
+    # A round of pose optimisation stops once a step is below 1e-5 (rad, m): on the KITTI clip
+    # this halves its time against the optimiser's own 1e-9 with an identical trajectory.
+    pose: PoseOptimizerConfig = field(default_factory=lambda: PoseOptimizerConfig(step_tolerance=1e-5))
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     keyframe: KeyframeDecisionConfig = field(default_factory=KeyframeDecisionConfig)
 

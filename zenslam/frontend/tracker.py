@@ -429,7 +429,7 @@ class Tracker:
                 feats.px[new_kps], frame.depth_m[new_kps], self.calibration, T_world_cam
             ),
         )
-        new_rows = self.map.insert_keyframe(keyframe)
+        new_rows = self.map.insert_keyframe(keyframe, point_rows=rows)
         rows[new_kps] = new_rows
         self.map.cull_recent_points()
         self._reference_slot = self.map.n_keyframes - 1
