@@ -14,7 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from zenslam.frontend.pipeline import FrontendConfig, FrontendPipeline, TrackingOutput
+from zenslam.camera import PinholeCalibration
+from zenslam.errors import ConfigError
+from zenslam.frontend.pipeline import TIMING_KEYS, FrontendConfig, FrontendPipeline, TrackingOutput
 from zenslam.service.evaluation.metrics import Evaluation, evaluate
 from zenslam.trajectory import Trajectory
 
@@ -81,8 +83,21 @@ def test_synthetic_loop_first_10_s(sensor: str) -> None:
     assert len(outputs) == 200
     assert lost_frames(outputs) == []
     check_initialised_early(outputs)
+    assert all(set(o.timings_ms) == set(TIMING_KEYS) for o in outputs)
     result = evaluate(trajectory, source.ground_truth())
     assert result.ate.matched_poses == len(outputs)
     assert result.ate.rmse_percent_of_path <= 1.0, (
         f"ATE {result.ate.rmse_m:.3f} m = {result.ate.rmse_percent_of_path:.2f} % of {result.path_length_m:.1f} m"
     )
+
+
+def test_pipeline_refuses_what_it_cannot_track() -> None:
+    stereo = PinholeCalibration(fx=400.0, fy=400.0, cx=320.0, cy=240.0, width=640, height=480, baseline_m=0.1)
+    with pytest.raises(ConfigError, match="mono"):
+        FrontendPipeline(FrontendConfig(), stereo, "mono")
+    mono = PinholeCalibration(fx=400.0, fy=400.0, cx=320.0, cy=240.0, width=640, height=480)
+    with pytest.raises(ConfigError, match="baseline"):
+        FrontendPipeline(FrontendConfig(), mono, "stereo")
+    pipeline = FrontendPipeline(FrontendConfig(), stereo, "stereo")
+    with pytest.raises(ConfigError, match="right image"):
+        pipeline.step(0, 0, np.zeros((480, 640), np.uint8))

@@ -156,3 +156,12 @@ def test_restarts_after_a_long_loss_and_waits_for_depth_to_initialise() -> None:
     assert np.allclose(restart.T_world_cam, invert_T(world.pose(0)) @ world.pose(1), atol=0.01)
     assert tracker.track(world.frame(5)).state == "ok"
     assert tracker.n_reinitialisations == 1
+
+
+def test_tracking_is_deterministic() -> None:
+    def run() -> list[np.ndarray]:
+        world = PointWorld(seed=3)
+        tracker = Tracker(CAL, "stereo", TrackingConfig(), camera_fps=10.0)
+        return [tracker.track(world.frame(k)).T_world_cam for k in range(8)]
+
+    assert all(np.array_equal(a, b) for a, b in zip(run(), run()))
