@@ -212,10 +212,10 @@ def main(argv: list[str] | None = None) -> int:
     stop = StopFlag(args.parent_pid).install()
     try:
         config = load_run_config(args.config)
-        if config.source.lockstep:
-            import cv2
+        import cv2
 
-            cv2.setNumThreads(1)  # single-threaded numerics: lockstep runs are deterministic
+        # OpenCV's pool slowed small calls 3x here; the extractor runs left/right on its own threads.
+        cv2.setNumThreads(1)
         node = FrontendNode(default_pipeline_factory(config.frontend))
         with bus.open_session(bus_config_with(config.bus, args.connect)) as session:
             serve(session, args.session, node, config.source.lockstep, config.bus, stop)

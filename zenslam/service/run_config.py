@@ -33,7 +33,10 @@ class SourceConfig:
     """What the source process plays and how (the ``source`` section)."""
 
     spec: str = "synthetic"  # kitti:<root>/sequences/NN | euroc:<folder> | tum:<folder> | synthetic[:<scene>[/<sensor>]]
-    lockstep: bool = False  # send frame i+1 only after the frontend reported frame i (deterministic runs)
+    # Lockstep (default): send frame i+1 only after the frontend reported frame i; nothing is dropped
+    # and runs are deterministic, like ORB-SLAM's dataset examples. False = live: frames are sent at
+    # their recorded times (scaled by ``rate``) and a slow frontend skips frames, as with a camera.
+    lockstep: bool = True
     rate: float = 1.0  # live mode: playback speed as a multiple of the recorded rate; 0 = as fast as possible
     max_frames: int | None = None  # frames; stop after this many (None: the whole sequence)
     depth_encoding: Literal["float32_m", "uint16_mm"] = "float32_m"  # how RGB-D depth travels on the bus

@@ -60,6 +60,11 @@ class Supervisor:
         self.config_path = Path(config_path)
         self.hub_endpoint = hub_endpoint
         self.env = dict(os.environ if env is None else env)
+        # Stages run their own threads where it pays (ORB on left/right); library thread pools on a
+        # 2-core machine stalled small BLAS products for 10-60 ms under load, and single-threaded
+        # numerics keep lockstep runs deterministic. Must be set before numpy loads: hence the env.
+        for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+            self.env.setdefault(var, "1")
         self._children: dict[str, _Child] = {}
 
     def __enter__(self) -> Supervisor:

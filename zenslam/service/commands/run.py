@@ -55,7 +55,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--output", type=Path, default=Path("recordings"), help="folder of the run folders (default recordings)")
     parser.add_argument("--config", type=Path, default=None, help="YAML with sections bus, source, frontend, evaluation")
     parser.add_argument("--orbslam-settings", type=Path, default=None, help="ORB-SLAM2/3 settings file: calibration and ORB values")
-    parser.add_argument("--lockstep", action="store_true", help="deterministic: each frame waits for the previous one's tracking")
+    pacing = parser.add_mutually_exclusive_group()
+    pacing.add_argument(
+        "--lockstep", dest="lockstep", action="store_const", const=True, default=None,
+        help="deterministic, nothing dropped: each frame waits for the previous one's tracking (the default)",
+    )
+    pacing.add_argument(
+        "--live", dest="lockstep", action="store_const", const=False,
+        help="play at the recorded rate (see --rate) like a camera; a slow stage skips frames",
+    )
     parser.add_argument("--rate", type=float, default=None, help="live playback speed, multiple of the recorded rate (0: fastest)")
     parser.add_argument("--max-frames", type=int, default=None, help="stop after this many frames")
     parser.add_argument("--run-id", default=None, help="name of the run folder and bus session (default: date-time-pid)")
@@ -72,8 +80,8 @@ def resolve_config(args: argparse.Namespace) -> RunConfig:
     source = config.source
     if args.source is not None:
         source = dataclasses.replace(source, spec=args.source)
-    if args.lockstep:
-        source = dataclasses.replace(source, lockstep=True)
+    if args.lockstep is not None:
+        source = dataclasses.replace(source, lockstep=args.lockstep)
     if args.rate is not None:
         source = dataclasses.replace(source, rate=args.rate)
     if args.max_frames is not None:
