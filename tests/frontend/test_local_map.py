@@ -10,6 +10,7 @@ from zenslam.frontend.local_map import IdAllocator, LocalMap, LocalMapConfig
 from zenslam.frontend.map_point import representative_descriptor
 from zenslam.frontend.orb_extractor import Features
 from zenslam.geometry import make_T
+from zenslam.schemas.map_update import BACKEND_POINT_ID_BASE, KeyframeCorrection, MapUpdate
 
 
 def add_keyframe(
@@ -197,3 +198,93 @@ def test_map_update_hooks() -> None:
     # A keyframe naming a removed point does not observe it.
     add_keyframe(lm, kf.new_point_ids, 0)
     assert lm.n_observations.tolist() == [2, 2, 1, 2]
+
+
+def _update(lm: LocalMap, point_ids, p_world, **kw) -> MapUpdate:
+    """A MapUpdate replacing the listed points (positions given; other fields from the map or defaults)."""
+    ids = np.asarray(point_ids, dtype=np.int64)
+    n = len(ids)
+    rows = lm.rows_of_ids(ids)
+    known = rows >= 0
+    desc = np.zeros((n, 32), np.uint8)
+    desc[known] = lm.descriptors[rows[known]]
+    normals = np.tile([0.0, 0.0, 1.0], (n, 1))
+    return MapUpdate(
+        keyframe_id=kw.pop("keyframe_id", 0),
+        stamp_ns=0,
+        point_ids=ids,
+        p_world=np.asarray(p_world, dtype=float).reshape(n, 3),
+        descriptors=desc,
+        normals=normals,
+        min_distance_m=np.full(n, 0.5),
+        max_distance_m=np.full(n, 20.0),
+        **kw,
+    )
+
+
+def test_map_update_replaces_points_and_creates_backend_points() -> None:
+    lm = LocalMap()
+    kf0 = add_keyframe(lm, [], 20)
+    backend_ids = BACKEND_POINT_ID_BASE + np.arange(3)
+    update = _update(lm, np.concatenate([kf0.new_point_ids[:2], backend_ids]), np.arange(15.0).reshape(5, 3))
+    lm.apply_map_update(update)
+    rows = lm.rows_of_ids(update.point_ids)
+    assert np.all(rows >= 0) and lm.n_points == 23
+    assert np.array_equal(lm.p_world[rows], update.p_world)
+    assert np.array_equal(lm.max_distance_m[rows], np.full(5, 20.0))
+    assert lm.n_observations[rows[2:]].tolist() == [0, 0, 0]
+    # Backend points are never culled as "recent" by the frontend.
+    lm.increase_visible(rows[2:])
+    lm.increase_visible(rows[2:])
+    lm.increase_visible(rows[2:])
+    lm.increase_visible(rows[2:])
+    add_keyframe(lm, [], 1)
+    add_keyframe(lm, [], 1)
+    lm.cull_recent_points()
+    assert np.all(lm.valid[rows[2:]])
+
+
+def test_map_update_replaces_keyframe_pose_and_associations() -> None:
+    lm = LocalMap()
+    kf0 = add_keyframe(lm, [], 50)
+    kf1 = add_keyframe(lm, kf0.new_point_ids[:30], 20)
+    backend_ids = BACKEND_POINT_ID_BASE + np.arange(25)
+    moved = make_T(np.eye(3), np.array([0.1, 0.0, 0.0]))
+    # kf1 now sees only 10 of kf0's points and 25 new backend points, which kf0 also sees.
+    assoc1 = np.full(kf1.n_keypoints, -1, dtype=np.int64)
+    assoc1[:10] = kf0.new_point_ids[:10]
+    assoc1[30:50] = kf1.new_point_ids
+    assoc1[10:30] = backend_ids[:20]
+    assoc0 = kf0.map_point_ids.copy()
+    assoc0[30:50] = backend_ids[:20]  # replaces 20 of kf0's own points
+    update = _update(
+        lm,
+        backend_ids,
+        np.tile([0.0, 0.0, 5.0], (25, 1)),
+        keyframes=(KeyframeCorrection(kf1.id, moved, assoc1), KeyframeCorrection(kf0.id, np.eye(4), assoc0)),
+        removed_point_ids=kf0.new_point_ids[30:50],
+    )
+    for _ in range(2):  # replacement semantics: applying twice changes nothing more
+        lm.apply_map_update(update)
+        assert np.allclose(lm.keyframe(1).T_world_cam, moved)
+        assert np.array_equal(lm.keyframe(1).map_point_ids, assoc1)
+        assert lm.covisibility_weight(0, 1) == 10 + 20
+        assert lm.observations(int(lm.rows_of_ids([backend_ids[0]])[0])) == {kf0.id: 30, kf1.id: 10}
+        assert lm.n_observations[lm.rows_of_ids(kf0.new_point_ids[10:30])].tolist() == [1] * 20
+        assert not np.any(lm.valid[lm.rows_of_ids(kf0.new_point_ids[30:50])])
+        assert lm.tracked_points(1, 2) == 30
+
+
+def test_map_update_removes_keyframes() -> None:
+    lm = LocalMap()
+    kf0 = add_keyframe(lm, [], 40)
+    kf1 = add_keyframe(lm, kf0.new_point_ids[:30], 40)
+    add_keyframe(lm, kf1.new_point_ids[:30], 10)
+    assert lm.parent(2) == 1
+    lm.apply_map_update(_update(lm, [], np.zeros((0, 3)), removed_keyframe_ids=np.array([kf1.id])))
+    assert lm.keyframe(1) is None and lm.slot_of(kf1.id) == -1
+    assert lm.parent(2) == 0 and lm.children(0) == [2]
+    assert lm.covisibility_weight(0, 1) == 0 and lm.best_covisible(2, 10) == []
+    window = lm.local_window(lm.rows_of_ids(kf1.new_point_ids[:30]))
+    assert window.keyframe_slots.tolist() == [2, 0]  # slot 2 voted, slot 0 its new parent
+    assert lm.n_observations[lm.rows_of_ids(kf0.new_point_ids[:30])].tolist() == [1] * 30

@@ -165,3 +165,33 @@ def test_tracking_is_deterministic() -> None:
         return [tracker.track(world.frame(k)).T_world_cam for k in range(8)]
 
     assert all(np.array_equal(a, b) for a, b in zip(run(), run()))
+
+
+def test_map_update_moves_the_map_and_tracking_follows() -> None:
+    """A backend correction that moves the whole map rigidly: the next frame is tracked in the moved map."""
+    from zenslam.schemas.map_update import KeyframeCorrection, MapUpdate
+
+    world = PointWorld(seed=4)
+    tracker = Tracker(CAL, "stereo", TrackingConfig(), camera_fps=10.0)
+    for k in range(6):
+        assert tracker.track(world.frame(k)).state == "ok"
+    G = make_T(so3_exp(np.array([0.0, 0.3, 0.0])), np.array([1.0, -2.0, 0.5]))  # new world <- old world
+    lm = tracker.map
+    rows = np.flatnonzero(lm.valid)
+    keyframes = [lm.keyframe(s) for s in range(lm.n_keyframes)]
+    update = MapUpdate(
+        keyframe_id=keyframes[-1].id,
+        stamp_ns=keyframes[-1].stamp_ns,
+        keyframes=tuple(KeyframeCorrection(kf.id, G @ kf.T_world_cam, kf.map_point_ids) for kf in keyframes),
+        point_ids=lm.point_ids[rows],
+        p_world=lm.p_world[rows] @ G[:3, :3].T + G[:3, 3],
+        descriptors=lm.descriptors[rows],
+        normals=lm.normals[rows] @ G[:3, :3].T,
+        min_distance_m=lm.min_distance_m[rows],
+        max_distance_m=lm.max_distance_m[rows],
+    )
+    tracker.apply_map_update(update)
+    result = tracker.track(world.frame(6))
+    assert result.state == "ok"
+    t_err, r_err = pose_errors(result.T_world_cam, G @ invert_T(world.pose(0)) @ world.pose(6))
+    assert t_err < 0.02 and r_err < 0.1

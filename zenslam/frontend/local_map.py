@@ -10,10 +10,14 @@ Id spaces: point and keyframe ids come from ``IdAllocator(start, step)`` objects
 ``keyframe_id_step``). The frontend's defaults start at 0 with step 1; a backend creating points
 gives itself a disjoint space (for example a start with the high bit set) through its own
 configuration, so no id needs a round trip.
+
+The backend's corrections arrive as ``MapUpdate`` messages (replacement semantics, see
+``zenslam.schemas.map_update``) and are applied with ``apply_map_update``.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from dataclasses import dataclass
 
@@ -21,6 +25,7 @@ import numpy as np
 
 from zenslam.frontend.keyframe import KeyFrame
 from zenslam.frontend.map_point import representative_descriptors, scale_invariance_range
+from zenslam.schemas.map_update import KeyframeCorrection, MapUpdate
 
 logger = logging.getLogger(__name__)
 
@@ -115,7 +120,7 @@ class LocalMap:
         self._n_points = 0
         self._n_obs = 0
         self._row_of_id: dict[int, int] = {}
-        self._keyframes: list[KeyFrame] = []
+        self._keyframes: list[KeyFrame | None] = []  # None once removed by the backend
         self._slot_of_id: dict[int, int] = {}
         self._kf_rows: list[np.ndarray] = []  # per slot: rows of the points the keyframe observes
         self._kf_centres = np.zeros((0, 3))
@@ -154,8 +159,8 @@ class LocalMap:
     n_observations = property(lambda self: self._view("n_observations"), doc="(M,) keyframes observing it")
     valid = property(lambda self: self._view("valid"), doc="(M,) False once culled or removed")
 
-    def keyframe(self, slot: int) -> KeyFrame:
-        """The keyframe in ``slot``."""
+    def keyframe(self, slot: int) -> KeyFrame | None:
+        """The keyframe in ``slot``, None if the backend removed it."""
         return self._keyframes[slot]
 
     def slot_of(self, keyframe_id: int) -> int:
@@ -281,23 +286,31 @@ class LocalMap:
 
     def _connect(self, slot: int, rows: np.ndarray) -> None:
         """Covisibility weights of the new keyframe (shared points) and its spanning-tree parent."""
-        in_kf = np.zeros(self._n_points, dtype=bool)
-        in_kf[rows] = True
-        obs_rows = self._obs["row"][: self._n_obs]
-        weights = np.bincount(self._obs["slot"][: self._n_obs][in_kf[obs_rows]], minlength=slot + 1)
-        weights[slot] = 0
-        links = {int(s): int(weights[s]) for s in np.flatnonzero(weights)}
-        self._covisibility.append(links)
+        self._covisibility.append({})
         self._ordered_neighbours.append([])
         self._children.append([])
-        for other, weight in links.items():
-            self._covisibility[other][slot] = weight
-            self._ordered_neighbours[other] = self._order(other)
-        self._ordered_neighbours[slot] = self._order(slot)
+        self._set_links(slot, rows)
         parent = self._ordered_neighbours[slot][0] if self._ordered_neighbours[slot] else -1
         self._parent.append(parent)
         if parent >= 0:
             self._children[parent].append(slot)
+
+    def _set_links(self, slot: int, rows: np.ndarray) -> None:
+        """Replace the covisibility links of ``slot``, whose observed points are ``rows``."""
+        in_kf = np.zeros(self._n_points, dtype=bool)
+        in_kf[rows] = True
+        obs_rows = self._obs["row"][: self._n_obs]
+        weights = np.bincount(self._obs["slot"][: self._n_obs][in_kf[obs_rows]], minlength=self.n_keyframes)
+        weights[slot] = 0
+        links = {int(s): int(weights[s]) for s in np.flatnonzero(weights)}
+        for other in set(self._covisibility[slot]) | set(links):
+            if other in links:
+                self._covisibility[other][slot] = links[other]
+            else:
+                self._covisibility[other].pop(slot, None)
+            self._ordered_neighbours[other] = self._order(other)
+        self._covisibility[slot] = links
+        self._ordered_neighbours[slot] = self._order(slot)
 
     def _order(self, slot: int) -> list[int]:
         """ORB-SLAM's ordered connections: neighbours with weight >= threshold by decreasing weight,
@@ -427,3 +440,94 @@ class LocalMap:
         rows = rows[rows >= 0]
         self._pts["valid"][rows] = False
         return len(rows)
+
+    def apply_map_update(self, update: MapUpdate) -> None:
+        """Apply the backend's correction: replace listed points (creating unknown ones), keyframe
+        poses and keypoint-to-point associations, then delete removed points and keyframes.
+
+        Replacement semantics make a second application harmless. Keyframes this map never had
+        are skipped (it cannot rebuild their keypoints). Points listed by the backend are never
+        culled by ``cull_recent_points``: the backend decides about them.
+        """
+        self._replace_points(update)
+        for correction in update.keyframes:
+            self._replace_keyframe(correction)
+        self.remove_points(update.removed_point_ids)
+        for keyframe_id in np.asarray(update.removed_keyframe_ids, dtype=np.int64).tolist():
+            self._remove_keyframe(keyframe_id)
+
+    def _replace_points(self, update: MapUpdate) -> None:
+        rows = self.rows_of_ids(update.point_ids)
+        unknown = np.flatnonzero(rows < 0)
+        if len(unknown):
+            start = self._n_points
+            _grow(self._pts, _POINT_ARRAYS, start + len(unknown))
+            rows[unknown] = np.arange(start, start + len(unknown))
+            self._n_points = start + len(unknown)
+            new = rows[unknown]
+            self._pts["ids"][new] = update.point_ids[unknown]
+            self._pts["n_visible"][new] = 1
+            self._pts["n_found"][new] = 1
+            self._pts["n_observations"][new] = 0
+            for point_id, row in zip(update.point_ids[unknown].tolist(), new.tolist()):
+                self._row_of_id[point_id] = row
+        pts = self._pts
+        pts["p_world"][rows] = update.p_world
+        pts["descriptors"][rows] = update.descriptors
+        pts["normals"][rows] = update.normals
+        pts["min_distance_m"][rows] = update.min_distance_m
+        pts["max_distance_m"][rows] = update.max_distance_m
+        pts["valid"][rows] = True
+        pts["created_serial"][rows] = np.iinfo(np.int64).min // 2  # never "recent" again
+
+    def _replace_keyframe(self, correction: KeyframeCorrection) -> None:
+        slot = self.slot_of(correction.id)
+        if slot < 0 or self._keyframes[slot] is None:
+            return
+        keyframe = dataclasses.replace(
+            self._keyframes[slot],
+            T_world_cam=np.asarray(correction.T_world_cam, dtype=float),
+            map_point_ids=np.asarray(correction.map_point_ids, dtype=np.int64),
+        )
+        self._keyframes[slot] = keyframe
+        self._kf_centres[slot] = keyframe.centre_world
+        self._drop_observations(slot)
+        rows = self.rows_of_ids(keyframe.map_point_ids)
+        rows[rows >= 0] = np.where(self.valid[rows[rows >= 0]], rows[rows >= 0], -1)
+        keypoints = np.flatnonzero(rows >= 0)
+        _, first = np.unique(rows[keypoints], return_index=True)
+        keypoints = keypoints[np.sort(first)]
+        observed = rows[keypoints]
+        self._append_observations(slot, observed, keypoints, keyframe.descriptors[keypoints])
+        self._pts["n_observations"][observed] += 1
+        self._kf_rows[slot] = observed
+        self._set_links(slot, observed)
+
+    def _drop_observations(self, slot: int) -> None:
+        """Delete every observation made by the keyframe in ``slot`` (compacting the arrays)."""
+        n = self._n_obs
+        mine = self._obs["slot"][:n] == slot
+        np.subtract.at(self._pts["n_observations"], self._obs["row"][:n][mine], 1)
+        keep = np.flatnonzero(~mine)
+        for name in _OBS_ARRAYS:
+            self._obs[name][: len(keep)] = self._obs[name][keep]
+        self._n_obs = len(keep)
+        self._kf_rows[slot] = np.zeros(0, dtype=np.int64)
+
+    def _remove_keyframe(self, keyframe_id: int) -> None:
+        """Forget a keyframe: its observations and links go, its children move to its parent."""
+        slot = self.slot_of(keyframe_id)
+        if slot < 0 or self._keyframes[slot] is None:
+            return
+        self._drop_observations(slot)
+        self._set_links(slot, np.zeros(0, dtype=np.int64))
+        parent = self._parent[slot]
+        for child in self._children[slot]:
+            self._parent[child] = parent
+            if parent >= 0:
+                self._children[parent].append(child)
+        if parent >= 0:
+            self._children[parent].remove(slot)
+        self._children[slot] = []
+        self._keyframes[slot] = None
+        del self._slot_of_id[int(keyframe_id)]

@@ -18,6 +18,7 @@ from zenslam.frontend.orb_extractor import OrbConfig, OrbExtractor
 from zenslam.frontend.pose_optimizer import PoseOptimizerConfig
 from zenslam.frontend.stereo_matcher import StereoMatchConfig
 from zenslam.frontend.tracker import Tracker, TrackingConfig
+from zenslam.schemas.map_update import MapUpdate
 
 logger = logging.getLogger(__name__)
 
@@ -118,6 +119,10 @@ class FrontendPipeline:
             keyframe=result.keyframe,
             timings_ms=timings,
         )
+
+    def apply_map_update(self, update: MapUpdate) -> None:
+        """Apply the backend's map correction (replacement semantics) before the next ``step``."""
+        self.tracker.apply_map_update(update)
 
     def _make_frame(self, index, stamp_ns, left, right, depth_m, timings: dict[str, float]) -> Frame:
         if self.sensor == "stereo":

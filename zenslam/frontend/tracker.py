@@ -40,6 +40,7 @@ from zenslam.frontend.map_point import project_in_frustum, radius_by_viewing_cos
 from zenslam.frontend.motion_model import ConstantVelocityModel
 from zenslam.frontend.pose_optimizer import PoseOptimizerConfig, optimize_pose
 from zenslam.geometry import invert_T
+from zenslam.schemas.map_update import MapUpdate
 
 logger = logging.getLogger(__name__)
 
@@ -163,6 +164,19 @@ class Tracker:
         self._last = _LastFrame(frame, rows, T_cam_world)
         self._lost_streak = 0
         return TrackResult("ok", None, invert_T(T_cam_world), n_inliers, keyframe, dict(self._timers))
+
+    def apply_map_update(self, update: MapUpdate) -> None:
+        """Apply the backend's correction to the local map and keep the last frame where it was
+        relative to its reference keyframe (ORB-SLAM2's UpdateLastFrame), so the motion model
+        predicts in the corrected map."""
+        reference = self.map.keyframe(self._reference_slot) if self._reference_slot >= 0 else None
+        T_last_ref = None
+        if self._last is not None and reference is not None:
+            T_last_ref = self._last.T_cam_world @ reference.T_world_cam
+        self.map.apply_map_update(update)
+        reference = self.map.keyframe(self._reference_slot) if self._reference_slot >= 0 else None
+        if T_last_ref is not None and reference is not None:
+            self._last.T_cam_world = T_last_ref @ reference.T_cam_world
 
     def _add_time(self, key: str, start: float, pose_ms_at_start: float) -> None:
         """Charge the time since ``start`` to ``key``, less the pose optimisation done meanwhile."""
@@ -295,6 +309,8 @@ class Tracker:
         if self._reference_slot < 0:
             return None
         keyframe = self.map.keyframe(self._reference_slot)
+        if keyframe is None:
+            return None
         kf_rows = self.map.rows_of_ids(keyframe.map_point_ids)
         kf_kps = np.flatnonzero(kf_rows >= 0)
         kf_kps = kf_kps[self.map.valid[kf_rows[kf_kps]]]
