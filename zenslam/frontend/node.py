@@ -4,6 +4,11 @@
 without the bus; ``serve`` is the loop that receives, handles and publishes. The tracking itself
 is ``zenslam.frontend.pipeline.FrontendPipeline``, built on the first frame from the calibration
 and sensor kind that every sensor/frame message carries.
+
+With a backend (``serve(..., backend=...)``), the backend's backend/map_update messages are applied
+to the pipeline's map: in live mode every update that has arrived is applied before the next
+frame is tracked; in lockstep, after publishing a keyframe the frontend waits for the backend's
+update of that keyframe before it tracks another frame, so the run is deterministic.
 """
 
 from __future__ import annotations
@@ -22,8 +27,9 @@ import zenoh
 from zenslam.camera import PinholeCalibration, SensorKind
 from zenslam.errors import CalibrationError, ZenslamError
 from zenslam.schemas import codec, keys
+from zenslam.schemas.map_update import MapUpdate
 from zenslam.service import bus
-from zenslam.service.run_config import load_run_config
+from zenslam.service.run_config import BackendConfig, load_run_config
 from zenslam.service.supervisor import StopFlag, add_process_arguments, bus_config_with, setup_process_logging
 
 logger = logging.getLogger(__name__)
@@ -35,6 +41,8 @@ class Pipeline(Protocol):
     """What the node needs of the tracker (FrontendPipeline satisfies it)."""
 
     def step(self, index: int, stamp_ns: int, left: np.ndarray, right: np.ndarray | None = None, depth_m: np.ndarray | None = None) -> Any: ...
+
+    def apply_map_update(self, update: MapUpdate) -> None: ...
 
 
 PipelineFactory = Callable[[PinholeCalibration, SensorKind], Pipeline]
@@ -48,6 +56,7 @@ class FrontendMessages:
     pose: bytes | None  # frontend/pose, when tracking gave a pose
     state: bytes  # frontend/state, always (sent last: it tells lockstep sources the frame is done)
     step_ms: float  # wall time of the tracking step, milliseconds
+    keyframe_id: int = -1  # the keyframe made at this frame, -1 if none
 
 
 def keyframe_message(keyframe: Any, calibration: PinholeCalibration, sensor: SensorKind) -> codec.KeyframeMessage:
@@ -82,6 +91,7 @@ class FrontendNode:
         self.frames = 0  # frames handled
         self.keyframes = 0  # keyframes sent
         self.skipped = 0  # frames never seen (gaps in the indices: dropped in live mode)
+        self.updates_applied = 0  # backend map updates applied to the pipeline's map
         self._last_index: int | None = None
 
     def handle(self, message: codec.FrameMessage) -> FrontendMessages:
@@ -122,7 +132,17 @@ class FrontendNode:
             has_pose=pose_bytes is not None,
             keyframe_id=keyframe_id,
         )
-        return FrontendMessages(keyframe_bytes, pose_bytes, codec.encode_tracking_state(state), step_ms)
+        return FrontendMessages(keyframe_bytes, pose_bytes, codec.encode_tracking_state(state), step_ms, keyframe_id)
+
+    def apply_map_update(self, update: MapUpdate) -> None:
+        """Apply the backend's correction to the pipeline's map before the next frame is tracked."""
+        if self._pipeline is None:
+            raise ZenslamError(
+                f"a map update for keyframe {update.keyframe_id} arrived before any frame was tracked; "
+                "is another frontend publishing keyframes in this session?"
+            )
+        self._pipeline.apply_map_update(update)
+        self.updates_applied += 1
 
 
 class _Outputs:
@@ -149,6 +169,44 @@ class _Outputs:
         self.state.put(codec.encode_end_of_stream(codec.TRACKING_STATE, frames))
 
 
+class _MapUpdates:
+    """The backend's map updates, applied to the node's pipeline as the run mode says."""
+
+    def __init__(self, session: zenoh.Session, session_name: str, config: BackendConfig):
+        # Lossless: a missed update would leave the frontend's map behind the backend's for good.
+        self.inbox = bus.subscribe(session, keys.backend_map_update(session_name), codec.decode_map_update, "lossless", config.map_update_queue)
+        self.timeout_s = config.update_timeout_s
+        self.ended = False
+
+    def apply_pending(self, node: FrontendNode) -> None:
+        """Live: apply every update that has arrived."""
+        while not self.ended and (update := self.inbox.get(timeout_s=0)) is not None:
+            self._apply(node, update)
+
+    def wait_for(self, node: FrontendNode, keyframe_id: int, should_stop: Callable[[], bool]) -> None:
+        """Lockstep: apply updates until the one for ``keyframe_id`` has been applied."""
+        deadline = time.monotonic() + self.timeout_s
+        while not should_stop():
+            update = self.inbox.get(timeout_s=0.1)
+            if update is not None and self._apply(node, update) >= keyframe_id:
+                return
+            if self.ended:
+                raise bus.BusError(f"the backend ended its stream while the frontend waited for its update of keyframe {keyframe_id}")
+            if update is None and time.monotonic() > deadline:
+                raise bus.BusError(
+                    f"lockstep: no map update for keyframe {keyframe_id} from the backend within {self.timeout_s:.0f} s "
+                    "(backend.update_timeout_s); check the backend's log"
+                )
+
+    def _apply(self, node: FrontendNode, update: MapUpdate | codec.EndOfStream) -> int:
+        """Apply one update; the keyframe id it answers (-1 for the end of stream)."""
+        if isinstance(update, codec.EndOfStream):
+            self.ended = True
+            return -1
+        node.apply_map_update(update)
+        return update.keyframe_id
+
+
 def serve(
     session: zenoh.Session,
     session_name: str,
@@ -156,9 +214,15 @@ def serve(
     lockstep: bool,
     bus_config: bus.BusConfig,
     should_stop: Callable[[], bool],
+    backend: BackendConfig | None = None,
 ) -> bool:
-    """Receive frames until end of stream (True) or ``should_stop()`` (False); the streams are ended either way."""
+    """Receive frames until end of stream (True) or ``should_stop()`` (False); the streams are ended either way.
+
+    With ``backend`` the backend's map updates are applied (see the module doc); without it the
+    frontend tracks on its own map.
+    """
     outputs = _Outputs(session, session_name)
+    updates = _MapUpdates(session, session_name, backend) if backend is not None else None
     if lockstep:
         # Lockstep: every frame, in order; the source waits for our state before sending more.
         frames = bus.subscribe(session, keys.sensor_frame(session_name), codec.decode_sensor_frame, "lossless", bus_config.lossless_queue)
@@ -171,6 +235,8 @@ def serve(
         with bus.declare_alive(session, session_name, STAGE):
             while not should_stop():
                 message = frames.get(timeout_s=0.1)
+                if updates is not None and not lockstep:
+                    updates.apply_pending(node)
                 if message is None:
                     continue
                 if isinstance(message, codec.EndOfStream):
@@ -183,6 +249,8 @@ def serve(
                     outputs.send_status(codec.StageStatusMessage(STAGE, "failed", node.frames, detail=f"{type(exc).__name__}: {exc}"))
                     raise
                 outputs.send(sent)
+                if updates is not None and lockstep and sent.keyframe_id >= 0:
+                    updates.wait_for(node, sent.keyframe_id, should_stop)
                 status = codec.StageStatusMessage(STAGE, "running", node.frames, sent.step_ms, frames.depth, node.skipped)
                 outputs.send_status(status)
                 logger.debug("frame %d: %.1f ms, queue %d", message.frame.index, sent.step_ms, status.queue_depth)
@@ -190,6 +258,8 @@ def serve(
         outputs.end_streams(node.frames, node.keyframes)
         outputs.send_status(codec.StageStatusMessage(STAGE, "finished", node.frames, dropped=node.skipped))
         frames.close()
+        if updates is not None:
+            updates.inbox.close()
     return ended
 
 
@@ -207,6 +277,14 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point: ``python -m zenslam.frontend.node --session S [--config FILE] [--connect EP] ...``."""
     parser = argparse.ArgumentParser(prog="zenslam-frontend", description=__doc__.splitlines()[0])
     add_process_arguments(parser)
+    parser.add_argument(
+        "--map-updates", action="store_true",
+        help="apply the backend's map updates (lockstep: wait for the update of each keyframe before the next frame)",
+    )
+    parser.add_argument(
+        "--wait-for", action="append", default=[], metavar="STAGE",
+        help="stage whose liveliness token must be present before the frontend starts (repeatable)",
+    )
     args = parser.parse_args(argv)
     setup_process_logging(args.verbose, STAGE)
     stop = StopFlag(args.parent_pid).install()
@@ -218,7 +296,12 @@ def main(argv: list[str] | None = None) -> int:
         cv2.setNumThreads(1)
         node = FrontendNode(default_pipeline_factory(config.frontend))
         with bus.open_session(bus_config_with(config.bus, args.connect)) as session:
-            serve(session, args.session, node, config.source.lockstep, config.bus, stop)
+            timeout_s = config.source.start_timeout_s
+            missing = bus.wait_for_alive(session, args.session, args.wait_for, timeout_s, stop.keep_going)
+            if missing and not stop():
+                raise bus.BusError(f"stage(s) {sorted(missing)} did not come up within {timeout_s:.0f} s")
+            backend = config.backend if args.map_updates else None
+            serve(session, args.session, node, config.source.lockstep, config.bus, stop, backend=backend)
     except ZenslamError as exc:
         logger.error("%s", exc)
         return 2

@@ -28,6 +28,8 @@ TRACKING_STATE = "zenslam.TrackingState"
 KEYFRAME = "zenslam.Keyframe"
 MAP_UPDATE = "zenslam.MapUpdate"
 STAGE_STATUS = "zenslam.StageStatus"
+KEYFRAME_TRAJECTORY = "zenslam.KeyframeTrajectory"
+MAP_SNAPSHOT = "zenslam.MapSnapshot"
 POSE_IN_FRAME = "foxglove.PoseInFrame"
 
 MESSAGE_CLASSES: dict[str, type[Message]] = {
@@ -36,6 +38,8 @@ MESSAGE_CLASSES: dict[str, type[Message]] = {
     KEYFRAME: pb.Keyframe,
     MAP_UPDATE: pb.MapUpdate,
     STAGE_STATUS: pb.StageStatus,
+    KEYFRAME_TRAJECTORY: pb.KeyframeTrajectory,
+    MAP_SNAPSHOT: pb.MapSnapshot,
     POSE_IN_FRAME: PoseInFrame,
 }
 
@@ -135,6 +139,27 @@ class StageStatusMessage:
     queue_depth: int = 0  # messages waiting in the stage's inbox
     dropped: int = 0  # input messages skipped (live mode)
     detail: str = ""
+    timings_ms: dict[str, float] = field(default_factory=dict)  # per sub-step of the last step, milliseconds
+
+
+@dataclass(frozen=True)
+class KeyframeTrajectoryMessage:
+    """Keyframe poses oldest first (the backend/trajectory reply); K keyframes."""
+
+    keyframe_ids: np.ndarray  # (K,) int64
+    stamps_ns: np.ndarray  # (K,) int64
+    T_world_cam: np.ndarray  # (K, 4, 4) camera -> world
+    keyframes_processed: int = 0  # keyframes the backend had processed when it answered
+    finished: bool = False  # the backend had processed its input's end of stream
+
+
+@dataclass(frozen=True)
+class MapSnapshotMessage:
+    """The backend's map (the backend/map reply): keyframe poses and P point positions."""
+
+    keyframes: KeyframeTrajectoryMessage
+    point_ids: np.ndarray  # (P,) int64
+    p_world: np.ndarray  # (P, 3) metres, world frame
 
 
 def _pack(array: np.ndarray, dtype: str, shape_tail: tuple[int, ...], name: str) -> bytes:
@@ -444,6 +469,8 @@ def encode_stage_status(status: StageStatusMessage) -> bytes:
         dropped=status.dropped,
         detail=status.detail,
     )
+    for name, ms in status.timings_ms.items():
+        msg.timings_ms[name] = float(ms)
     return msg.SerializeToString()
 
 
@@ -461,4 +488,64 @@ def decode_stage_status(data: bytes) -> StageStatusMessage:
         queue_depth=msg.queue_depth,
         dropped=msg.dropped,
         detail=msg.detail,
+        timings_ms={k: msg.timings_ms[k] for k in sorted(msg.timings_ms)},
+    )
+
+
+def _trajectory_to_pb(trajectory: KeyframeTrajectoryMessage, out: pb.KeyframeTrajectory) -> None:
+    k = len(trajectory.keyframe_ids)
+    if len(trajectory.stamps_ns) != k or np.shape(trajectory.T_world_cam) != (k, 4, 4):
+        raise MessageError(
+            f"keyframe trajectory: {k} ids, {len(trajectory.stamps_ns)} stamps and poses of shape "
+            f"{np.shape(trajectory.T_world_cam)} do not agree (expected ({k}, 4, 4))"
+        )
+    out.keyframes_processed, out.finished, out.num_keyframes = trajectory.keyframes_processed, trajectory.finished, k
+    out.keyframe_ids = _pack(trajectory.keyframe_ids, "<i8", (), "keyframe trajectory keyframe_ids")
+    out.stamps_ns = _pack(trajectory.stamps_ns, "<i8", (), "keyframe trajectory stamps_ns")
+    out.T_world_cam = _pack(trajectory.T_world_cam, "<f8", (4, 4), "keyframe trajectory T_world_cam")
+
+
+def _trajectory_from_pb(msg: pb.KeyframeTrajectory) -> KeyframeTrajectoryMessage:
+    k = msg.num_keyframes
+    return KeyframeTrajectoryMessage(
+        keyframe_ids=_unpack(msg.keyframe_ids, "<i8", (k,), "keyframe trajectory keyframe_ids"),
+        stamps_ns=_unpack(msg.stamps_ns, "<i8", (k,), "keyframe trajectory stamps_ns"),
+        T_world_cam=_unpack(msg.T_world_cam, "<f8", (k, 4, 4), "keyframe trajectory T_world_cam"),
+        keyframes_processed=msg.keyframes_processed,
+        finished=msg.finished,
+    )
+
+
+def encode_keyframe_trajectory(trajectory: KeyframeTrajectoryMessage) -> bytes:
+    """Encode a backend/trajectory reply."""
+    msg = pb.KeyframeTrajectory()
+    _trajectory_to_pb(trajectory, msg)
+    return msg.SerializeToString()
+
+
+def decode_keyframe_trajectory(data: bytes) -> KeyframeTrajectoryMessage:
+    """Decode a backend/trajectory reply."""
+    return _trajectory_from_pb(_parse(pb.KeyframeTrajectory, data))
+
+
+def encode_map_snapshot(snapshot: MapSnapshotMessage) -> bytes:
+    """Encode a backend/map reply; point ids and positions must agree in length."""
+    p = len(snapshot.point_ids)
+    if len(snapshot.p_world) != p:
+        raise MessageError(f"map snapshot: {len(snapshot.p_world)} point positions for {p} point ids")
+    msg = pb.MapSnapshot(num_points=p)
+    _trajectory_to_pb(snapshot.keyframes, msg.keyframes)
+    msg.point_ids = _pack(snapshot.point_ids, "<i8", (), "map snapshot point_ids")
+    msg.p_world = _pack(snapshot.p_world, "<f8", (3,), "map snapshot p_world")
+    return msg.SerializeToString()
+
+
+def decode_map_snapshot(data: bytes) -> MapSnapshotMessage:
+    """Decode a backend/map reply."""
+    msg = _parse(pb.MapSnapshot, data)
+    p = msg.num_points
+    return MapSnapshotMessage(
+        keyframes=_trajectory_from_pb(msg.keyframes),
+        point_ids=_unpack(msg.point_ids, "<i8", (p,), "map snapshot point_ids"),
+        p_world=_unpack(msg.p_world, "<f8", (p, 3), "map snapshot p_world"),
     )

@@ -56,7 +56,7 @@ def frontend_keyframe(session: str) -> str:
 
 
 def backend_map_update(session: str) -> str:
-    """Corrections of keyframe poses and map points from the backend."""
+    """Corrections of keyframe poses and map points from the backend, one per keyframe processed (zenslam.MapUpdate)."""
     return f"{session_prefix(session)}/backend/map_update"
 
 
@@ -76,12 +76,12 @@ def all_status(session: str) -> str:
 
 
 def backend_map_query(session: str) -> str:
-    """Queryable: a snapshot of the backend's map."""
+    """Queryable: a snapshot of the backend's map (replies zenslam.MapSnapshot)."""
     return f"{session_prefix(session)}/backend/map"
 
 
 def backend_trajectory_query(session: str) -> str:
-    """Queryable: the backend's current keyframe trajectory."""
+    """Queryable: the backend's current keyframe poses (replies zenslam.KeyframeTrajectory)."""
     return f"{session_prefix(session)}/backend/trajectory"
 
 

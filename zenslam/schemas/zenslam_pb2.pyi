@@ -237,7 +237,14 @@ class MapUpdate(_message.Message):
     def __init__(self, keyframe_id: _Optional[int] = ..., stamp_ns: _Optional[int] = ..., keyframes: _Optional[_Iterable[_Union[KeyframeCorrection, _Mapping]]] = ..., num_points: _Optional[int] = ..., point_ids: _Optional[bytes] = ..., p_world: _Optional[bytes] = ..., descriptors: _Optional[bytes] = ..., normals: _Optional[bytes] = ..., min_distance_m: _Optional[bytes] = ..., max_distance_m: _Optional[bytes] = ..., removed_point_ids: _Optional[bytes] = ..., removed_keyframe_ids: _Optional[bytes] = ..., end_of_stream: _Optional[bool] = ..., count: _Optional[int] = ...) -> None: ...
 
 class StageStatus(_message.Message):
-    __slots__ = ("stage", "state", "processed", "step_ms", "queue_depth", "dropped", "detail")
+    __slots__ = ("stage", "state", "processed", "step_ms", "queue_depth", "dropped", "detail", "timings_ms")
+    class TimingsMsEntry(_message.Message):
+        __slots__ = ("key", "value")
+        KEY_FIELD_NUMBER: _ClassVar[int]
+        VALUE_FIELD_NUMBER: _ClassVar[int]
+        key: str
+        value: float
+        def __init__(self, key: _Optional[str] = ..., value: _Optional[float] = ...) -> None: ...
     STAGE_FIELD_NUMBER: _ClassVar[int]
     STATE_FIELD_NUMBER: _ClassVar[int]
     PROCESSED_FIELD_NUMBER: _ClassVar[int]
@@ -245,6 +252,7 @@ class StageStatus(_message.Message):
     QUEUE_DEPTH_FIELD_NUMBER: _ClassVar[int]
     DROPPED_FIELD_NUMBER: _ClassVar[int]
     DETAIL_FIELD_NUMBER: _ClassVar[int]
+    TIMINGS_MS_FIELD_NUMBER: _ClassVar[int]
     stage: str
     state: StageState
     processed: int
@@ -252,4 +260,33 @@ class StageStatus(_message.Message):
     queue_depth: int
     dropped: int
     detail: str
-    def __init__(self, stage: _Optional[str] = ..., state: _Optional[_Union[StageState, str]] = ..., processed: _Optional[int] = ..., step_ms: _Optional[float] = ..., queue_depth: _Optional[int] = ..., dropped: _Optional[int] = ..., detail: _Optional[str] = ...) -> None: ...
+    timings_ms: _containers.ScalarMap[str, float]
+    def __init__(self, stage: _Optional[str] = ..., state: _Optional[_Union[StageState, str]] = ..., processed: _Optional[int] = ..., step_ms: _Optional[float] = ..., queue_depth: _Optional[int] = ..., dropped: _Optional[int] = ..., detail: _Optional[str] = ..., timings_ms: _Optional[_Mapping[str, float]] = ...) -> None: ...
+
+class KeyframeTrajectory(_message.Message):
+    __slots__ = ("keyframes_processed", "finished", "num_keyframes", "keyframe_ids", "stamps_ns", "T_world_cam")
+    KEYFRAMES_PROCESSED_FIELD_NUMBER: _ClassVar[int]
+    FINISHED_FIELD_NUMBER: _ClassVar[int]
+    NUM_KEYFRAMES_FIELD_NUMBER: _ClassVar[int]
+    KEYFRAME_IDS_FIELD_NUMBER: _ClassVar[int]
+    STAMPS_NS_FIELD_NUMBER: _ClassVar[int]
+    T_WORLD_CAM_FIELD_NUMBER: _ClassVar[int]
+    keyframes_processed: int
+    finished: bool
+    num_keyframes: int
+    keyframe_ids: bytes
+    stamps_ns: bytes
+    T_world_cam: bytes
+    def __init__(self, keyframes_processed: _Optional[int] = ..., finished: _Optional[bool] = ..., num_keyframes: _Optional[int] = ..., keyframe_ids: _Optional[bytes] = ..., stamps_ns: _Optional[bytes] = ..., T_world_cam: _Optional[bytes] = ...) -> None: ...
+
+class MapSnapshot(_message.Message):
+    __slots__ = ("keyframes", "num_points", "point_ids", "p_world")
+    KEYFRAMES_FIELD_NUMBER: _ClassVar[int]
+    NUM_POINTS_FIELD_NUMBER: _ClassVar[int]
+    POINT_IDS_FIELD_NUMBER: _ClassVar[int]
+    P_WORLD_FIELD_NUMBER: _ClassVar[int]
+    keyframes: KeyframeTrajectory
+    num_points: int
+    point_ids: bytes
+    p_world: bytes
+    def __init__(self, keyframes: _Optional[_Union[KeyframeTrajectory, _Mapping]] = ..., num_points: _Optional[int] = ..., point_ids: _Optional[bytes] = ..., p_world: _Optional[bytes] = ...) -> None: ...

@@ -1,7 +1,7 @@
 """The configuration of one run: a YAML file with one section per stage, and ORB-SLAM3 settings files.
 
-``load_run_config`` reads the YAML (sections ``bus``, ``source``, ``frontend``, ``evaluation``; unknown keys are an
-error). ``read_orbslam_settings`` reads an ORB-SLAM3 (or ORB-SLAM2) settings file with OpenCV's
+``load_run_config`` reads the YAML (sections ``bus``, ``source``, ``frontend``, ``backend``, ``evaluation``; unknown
+keys are an error). ``read_orbslam_settings`` reads an ORB-SLAM3 (or ORB-SLAM2) settings file with OpenCV's
 FileStorage, and ``apply_orbslam_settings`` makes its rectified calibration override the source's
 and its ORB/threshold values override the frontend's, so users can bring their existing files.
 """
@@ -18,6 +18,8 @@ from typing import Any, Literal
 import cv2
 import numpy as np
 
+from zenslam.backend.local_ba import LocalBAConfig
+from zenslam.backend.local_mapping import LocalMappingConfig
 from zenslam.camera import PinholeCalibration
 from zenslam.errors import CalibrationError, ConfigError
 from zenslam.frontend.pipeline import FrontendConfig
@@ -55,12 +57,38 @@ class SourceConfig:
 
 
 @dataclass(frozen=True)
+class BackendConfig:
+    """The backend process (the ``backend`` section): local mapping, local BA and its queues."""
+
+    local_mapping: LocalMappingConfig = field(default_factory=LocalMappingConfig)
+    local_ba: LocalBAConfig = field(default_factory=LocalBAConfig)
+    # Keyframes the backend's inbox holds; when full the frontend's send blocks (lossless: never dropped).
+    keyframe_queue: int = 32  # keyframes
+    # Map updates a subscriber's inbox (the frontend's, the run's) holds before the backend's send blocks.
+    map_update_queue: int = 256  # map updates
+    update_timeout_s: float = 300.0  # lockstep: seconds the frontend waits for the backend's update of one keyframe
+    # After its input's end of stream the backend keeps answering backend/map and backend/trajectory
+    # for this long (or until stopped: ``zenslam run`` stops it once it has the final trajectory).
+    linger_s: float = 60.0  # seconds
+
+    def __post_init__(self) -> None:
+        for name in ("keyframe_queue", "map_update_queue"):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"backend.{name}={getattr(self, name)} must be at least 1 message")
+        if not self.update_timeout_s > 0:
+            raise ConfigError(f"backend.update_timeout_s={self.update_timeout_s} must be a positive number of seconds")
+        if not self.linger_s >= 0:
+            raise ConfigError(f"backend.linger_s={self.linger_s} must be >= 0 seconds")
+
+
+@dataclass(frozen=True)
 class RunConfig:
     """Everything a run needs, one section per stage; written resolved next to the run's outputs."""
 
     bus: BusConfig = field(default_factory=BusConfig)
     source: SourceConfig = field(default_factory=SourceConfig)
     frontend: FrontendConfig = field(default_factory=FrontendConfig)
+    backend: BackendConfig = field(default_factory=BackendConfig)
     # Monocular runs are compared after a Sim(3) alignment whatever ``alignment`` says (no metric scale).
     evaluation: EvaluationConfig = field(default_factory=EvaluationConfig)
 

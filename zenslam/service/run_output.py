@@ -1,9 +1,10 @@
 """What a run leaves in recordings/<run-id>/: the resolved config, trajectories, metrics.json and a plot.
 
-``RunLog`` collects the frontend/state and frontend/pose messages the run command receives;
-``write_outputs`` turns them into ``trajectory.tum`` (every frame tracked ok), ``keyframes.tum``,
-``metrics.json`` (ATE/RPE when there is ground truth, plus timing and frame counts) and
-``trajectory_top.png``.
+``RunLog`` collects what the run command receives: frontend/state and frontend/pose, the backend's
+map updates (counted) and status timings, and the backend's final keyframe poses. ``write_outputs``
+turns them into ``trajectory.tum`` (every frame tracked ok), ``keyframes.tum`` (the backend's final
+keyframe poses; the frontend's when no backend answered), ``metrics.json`` (ATE/RPE when there is
+ground truth, tracking and backend timing, frame and keyframe counts) and ``trajectory_top.png``.
 """
 
 from __future__ import annotations
@@ -58,13 +59,56 @@ def write_config(run_dir: Path, config: RunConfig) -> Path:
     return path
 
 
+def _timing_table(samples: dict[str, list[float]], count_name: str) -> dict[str, dict[str, float]]:
+    """Per step: mean, median and max milliseconds, and how many samples."""
+    return {
+        name: {
+            "mean_ms": float(np.mean(v)),
+            "median_ms": float(np.median(v)),
+            "max_ms": float(np.max(v)),
+            count_name: len(v),
+        }
+        for name, v in sorted(samples.items())
+    }
+
+
 class RunLog:
-    """The tracking states and poses a run received, keyed by frame index and stamp."""
+    """The tracking states and poses a run received, keyed by frame index and stamp, and what it heard
+    from the backend."""
 
     def __init__(self) -> None:
         self.states: dict[int, codec.TrackingStateMessage] = {}
         self.poses: dict[int, np.ndarray] = {}  # stamp_ns -> T_world_cam
         self.ended = False  # the frontend's end of stream arrived
+        self.updated_keyframes: list[int] = []  # keyframe id of every backend map update received, in order
+        self.backend_ended = False  # the backend's end of stream arrived
+        self.backend_timings: dict[int, dict[str, float]] = {}  # keyframes processed -> ms per step of that one
+        self.backend_keyframes: codec.KeyframeTrajectoryMessage | None = None  # the backend's final keyframe poses
+
+    def add_map_update(self, update: object) -> None:
+        """Count a backend/map_update message (a MapUpdate, or the stream's end)."""
+        if isinstance(update, codec.EndOfStream):
+            self.backend_ended = True
+        else:
+            self.updated_keyframes.append(int(update.keyframe_id))
+
+    def add_backend_status(self, status: codec.StageStatusMessage) -> None:
+        """Keep the per-step timings of each keyframe the backend reports."""
+        if status.state == "running" and status.timings_ms:
+            self.backend_timings[status.processed] = dict(status.timings_ms)
+
+    def keyframe_counts(self) -> dict[str, int]:
+        """Keyframes the frontend sent (states with a keyframe) and the backend processed (updates received)."""
+        sent = sum(1 for s in self.states.values() if s.keyframe_id >= 0)
+        return {"sent": sent, "processed": len(self.updated_keyframes)}
+
+    def backend_timing(self) -> dict[str, dict[str, float]]:
+        """Per local-mapping step: mean, median and max milliseconds over the keyframes processed."""
+        samples: dict[str, list[float]] = {}
+        for processed in sorted(self.backend_timings):
+            for name, ms in self.backend_timings[processed].items():
+                samples.setdefault(name, []).append(ms)
+        return _timing_table(samples, "keyframes")
 
     def add_state(self, state: codec.TrackingStateMessage) -> None:
         self.states[state.index] = state
@@ -89,7 +133,14 @@ class RunLog:
         return self._trajectory(lambda s: s.state == "ok")
 
     def keyframe_trajectory(self) -> Trajectory | None:
-        """T_world_cam of the frames that made a keyframe, as tracked when they were made."""
+        """The backend's final keyframe poses when it answered; else T_world_cam of the frames that made
+        a keyframe, as tracked when they were made."""
+        backend = self.backend_keyframes
+        if backend is not None:
+            if len(backend.stamps_ns) == 0:
+                return None
+            order = np.argsort(backend.stamps_ns, kind="stable")
+            return Trajectory(np.asarray(backend.stamps_ns, dtype=np.int64)[order], np.asarray(backend.T_world_cam)[order])
         return self._trajectory(lambda s: s.keyframe_id >= 0)
 
     def timing(self) -> dict[str, dict[str, float]]:
@@ -98,15 +149,7 @@ class RunLog:
         for index in sorted(self.states):
             for name, ms in self.states[index].timings_ms.items():
                 samples.setdefault(name, []).append(ms)
-        return {
-            name: {
-                "mean_ms": float(np.mean(v)),
-                "median_ms": float(np.median(v)),
-                "max_ms": float(np.max(v)),
-                "frames": len(v),
-            }
-            for name, v in sorted(samples.items())
-        }
+        return _timing_table(samples, "frames")
 
     def frame_counts(self) -> dict[str, object]:
         """The ``frames``, ``lost_frames``, ``lost_reasons`` and ``keyframes`` sections of metrics.json."""
@@ -158,7 +201,11 @@ def write_outputs(
             logger.warning("no ATE for this run: %s", exc)
     elif ground_truth is not None:
         error = "no frame was tracked, so there is nothing to compare with the ground truth"
-    sections: dict[str, object] = {"timing": log.timing(), **log.frame_counts(), **(extra or {})}
+    sections: dict[str, object] = {"timing": log.timing(), **log.frame_counts()}
+    sections["keyframes"] = log.keyframe_counts()
+    sections["keyframes_from"] = "backend" if log.backend_keyframes is not None else "frontend"
+    sections["backend_timing"] = log.backend_timing()
+    sections.update(extra or {})
     if error is not None:
         sections["evaluation_error"] = error
     files.append(write_metrics(run_dir / METRICS_FILENAME, evaluation, **sections))

@@ -18,7 +18,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType
@@ -153,10 +153,12 @@ class Supervisor:
                 pass
         return {name: child.popen.poll() for name, child in self._children.items()}
 
-    def request_stop(self) -> None:
-        """Send SIGINT to every running child without waiting (they end their streams and exit)."""
-        for child in self._children.values():
-            if child.popen.poll() is None:
+    def request_stop(self, names: Iterable[str] | None = None) -> None:
+        """Send SIGINT to the named running children (all when None) without waiting; they end their
+        streams and exit."""
+        chosen = set(self._children if names is None else names)
+        for name, child in self._children.items():
+            if name in chosen and child.popen.poll() is None:
                 try:
                     os.killpg(child.popen.pid, signal.SIGINT)
                 except ProcessLookupError:

@@ -1,8 +1,11 @@
-"""``zenslam run [SOURCE]``: run the source and frontend processes over zenoh and write recordings/<run-id>/.
+"""``zenslam run [SOURCE]``: run the source, frontend and backend processes over zenoh and write recordings/<run-id>/.
 
 This process is the run's hub: it opens the session the stages connect to, subscribes to
-frontend/pose and frontend/state like any other consumer would, starts and supervises the stage
-processes, shows progress from the states arriving, and writes the outputs when the stream ends.
+frontend/pose, frontend/state, backend/map_update and backend/status like any other consumer would,
+starts and supervises the stage processes, and shows progress from the states arriving. After the
+frontend's end of stream it waits, in live mode too, until the backend has processed every
+keyframe (its map-update stream ends), asks it for its final keyframe poses (backend/trajectory),
+lets the stages exit and writes the outputs.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from zenslam.backend.node import query_trajectory
 from zenslam.schemas import codec, keys
 from zenslam.service import bus
 from zenslam.service.run_config import RunConfig, apply_orbslam_settings, load_run_config, read_orbslam_settings
@@ -38,6 +42,7 @@ logger = logging.getLogger(__name__)
 _EXIT_INTERRUPTED = 130
 _POSE_GRACE_S = 5.0  # seconds to wait, after the end of stream, for poses still in flight
 _EXIT_WAIT_S = 30.0  # seconds the stages get to exit by themselves after the end of stream
+_QUERY_TIMEOUT_S = 10.0  # seconds to wait for the backend's answer to the final trajectory query
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -102,13 +107,19 @@ def _child_env(config: RunConfig) -> dict[str, str]:
 
 
 class _Follower:
-    """Receives frontend/state and frontend/pose into a RunLog, with a progress bar."""
+    """Receives frontend/state, frontend/pose, backend/map_update and backend/status into a RunLog,
+    with a progress bar."""
 
     def __init__(self, session, run_id: str, config: RunConfig, total: int | None, progress: bool):
         capacity = max(config.bus.lossless_queue, 256)
-        # Lossless: every pose and state is needed for the trajectory and the metrics.
+        # Lossless: every pose and state is needed for the trajectory and the metrics, every map update
+        # and backend status for the keyframe counts and timings. All are drained at every poll, so
+        # the stages never wait on this process for long.
         self.poses = bus.subscribe(session, keys.frontend_pose(run_id), codec.decode_pose_in_frame, "lossless", capacity)
         self.states = bus.subscribe(session, keys.frontend_state(run_id), codec.decode_tracking_state, "lossless", capacity)
+        update_capacity = max(config.backend.map_update_queue, capacity)
+        self.updates = bus.subscribe(session, keys.backend_map_update(run_id), codec.decode_map_update, "lossless", update_capacity)
+        self.backend = bus.subscribe(session, keys.status(run_id, "backend"), codec.decode_stage_status, "lossless", capacity)
         self.log = RunLog()
         self.bar = tqdm(total=total, unit="frame", desc="tracking", disable=not progress)
 
@@ -116,6 +127,7 @@ class _Follower:
         """Take what has arrived (waiting up to ``timeout_s`` seconds for a state)."""
         while (pose := self.poses.get(0)) is not None:
             self.log.add_pose(pose)
+        self.poll_backend()
         state = self.states.get(timeout_s)
         if isinstance(state, codec.EndOfStream):
             self.log.ended = True
@@ -124,6 +136,13 @@ class _Follower:
             self.bar.update(1)
             self.bar.set_postfix(state=state.state, tracked=state.n_tracked, refresh=False)
 
+    def poll_backend(self) -> None:
+        """Take the map updates and backend statuses that have arrived."""
+        while (update := self.updates.get(0)) is not None:
+            self.log.add_map_update(update)
+        while (status := self.backend.get(0)) is not None:
+            self.log.add_backend_status(status)
+
     def drain(self, until: float) -> None:
         """Keep taking messages until the poses announced by the states have all arrived, or ``until``."""
         while time.monotonic() < until and (not self.log.ended or self.log.missing_poses() > 0):
@@ -131,8 +150,8 @@ class _Follower:
 
     def close(self) -> None:
         self.bar.close()
-        self.poses.close()
-        self.states.close()
+        for inbox in (self.poses, self.states, self.updates, self.backend):
+            inbox.close()
 
 
 def _follow(follower: _Follower, supervisor: Supervisor, stop: StopFlag) -> bool:
@@ -149,6 +168,27 @@ def _follow(follower: _Follower, supervisor: Supervisor, stop: StopFlag) -> bool
                 raise ProcessError(f"the frontend exited before the end of stream:\n{supervisor.log_tail('frontend')}")
         follower.poll(0.05)
     follower.drain(time.monotonic() + _POSE_GRACE_S)
+    return True
+
+
+def _follow_backend(follower: _Follower, supervisor: Supervisor, stop: StopFlag) -> bool:
+    """Wait until the backend has processed every keyframe (its map-update stream ended): True, or
+    False on an interrupt."""
+    counts = follower.log.keyframe_counts()
+    if not follower.log.backend_ended:
+        logger.info("waiting for the backend: %d of %d keyframes processed", counts["processed"], counts["sent"])
+    while not follower.log.backend_ended:
+        if stop():
+            supervisor.request_stop()
+            return False
+        supervisor.check()
+        if supervisor.returncode("backend") is not None:
+            follower.poll_backend()
+            if not follower.log.backend_ended:
+                raise ProcessError(f"the backend exited before the end of its stream:\n{supervisor.log_tail('backend')}")
+        follower.poll_backend()
+        time.sleep(0.02)
+    follower.poll_backend()  # statuses sent with the end of stream
     return True
 
 
@@ -171,10 +211,18 @@ def track(config: RunConfig, run_id: str, run_dir: Path, config_path: Path, sour
         try:
             supervisor = Supervisor(run_dir, run_id, config_path, hub, env=_child_env(config))
             with supervisor, bus.declare_alive(session, run_id, "run"):
-                supervisor.start(ProcessSpec("frontend", "zenslam.frontend.node"))
-                supervisor.wait_until_alive(session, ["frontend"], config.source.start_timeout_s, stop.keep_going)
+                timeout_s = config.source.start_timeout_s
+                supervisor.start(ProcessSpec("backend", "zenslam.backend.node"))
+                supervisor.wait_until_alive(session, ["backend"], timeout_s, stop.keep_going)
+                supervisor.start(ProcessSpec("frontend", "zenslam.frontend.node", ("--map-updates", "--wait-for", "backend")))
+                supervisor.wait_until_alive(session, ["frontend"], timeout_s, stop.keep_going)
                 supervisor.start(ProcessSpec("source", "zenslam.service.source_node", ("--wait-for", "frontend")))
-                completed = _follow(follower, supervisor, stop)
+                completed = _follow(follower, supervisor, stop) and _follow_backend(follower, supervisor, stop)
+                if completed:
+                    follower.log.backend_keyframes = query_trajectory(session, run_id, _QUERY_TIMEOUT_S)
+                    if follower.log.backend_keyframes is None:
+                        logger.warning("the backend did not answer the trajectory query; keyframes.tum has the frontend's poses")
+                    supervisor.request_stop(["backend"])  # it lingers to answer queries until told to go
                 statuses = supervisor.wait_exit(_EXIT_WAIT_S if completed else 10.0)
                 supervisor.check()
                 stuck = [name for name, code in statuses.items() if code is None]
@@ -187,8 +235,10 @@ def track(config: RunConfig, run_id: str, run_dir: Path, config_path: Path, sour
 
 def _summary(result: RunResult, log: RunLog) -> list[str]:
     counts = log.frame_counts()
+    keyframes = log.keyframe_counts()
     lines = [
-        f"frames {counts['frames']}: {counts['tracked_ok']} tracked, {counts['lost_frames']} lost, {counts['keyframes']} keyframes",
+        f"frames {counts['frames']}: {counts['tracked_ok']} tracked, {counts['lost_frames']} lost, "
+        f"{keyframes['sent']} keyframes ({keyframes['processed']} processed by the backend)",
     ]
     if result.evaluation is not None:
         ate, rpe = result.evaluation.ate, result.evaluation.rpe

@@ -1,0 +1,206 @@
+"""The backend node: step on synthetic keyframes, the queryable replies and their codec, and serve over zenoh on loopback."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from zenslam.backend.local_ba import BAProblem, BAResult
+from zenslam.backend.local_mapping import TIMING_STEPS, LocalMapper, LocalMappingConfig
+from zenslam.backend.node import BackendNode, query_map, query_trajectory, serve
+from zenslam.camera import PinholeCalibration
+from zenslam.geometry import invert_T, make_T, transform_points
+from zenslam.schemas import codec, keys
+from zenslam.schemas.codec import KeyframeMessage, MessageError
+from zenslam.service import bus
+from zenslam.service.run_config import BackendConfig
+
+CAL = PinholeCalibration(500.0, 500.0, 320.0, 240.0, 640, 480, 0.1)
+STEP_M = 0.2  # camera motion between keyframes along +x, metres
+
+
+class World:
+    """Stereo keyframes of 300 known points seen by a camera moving along +x (looking along +z).
+
+    Each visible point is a keypoint at its exact projection with the point's descriptor; a point
+    seen for the first time is a new point (at its true position), later ones are associated.
+    """
+
+    def __init__(self, seed: int = 0, n_points: int = 300):
+        rng = np.random.default_rng(seed)
+        self.p = np.column_stack([rng.uniform(-3, 6, n_points), rng.uniform(-1.5, 1.5, n_points), rng.uniform(3, 9, n_points)])
+        self.desc = rng.integers(0, 256, (n_points, 32), dtype=np.uint8)
+        self.known: set[int] = set()
+
+    def pose(self, k: int) -> np.ndarray:
+        return make_T(np.eye(3), [k * STEP_M, 0.0, 0.0])
+
+    def keyframe(self, k: int) -> KeyframeMessage:
+        T = self.pose(k)
+        p_cam = transform_points(invert_T(T), self.p)
+        z = p_cam[:, 2]
+        px = CAL.fx * p_cam[:, :2] / z[:, None] + [CAL.cx, CAL.cy]
+        vis = np.flatnonzero((z > 0.5) & (px[:, 0] >= 0) & (px[:, 0] < 640) & (px[:, 1] >= 0) & (px[:, 1] < 480))
+        new = np.array([i for i in vis.tolist() if i not in self.known], dtype=np.int64)
+        self.known.update(vis.tolist())
+        n = len(vis)
+        return KeyframeMessage(
+            id=k, stamp_ns=k * 100_000_000, frame_index=3 * k, T_world_cam=T, calibration=CAL, sensor="stereo",
+            keypoints_px=px[vis].astype(np.float32), levels=np.zeros(n, np.int16), angles_deg=np.zeros(n, np.float32),
+            right_u=(px[vis, 0] - CAL.bf / z[vis]).astype(np.float32), depth_m=z[vis].astype(np.float32),
+            descriptors=self.desc[vis], map_point_ids=vis.astype(np.int64), scale_factors=1.2 ** np.arange(8),
+            new_point_ids=new, new_points_world=self.p[new].reshape(-1, 3),
+        )  # fmt: skip
+
+
+class IdentityAdjuster:
+    """Local BA stand-in: keeps the window as it is, every observation an inlier."""
+
+    def optimize(self, problem: BAProblem) -> BAResult:
+        inliers = np.ones(len(problem.obs_keyframe), dtype=bool)
+        return BAResult(problem.T_world_cam.copy(), problem.p_world.copy(), inliers, np.zeros(0, np.int64), {})
+
+
+def _node() -> BackendNode:
+    return BackendNode(LocalMapper(LocalMappingConfig(), IdentityAdjuster()))
+
+
+def test_step_returns_the_update_of_each_keyframe_and_its_timings():
+    world, node = World(), _node()
+    for k in range(4):
+        update = node.step(world.keyframe(k))
+        assert (update.keyframe_id, update.stamp_ns) == (k, k * 100_000_000)
+        assert k in [c.id for c in update.keyframes]
+    assert node.processed == 4 and not node.finished
+    assert set(node.last_timings_ms) == set(TIMING_STEPS)
+    assert all(ms >= 0 for ms in node.last_timings_ms.values())
+
+
+def test_trajectory_and_snapshot_are_the_map_now():
+    world, node = World(), _node()
+    for k in range(5):
+        node.step(world.keyframe(k))
+    trajectory = node.trajectory()
+    assert trajectory.keyframes_processed == 5 and not trajectory.finished
+    bmap = node.mapper.map
+    assert trajectory.keyframe_ids.tolist() == list(bmap.keyframes)
+    np.testing.assert_array_equal(trajectory.stamps_ns, [bmap.keyframes[k].stamp_ns for k in bmap.keyframes])
+    for k, T in zip(trajectory.keyframe_ids.tolist(), trajectory.T_world_cam):
+        np.testing.assert_allclose(T, world.pose(k), atol=1e-9)  # identity BA: the poses as sent
+    snapshot = node.snapshot()
+    assert snapshot.point_ids.tolist() == sorted(bmap.points)
+    assert len(snapshot.point_ids) > 100
+    for point_id, p in zip(snapshot.point_ids.tolist()[:50], snapshot.p_world[:50]):
+        np.testing.assert_array_equal(p, bmap.points[point_id].p_world)
+
+
+def test_replies_round_trip_exactly():
+    world, node = World(), _node()
+    for k in range(3):
+        node.step(world.keyframe(k))
+    snapshot = node.snapshot()
+    back = codec.decode_map_snapshot(codec.encode_map_snapshot(snapshot))
+    np.testing.assert_array_equal(back.point_ids, snapshot.point_ids)
+    np.testing.assert_array_equal(back.p_world, snapshot.p_world)
+    for name in ("keyframe_ids", "stamps_ns", "T_world_cam"):
+        np.testing.assert_array_equal(getattr(back.keyframes, name), getattr(snapshot.keyframes, name))
+    trajectory = codec.decode_keyframe_trajectory(codec.encode_keyframe_trajectory(node.trajectory()))
+    assert (trajectory.keyframes_processed, trajectory.finished) == (3, False)
+    empty = codec.decode_keyframe_trajectory(codec.encode_keyframe_trajectory(_node().trajectory()))
+    assert empty.T_world_cam.shape == (0, 4, 4)
+
+
+def test_mismatched_replies_are_refused():
+    bad = codec.KeyframeTrajectoryMessage(np.arange(2), np.arange(3), np.zeros((2, 4, 4)))
+    with pytest.raises(MessageError, match="do not agree"):
+        codec.encode_keyframe_trajectory(bad)
+    good = codec.KeyframeTrajectoryMessage(np.arange(2), np.arange(2), np.zeros((2, 4, 4)))
+    with pytest.raises(MessageError, match="3 point positions for 2 point ids"):
+        codec.encode_map_snapshot(codec.MapSnapshotMessage(good, np.arange(2), np.zeros((3, 3))))
+
+
+def test_status_carries_per_step_timings():
+    status = codec.StageStatusMessage("backend", "running", 7, 12.5, 3, timings_ms={"local_ba": 9.0, "total": 12.5})
+    assert codec.decode_stage_status(codec.encode_stage_status(status)) == status
+
+
+class SlowNode(BackendNode):
+    """A backend whose steps take ``delay_s`` seconds: the frontend outpaces it."""
+
+    def __init__(self, delay_s: float):
+        super().__init__(LocalMapper(LocalMappingConfig(), IdentityAdjuster()))
+        self.delay_s = delay_s
+
+    def step(self, keyframe):
+        time.sleep(self.delay_s)
+        return super().step(keyframe)
+
+
+def test_serve_maps_every_keyframe_answers_queries_and_forwards_the_end():
+    """A burst of keyframes into a 2-keyframe inbox: none is dropped, each gets its update in order,
+    statuses report queue depth and timings, queries are answered during the run and after the end."""
+    n, session_name = 8, "backend-node-test"
+    hub_endpoint = bus.free_tcp_endpoint()
+    config = BackendConfig(keyframe_queue=2, linger_s=30.0)
+    world = World()
+    with bus.open_session(bus.BusConfig(listen=(hub_endpoint,))) as hub, bus.open_session(bus.BusConfig(connect=(hub_endpoint,))) as peer:
+        updates = bus.subscribe(hub, keys.backend_map_update(session_name), codec.decode_map_update, "lossless", 64)
+        statuses = bus.subscribe(hub, keys.status(session_name, "backend"), codec.decode_stage_status, "lossless", 64)
+        publisher = bus.declare_publisher(hub, keys.frontend_keyframe(session_name), codec.KEYFRAME, "lossless")
+        node, stop, result = SlowNode(0.05), threading.Event(), {}
+        worker = threading.Thread(target=lambda: result.setdefault("ended", serve(peer, session_name, node, config, stop.is_set)))
+        worker.start()
+        try:
+            assert bus.wait_for_alive(hub, session_name, ["backend"], timeout_s=10.0) == set()
+            assert bus.wait_for_subscribers(publisher, timeout_s=10.0)
+            for k in range(n):
+                publisher.put(codec.encode_keyframe(world.keyframe(k)))  # blocks while the inbox is full
+            first = updates.get(timeout_s=10.0)
+            during = query_trajectory(hub, session_name, timeout_s=10.0)
+            publisher.put(codec.encode_end_of_stream(codec.KEYFRAME, n))
+            received = [first] + [updates.get(timeout_s=10.0) for _ in range(n)]
+            after = query_map(hub, session_name, timeout_s=10.0)
+            assert worker.is_alive()  # lingering to answer queries
+        finally:
+            stop.set()
+            worker.join(timeout=10.0)
+        assert result["ended"] is True and not worker.is_alive()
+        assert [u.keyframe_id for u in received[:n]] == list(range(n))
+        assert received[n] == codec.EndOfStream(n)
+        assert during is not None and 1 <= during.keyframes_processed <= n and not during.finished
+        ids = during.keyframe_ids.tolist()  # redundant keyframes may have been culled already
+        assert ids == sorted(ids) and ids[0] == 0 and ids[-1] == during.keyframes_processed - 1
+        assert after is not None and after.keyframes.finished
+        assert after.keyframes.keyframe_ids.tolist() == list(node.mapper.map.keyframes)
+        assert len(after.point_ids) == len(node.mapper.map.points)
+        got = []
+        while (status := statuses.get(timeout_s=1.0)) is not None:
+            got.append(status)
+        running = [s for s in got if s.state == "running"]
+        assert [s.processed for s in running] == list(range(1, n + 1))
+        assert all(set(s.timings_ms) == set(TIMING_STEPS) and s.step_ms >= 50.0 for s in running)
+        assert max(s.queue_depth for s in running) >= 1  # the burst waited in the inbox
+        assert got[-1] == codec.StageStatusMessage("backend", "finished", n)  # ("starting" may precede the match)
+        for inbox in (updates, statuses):
+            inbox.close()
+
+
+def test_serve_stopped_early_still_ends_the_stream():
+    session_name = "backend-stop-test"
+    hub_endpoint = bus.free_tcp_endpoint()
+    with bus.open_session(bus.BusConfig(listen=(hub_endpoint,))) as hub, bus.open_session(bus.BusConfig(connect=(hub_endpoint,))) as peer:
+        updates = bus.subscribe(hub, keys.backend_map_update(session_name), codec.decode_map_update, "lossless", 8)
+        stop, result = threading.Event(), {}
+        worker = threading.Thread(target=lambda: result.setdefault("ended", serve(peer, session_name, _node(), BackendConfig(), stop.is_set)))
+        worker.start()
+        try:
+            assert bus.wait_for_alive(hub, session_name, ["backend"], timeout_s=10.0) == set()
+        finally:
+            stop.set()
+            worker.join(timeout=10.0)
+        assert result["ended"] is False
+        assert updates.get(timeout_s=5.0) == codec.EndOfStream(0)
+        updates.close()

@@ -1,0 +1,239 @@
+"""The backend process: frontend/keyframe in, local mapping, backend/map_update out; answers backend/map and backend/trajectory.
+
+``BackendNode.step`` runs local mapping on one decoded keyframe and returns the ``MapUpdate`` to
+publish; it is testable without the bus. ``serve`` is the loop: it takes keyframes from a lossless,
+bounded inbox (a full inbox blocks the frontend's send, nothing is dropped), publishes one map
+update per keyframe and a backend/status with the step time, the per-step timings and the queue
+depth, and answers the queryables between steps, on the same thread, so a reply always shows the
+map between two keyframes. After the frontend's end of stream it forwards the end of stream on
+backend/map_update and keeps answering queries for ``BackendConfig.linger_s`` seconds or until
+stopped.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import time
+from collections.abc import Callable
+
+import numpy as np
+import zenoh
+
+from zenslam.backend.local_ba import LocalBundleAdjuster
+from zenslam.backend.local_mapping import LocalMapper
+from zenslam.errors import ZenslamError
+from zenslam.schemas import codec, keys
+from zenslam.schemas.map_update import MapUpdate
+from zenslam.service import bus
+from zenslam.service.run_config import BackendConfig, load_run_config
+from zenslam.service.supervisor import StopFlag, add_process_arguments, bus_config_with, setup_process_logging
+
+logger = logging.getLogger(__name__)
+
+STAGE = "backend"
+_POLL_S = 0.02  # seconds the loop waits for a keyframe before answering queries again
+
+
+class BackendNode:
+    """Local mapping on decoded keyframes, and the map and trajectory replies; no transport in here."""
+
+    def __init__(self, mapper: LocalMapper) -> None:
+        self.mapper = mapper
+        self.processed = 0  # keyframes processed
+        self.finished = False  # the input's end of stream has been processed
+
+    @classmethod
+    def from_config(cls, config: BackendConfig) -> BackendNode:
+        """The node with the real local mapper and gtsam local bundle adjuster."""
+        return cls(LocalMapper(config.local_mapping, LocalBundleAdjuster(config.local_ba)))
+
+    def step(self, keyframe: codec.KeyframeMessage) -> MapUpdate:
+        """Insert one keyframe and run local mapping on it; the update lists everything that changed."""
+        update = self.mapper.process(keyframe)
+        self.processed += 1
+        return update
+
+    @property
+    def last_timings_ms(self) -> dict[str, float]:
+        """Milliseconds per local-mapping step of the last keyframe ("total" is the whole step)."""
+        return dict(self.mapper.last_timings_ms)
+
+    def trajectory(self) -> codec.KeyframeTrajectoryMessage:
+        """The poses (T_world_cam) of the keyframes in the map now, in insertion order."""
+        kfs = list(self.mapper.map.keyframes.values())
+        return codec.KeyframeTrajectoryMessage(
+            keyframe_ids=np.array([kf.id for kf in kfs], dtype=np.int64),
+            stamps_ns=np.array([kf.stamp_ns for kf in kfs], dtype=np.int64),
+            T_world_cam=np.array([kf.T_world_cam for kf in kfs], dtype=float).reshape(-1, 4, 4),
+            keyframes_processed=self.processed,
+            finished=self.finished,
+        )
+
+    def snapshot(self) -> codec.MapSnapshotMessage:
+        """The keyframe poses and the map points (ids ascending, positions in metres, world frame)."""
+        points = self.mapper.map.points
+        ids = sorted(points)
+        return codec.MapSnapshotMessage(
+            keyframes=self.trajectory(),
+            point_ids=np.array(ids, dtype=np.int64),
+            p_world=np.array([points[p].p_world for p in ids], dtype=float).reshape(-1, 3),
+        )
+
+
+class _Queryables:
+    """backend/map and backend/trajectory: queries wait in zenoh channels until the worker answers them."""
+
+    def __init__(self, session: zenoh.Session, session_name: str) -> None:
+        self._map_key = keys.backend_map_query(session_name)
+        self._trajectory_key = keys.backend_trajectory_query(session_name)
+        self._map = session.declare_queryable(self._map_key, zenoh.handlers.FifoChannel(16))
+        self._trajectory = session.declare_queryable(self._trajectory_key, zenoh.handlers.FifoChannel(16))
+
+    def answer(self, node: BackendNode) -> int:
+        """Reply to every waiting query with the map as it is now; returns how many were answered."""
+        answered = 0
+        for queryable, key, schema, make in (
+            (self._map, self._map_key, codec.MAP_SNAPSHOT, lambda: codec.encode_map_snapshot(node.snapshot())),
+            (self._trajectory, self._trajectory_key, codec.KEYFRAME_TRAJECTORY, lambda: codec.encode_keyframe_trajectory(node.trajectory())),
+        ):
+            payload = None
+            while (query := queryable.try_recv()) is not None:
+                payload = make() if payload is None else payload
+                with query:  # leaving the block finalises the query: the querier stops waiting
+                    query.reply(key, payload, encoding=zenoh.Encoding.APPLICATION_PROTOBUF.with_schema(schema))
+                answered += 1
+        return answered
+
+    def close(self) -> None:
+        for queryable in (self._map, self._trajectory):
+            while (query := queryable.try_recv()) is not None:
+                query.drop()
+            queryable.undeclare()
+
+
+class _Outputs:
+    """The backend's publishers, both lossless: every update and status must arrive, in order."""
+
+    def __init__(self, session: zenoh.Session, session_name: str) -> None:
+        self.update = bus.declare_publisher(session, keys.backend_map_update(session_name), codec.MAP_UPDATE, "lossless")
+        self.status = bus.declare_publisher(session, keys.status(session_name, STAGE), codec.STAGE_STATUS, "lossless")
+
+    def send_status(self, status: codec.StageStatusMessage) -> None:
+        self.status.put(codec.encode_stage_status(status))
+
+
+def serve(
+    session: zenoh.Session,
+    session_name: str,
+    node: BackendNode,
+    config: BackendConfig,
+    should_stop: Callable[[], bool],
+) -> bool:
+    """Process keyframes until the end of stream (True) or ``should_stop()`` (False); the map-update
+    stream is ended either way. After the end of stream, answer queries until ``config.linger_s``
+    seconds have passed or ``should_stop()``."""
+    outputs = _Outputs(session, session_name)
+    # Lossless and bounded: a full inbox blocks the frontend's send; no keyframe is ever dropped.
+    inbox = bus.subscribe(session, keys.frontend_keyframe(session_name), codec.decode_keyframe, "lossless", config.keyframe_queue)
+    queryables = _Queryables(session, session_name)
+    outputs.send_status(codec.StageStatusMessage(STAGE, "starting"))
+    ended = False
+    try:
+        with bus.declare_alive(session, session_name, STAGE):
+            ended = _process(outputs, inbox, queryables, node, should_stop)
+            if ended:
+                _end_stream(outputs, node)
+                _linger(queryables, node, config.linger_s, should_stop)
+    finally:
+        if not ended:
+            left = inbox.depth
+            if left:
+                logger.warning("stopped with at least %d keyframe(s) not processed (%d processed)", left, node.processed)
+            _end_stream(outputs, node)
+        inbox.close()
+        queryables.close()
+    return ended
+
+
+def _process(outputs: _Outputs, inbox: bus.Inbox, queryables: _Queryables, node: BackendNode, should_stop) -> bool:
+    """The worker loop: answer queries, take a keyframe, map it, publish; True at the end of stream."""
+    while not should_stop():
+        queryables.answer(node)
+        message = inbox.get(timeout_s=_POLL_S)
+        if message is None:
+            continue
+        if isinstance(message, codec.EndOfStream):
+            if message.count != node.processed:
+                logger.warning("the frontend sent %d keyframes but %d were processed", message.count, node.processed)
+            logger.info("end of stream: %d keyframes processed", node.processed)
+            return True
+        started = time.perf_counter()
+        try:
+            update = node.step(message)
+        except Exception as exc:
+            outputs.send_status(codec.StageStatusMessage(STAGE, "failed", node.processed, detail=f"{type(exc).__name__}: {exc}"))
+            raise
+        outputs.update.put(codec.encode_map_update(update))
+        step_ms = (time.perf_counter() - started) * 1e3
+        depth = inbox.depth
+        timings = node.last_timings_ms
+        outputs.send_status(codec.StageStatusMessage(STAGE, "running", node.processed, step_ms, depth, timings_ms=timings))
+        logger.debug("keyframe %d: %.1f ms (local BA %.1f ms), queue %d", message.id, step_ms, timings.get("local_ba", 0.0), depth)
+    return False
+
+
+def _end_stream(outputs: _Outputs, node: BackendNode) -> None:
+    node.finished = True
+    outputs.update.put(codec.encode_end_of_stream(codec.MAP_UPDATE, node.processed))
+    outputs.send_status(codec.StageStatusMessage(STAGE, "finished", node.processed))
+
+
+def _linger(queryables: _Queryables, node: BackendNode, linger_s: float, should_stop: Callable[[], bool]) -> None:
+    deadline = time.monotonic() + linger_s
+    while time.monotonic() < deadline and not should_stop():
+        queryables.answer(node)
+        time.sleep(_POLL_S)
+
+
+# ---- the querying side (any process of the session) ----
+
+
+def _query(session: zenoh.Session, key: str, decode: Callable[[bytes], object], timeout_s: float):
+    for reply in session.get(key, timeout=timeout_s):
+        if reply.ok is not None:
+            return decode(reply.ok.payload.to_bytes())
+    return None
+
+
+def query_trajectory(session: zenoh.Session, session_name: str, timeout_s: float = 10.0) -> codec.KeyframeTrajectoryMessage | None:
+    """Ask the backend for its keyframe poses; None when no backend answers within ``timeout_s`` seconds."""
+    return _query(session, keys.backend_trajectory_query(session_name), codec.decode_keyframe_trajectory, timeout_s)
+
+
+def query_map(session: zenoh.Session, session_name: str, timeout_s: float = 10.0) -> codec.MapSnapshotMessage | None:
+    """Ask the backend for a snapshot of its map; None when no backend answers within ``timeout_s`` seconds."""
+    return _query(session, keys.backend_map_query(session_name), codec.decode_map_snapshot, timeout_s)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point: ``python -m zenslam.backend.node --session S [--config FILE] [--connect EP] ...``."""
+    parser = argparse.ArgumentParser(prog="zenslam-backend", description=__doc__.splitlines()[0])
+    add_process_arguments(parser)
+    args = parser.parse_args(argv)
+    setup_process_logging(args.verbose, STAGE)
+    stop = StopFlag(args.parent_pid).install()
+    try:
+        config = load_run_config(args.config)
+        node = BackendNode.from_config(config.backend)
+        with bus.open_session(bus_config_with(config.bus, args.connect)) as session:
+            serve(session, args.session, node, config.backend, stop)
+    except ZenslamError as exc:
+        logger.error("%s", exc)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
