@@ -73,10 +73,9 @@ class TrackingConfig:
     new_points_depth_baselines: float = 60.0
     new_points_min: int = 100  # keypoints (with or without a point) visited nearest first at a keyframe
     # The keyframe decision compares the inliers with the reference keyframe's points seen by at
-    # least this many keyframes. ORB-SLAM2 uses 2 once the map has 3 keyframes, relying on local
-    # mapping to give new points their second observation quickly; without it, 2 lets tracking
-    # thin out after each keyframe (lost on the synthetic loop with 45-baseline points), so 1.
-    reference_min_observations: int = 1
+    # least this many keyframes (ORB-SLAM2: 2 once the map has 3 keyframes). 1 makes 3-4x more
+    # keyframes (more robust when few points are created per keyframe, e.g. 45 baselines).
+    reference_min_observations: int = 2
     reinit_after_lost_frames: int = 10  # consecutive lost frames before starting over (0 = never)
     local_map: LocalMapConfig = field(default_factory=LocalMapConfig)
 
@@ -305,7 +304,12 @@ class Tracker:
         return rows
 
     def _track_reference_keyframe(self, frame: Frame):
-        """Match the frame to the reference keyframe's points by descriptor; pose from the last frame."""
+        """Match the frame to the reference keyframe's points by descriptor; pose from the last frame.
+
+        ORB-SLAM2 matches by bag of words against the keyframe's keypoint descriptors; here a
+        brute-force ratio test against the points' representative descriptors, keeping ORB-SLAM's
+        thresholds and rotation check (angles of the keyframe's keypoints).
+        """
         if self._reference_slot < 0:
             return None
         keyframe = self.map.keyframe(self._reference_slot)
@@ -316,7 +320,7 @@ class Tracker:
         kf_kps = kf_kps[self.map.valid[kf_rows[kf_kps]]]
         feats = frame.features
         pairs = match_by_descriptor(
-            keyframe.descriptors[kf_kps],
+            self.map.descriptors[kf_rows[kf_kps]],  # the points' representative descriptors
             feats.descriptors,
             max_distance=self.config.reference_max_distance,
             ratio=self.config.reference_ratio,
