@@ -73,9 +73,11 @@ class TrackingConfig:
     new_points_depth_baselines: float = 60.0
     new_points_min: int = 100  # keypoints (with or without a point) visited nearest first at a keyframe
     # The keyframe decision compares the inliers with the reference keyframe's points seen by at
-    # least this many keyframes (ORB-SLAM2: 2 once the map has 3 keyframes). 1 makes 3-4x more
-    # keyframes (more robust when few points are created per keyframe, e.g. 45 baselines).
-    reference_min_observations: int = 2
+    # least this many keyframes. ORB-SLAM2 uses 2 once the map has 3 keyframes, relying on local
+    # mapping to give new points their second observation quickly. 1 keeps tracking dense
+    # without that (it still tracks the synthetic loop with 45-baseline points, where 2 loses
+    # it) at 3-4x the keyframes; 2 also tracks every scene here at the default 60 baselines.
+    reference_min_observations: int = 1
     reinit_after_lost_frames: int = 10  # consecutive lost frames before starting over (0 = never)
     local_map: LocalMapConfig = field(default_factory=LocalMapConfig)
 
