@@ -1,0 +1,246 @@
+"""Local bundle adjustment recovers known synthetic windows, flags outliers and survives bad geometry."""
+
+import dataclasses
+
+import gtsam
+import numpy as np
+import pytest
+
+from zenslam.backend import local_ba
+from zenslam.backend.gtsam_keys import landmark_key, pose_key
+from zenslam.backend.local_ba import BAProblem, LocalBAConfig, LocalBundleAdjuster
+from zenslam.camera import PinholeCalibration
+from zenslam.errors import ZenslamError
+from zenslam.geometry import invert_T, make_T, so3_exp, so3_log
+from zenslam.schemas.map_update import BACKEND_POINT_ID_BASE
+from zenslam.service.config import from_mapping
+
+KITTI = PinholeCalibration(707.0912, 707.0912, 601.8873, 183.1104, 1226, 370, baseline_m=0.5372)
+
+
+def make_window(seed, n_keyframes=5, n_points=300, n_fixed=2, stereo=True, noise_px=0.5, outlier_fraction=0.0):
+    """A room-scale window: keyframes 0.4 m apart sideways, points 3-9 m ahead seen where they project.
+
+    Returns the problem with perturbed initial poses (5 cm, 1 deg; fixed ones exact) and points
+    (5 cm), the true poses and points, and the mask of gross outlier observations.
+    """
+    rng = np.random.default_rng(seed)
+    c = KITTI
+    T_true = np.stack([make_T(so3_exp([0.0, -0.02 * k, 0.0]), [0.4 * k, 0.0, 0.1 * k]) for k in range(n_keyframes)])
+    centre = T_true[n_keyframes // 2]
+    u, v = rng.uniform(0, c.width, n_points), rng.uniform(0, c.height, n_points)
+    z = rng.uniform(3.0, 9.0, n_points)
+    p_true = np.stack([(u - c.cx) * z / c.fx, (v - c.cy) * z / c.fy, z], 1) @ centre[:3, :3].T + centre[:3, 3]
+    obs_kf, obs_pt = np.meshgrid(np.arange(n_keyframes), np.arange(n_points), indexing="ij")
+    obs_kf, obs_pt = obs_kf.ravel(), obs_pt.ravel()
+    p_cam = np.einsum("nji,nj->ni", T_true[obs_kf, :3, :3], p_true[obs_pt] - T_true[obs_kf, :3, 3])
+    px = np.stack([c.fx * p_cam[:, 0] / p_cam[:, 2] + c.cx, c.fy * p_cam[:, 1] / p_cam[:, 2] + c.cy], 1)
+    seen = (p_cam[:, 2] > 0.5) & (px >= 0).all(axis=1) & (px[:, 0] < c.width) & (px[:, 1] < c.height)
+    obs_kf, obs_pt, p_cam, px = obs_kf[seen], obs_pt[seen], p_cam[seen], px[seen]
+    right_u = px[:, 0] - c.bf / p_cam[:, 2]
+    n_obs = len(obs_kf)
+    obs_px = px + rng.normal(scale=noise_px, size=(n_obs, 2))
+    obs_right_u = right_u + rng.normal(scale=noise_px, size=n_obs) if stereo else np.full(n_obs, np.nan)
+    outlier = rng.random(n_obs) < outlier_fraction
+    obs_px[outlier] += rng.uniform(15.0, 60.0, (int(outlier.sum()), 2)) * rng.choice([-1.0, 1.0], (int(outlier.sum()), 2))
+    fixed = np.arange(n_keyframes) < n_fixed
+    T_init = T_true.copy()
+    for k in np.flatnonzero(~fixed):
+        axis, direction = rng.normal(size=3), rng.normal(size=3)
+        delta = make_T(so3_exp(np.deg2rad(1.0) * axis / np.linalg.norm(axis)), 0.05 * direction / np.linalg.norm(direction))
+        T_init[k] = T_true[k] @ delta
+    offsets = rng.normal(size=(n_points, 3))
+    p_init = p_true + 0.05 * offsets / np.linalg.norm(offsets, axis=1, keepdims=True)
+    problem = BAProblem(
+        calibration=c,
+        keyframe_ids=np.arange(10, 10 + n_keyframes, dtype=np.int64),
+        T_world_cam=T_init,
+        fixed=fixed,
+        point_ids=np.arange(n_points, dtype=np.int64) * 7 + 3,
+        p_world=p_init,
+        obs_keyframe=obs_kf,
+        obs_point=obs_pt,
+        obs_px=obs_px,
+        obs_right_u=obs_right_u,
+        obs_inv_sigma2=1.2 ** (-2.0 * rng.integers(0, 3, n_obs)),
+    )
+    return problem, T_true, p_true, outlier
+
+
+def pose_errors(T_est, T_true):
+    """Camera position error (m) and rotation error (deg) per keyframe."""
+    position = np.linalg.norm(T_est[:, :3, 3] - T_true[:, :3, 3], axis=1)
+    rotation = np.array([np.rad2deg(np.linalg.norm(so3_log(a[:3, :3].T @ b[:3, :3]))) for a, b in zip(T_est, T_true)])
+    return position, rotation
+
+
+def run(problem, **overrides):
+    return LocalBundleAdjuster(LocalBAConfig(**overrides)).optimize(problem)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_stereo_window_recovers_poses_and_points_with_fixed_poses_exact(seed):
+    problem, T_true, p_true, _ = make_window(seed)
+    result = run(problem)
+    position, rotation = pose_errors(result.T_world_cam, T_true)
+    assert position.max() < 0.01  # metres
+    assert rotation.max() < 0.1  # degrees
+    assert np.median(np.linalg.norm(result.p_world - p_true, axis=1)) < 0.02
+    np.testing.assert_array_equal(result.T_world_cam[:2], problem.T_world_cam[:2])
+    assert result.inlier_obs.mean() > 0.97  # 0.5 px noise: almost nothing exceeds the 95% chi2 at sigma >= 1 px
+    assert len(result.removed_point_ids) == 0
+    assert result.stats["final_error"] < result.stats["initial_error"]
+    assert 0 < result.stats["iterations"] <= 15
+    assert result.stats["failure"] is None
+
+
+def test_gross_outliers_are_flagged_and_the_solution_stays_accurate():
+    problem, T_true, p_true, outlier = make_window(3, outlier_fraction=0.1)
+    result = run(problem)
+    assert (~result.inlier_obs[outlier]).mean() > 0.9  # recall of outliers
+    assert result.inlier_obs[~outlier].mean() > 0.95
+    position, rotation = pose_errors(result.T_world_cam, T_true)
+    assert position.max() < 0.01 and rotation.max() < 0.1
+    assert np.median(np.linalg.norm(result.p_world - p_true, axis=1)) < 0.02
+    assert result.stats["n_outliers"] == int((~result.inlier_obs).sum())
+
+
+def test_mono_window_with_three_fixed_keyframes():
+    problem, T_true, p_true, _ = make_window(4, n_keyframes=6, n_fixed=3, stereo=False)
+    result = run(problem)
+    position, rotation = pose_errors(result.T_world_cam, T_true)
+    assert position.max() < 0.01 and rotation.max() < 0.1
+    assert np.median(np.linalg.norm(result.p_world - p_true, axis=1)) < 0.02  # depth from the 2 m of motion
+    np.testing.assert_array_equal(result.T_world_cam[:3], problem.T_world_cam[:3])
+
+
+def test_point_behind_the_cameras_is_flagged_and_removed():
+    problem, T_true, _, _ = make_window(5)
+    p_world = problem.p_world.copy()
+    p_world[7] = [0.5, 0.2, -10.0]  # behind every keyframe
+    result = run(dataclasses.replace(problem, p_world=p_world))
+    assert not result.inlier_obs[problem.obs_point == 7].any()
+    assert problem.point_ids[7] in result.removed_point_ids
+    assert pose_errors(result.T_world_cam, T_true)[0].max() < 0.01
+
+
+def test_non_finite_point_is_removed_and_empty_or_all_fixed_windows_run():
+    problem, T_true, _, _ = make_window(11)
+    p_world = problem.p_world.copy()
+    p_world[8] = np.nan
+    result = run(dataclasses.replace(problem, p_world=p_world))
+    assert problem.point_ids[8] in result.removed_point_ids
+    assert pose_errors(result.T_world_cam, T_true)[0].max() < 0.01
+    all_fixed = run(dataclasses.replace(problem, fixed=np.ones(5, dtype=bool)))
+    np.testing.assert_array_equal(all_fixed.T_world_cam, problem.T_world_cam)
+    empty = dataclasses.replace(
+        problem, obs_keyframe=[], obs_point=[], obs_px=np.zeros((0, 2)), obs_right_u=[], obs_inv_sigma2=[]
+    )
+    result = run(empty)
+    np.testing.assert_array_equal(result.T_world_cam, problem.T_world_cam)
+    assert len(result.removed_point_ids) == len(problem.point_ids)  # no observation, no inlier
+
+
+def test_single_monocular_observation_is_held_and_does_not_crash():
+    problem, T_true, p_true, _ = make_window(6)
+    keep = (problem.obs_point != 9) | (problem.obs_keyframe == 4)
+    right_u = problem.obs_right_u.copy()
+    right_u[problem.obs_point == 9] = np.nan
+    lone = dataclasses.replace(
+        problem,
+        obs_keyframe=problem.obs_keyframe[keep],
+        obs_point=problem.obs_point[keep],
+        obs_px=problem.obs_px[keep],
+        obs_right_u=right_u[keep],
+        obs_inv_sigma2=problem.obs_inv_sigma2[keep],
+    )
+    result = run(lone)
+    np.testing.assert_array_equal(result.p_world[9], problem.p_world[9])  # no depth from one ray: held
+    assert pose_errors(result.T_world_cam, T_true)[0].max() < 0.01
+    assert result.stats["failure"] is None
+
+
+def test_gtsam_indeterminant_message_names_the_key_the_repair_parses():
+    # Gauss-Newton (no damping) on a point seen by one ray: gtsam's own message, whatever its wording
+    # around the key, must keep "near variable <key>" for the repair to find the landmark.
+    calibration = gtsam.Cal3_S2(500.0, 500.0, 0.0, 320.0, 240.0)
+    graph = gtsam.NonlinearFactorGraph()
+    graph.add(gtsam.PriorFactorPose3(pose_key(0), gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 1e-3)))
+    noise = gtsam.noiseModel.Isotropic.Sigma(2, 1.0)
+    graph.add(gtsam.GenericProjectionFactorCal3_S2(np.array([330.0, 245.0]), noise, pose_key(0), landmark_key(42), calibration))
+    values = gtsam.Values()
+    values.insert(pose_key(0), gtsam.Pose3())
+    values.insert(landmark_key(42), gtsam.Point3(0.0, 0.0, 5.0))
+    with pytest.raises(RuntimeError) as info:
+        gtsam.GaussNewtonOptimizer(graph, values).optimize()
+    match = local_ba._NEAR_VARIABLE.search(" ".join(str(info.value).split()))
+    assert match and int(match.group(1)) == landmark_key(42)
+
+
+def failing_once(monkeypatch, key):
+    """Make the first gtsam solve raise IndeterminantLinearSystemException's message naming ``key``."""
+    real = local_ba._optimize
+    calls = []
+
+    def optimize(*args):
+        calls.append(1)
+        if len(calls) == 1:
+            raise RuntimeError(f"Indeterminate linear system detected while working near variable\n{key} (Symbol: ?).")
+        return real(*args)
+
+    monkeypatch.setattr(local_ba, "_optimize", optimize)
+    return calls
+
+
+def test_landmark_named_by_gtsam_is_dropped_and_the_pass_retried(monkeypatch):
+    problem, T_true, _, _ = make_window(7)
+    calls = failing_once(monkeypatch, landmark_key(problem.point_ids[11]))
+    result = run(problem)
+    assert len(calls) == 3  # failed robust pass, its retry, the refinement pass
+    assert result.stats["retries"] == 1 and result.stats["n_dropped_points"] == 1
+    assert problem.point_ids[11] in result.removed_point_ids
+    assert not result.inlier_obs[problem.obs_point == 11].any()
+    np.testing.assert_array_equal(result.p_world[11], problem.p_world[11])
+    assert pose_errors(result.T_world_cam, T_true)[0].max() < 0.01
+    assert result.stats["failure"] is None
+
+
+def test_failure_near_a_pose_returns_the_estimate_so_far_without_raising(monkeypatch):
+    problem, _, _, _ = make_window(7)
+    failing_once(monkeypatch, pose_key(problem.keyframe_ids[3]))
+    result = run(problem)
+    assert "near variable" in result.stats["failure"]
+    np.testing.assert_array_equal(result.T_world_cam, problem.T_world_cam)  # nothing ran
+    assert result.inlier_obs.shape == problem.obs_point.shape
+
+
+def test_same_input_gives_identical_output_bytes():
+    problem, _, _, _ = make_window(8, outlier_fraction=0.05)
+    a, b = run(problem), run(problem)
+    assert a.T_world_cam.tobytes() == b.T_world_cam.tobytes()
+    assert a.p_world.tobytes() == b.p_world.tobytes()
+    assert a.inlier_obs.tobytes() == b.inlier_obs.tobytes()
+    assert a.removed_point_ids.tobytes() == b.removed_point_ids.tobytes()
+
+
+def test_backend_point_ids_above_2_62_work():
+    problem, T_true, p_true, _ = make_window(9)
+    ids = problem.point_ids.copy()
+    ids[::2] += BACKEND_POINT_ID_BASE
+    result = run(dataclasses.replace(problem, point_ids=ids))
+    assert pose_errors(result.T_world_cam, T_true)[0].max() < 0.01
+    assert np.median(np.linalg.norm(result.p_world - p_true, axis=1)) < 0.02
+
+
+def test_inconsistent_problem_raises_naming_the_array():
+    problem, _, _, _ = make_window(10)
+    with pytest.raises(ZenslamError, match="obs_px has shape"):
+        dataclasses.replace(problem, obs_px=problem.obs_px[:-1])
+    with pytest.raises(ZenslamError, match="obs_point must index"):
+        dataclasses.replace(problem, obs_point=problem.obs_point + 1)
+
+
+def test_config_builds_from_yaml_mapping():
+    config = from_mapping(LocalBAConfig, {"linear_solver": "multifrontal_cholesky", "refine_iterations": 3})
+    assert config.linear_solver == "multifrontal_cholesky" and config.refine_iterations == 3
+    assert config.huber_mono == pytest.approx(5.991**0.5)
