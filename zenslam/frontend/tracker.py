@@ -51,7 +51,10 @@ TrackingState = Literal["ok", "lost", "initializing"]
 class TrackingConfig:
     """Tracking thresholds (ORB-SLAM2's defaults unless noted) and the local map's settings."""
 
-    min_init_depth_points: int = 500  # keypoints with depth needed to initialise a map
+    # ORB-SLAM2 starts a stereo/RGB-D map on a frame with > 500 keypoints (all of them, not only those
+    # with depth) and makes a point of each depth; the depth floor only guards against empty maps.
+    min_init_keypoints: int = 500  # keypoints in the frame needed to initialise a map
+    min_init_depth_points: int = 100  # keypoints with depth needed to initialise a map
     motion_radius_px: float = 15.0  # motion-model search window (pixels at level 0, x level scale)
     motion_min_matches: int = 20  # fewer matches: retry with a wider window, then give up
     motion_wide_factor: float = 2.0  # window multiplier of the retry
@@ -208,7 +211,7 @@ class Tracker:
     def _initialise(self, frame: Frame, T_world_cam: np.ndarray, reason: str) -> TrackResult:
         """A new map from one frame's depths at ``T_world_cam``: one keyframe, a point per depth."""
         n_depth = int(np.count_nonzero(frame.depth_m > 0))
-        if n_depth < self.config.min_init_depth_points:
+        if len(frame.features) <= self.config.min_init_keypoints or n_depth < self.config.min_init_depth_points:
             self.lost_reasons[reason] += 1
             self._lost_streak += 1
             return TrackResult("initializing", reason, None, 0, None, dict(self._timers))
