@@ -21,7 +21,7 @@ from zenslam.service.run_config import BackendConfig
 from zenslam.service.sources import open_source
 from zenslam.trajectory import Trajectory
 
-FRAMES = 16
+FRAMES = 20
 ATE_BOUND_M = 0.01  # the synthetic loop tracks to ~3 mm over its first frames
 
 
@@ -85,7 +85,7 @@ def _disagreements(local_map, bmap, update) -> list[str]:
 
 def test_the_cache_agrees_with_the_backend_after_every_update(synced_run):
     checks, *_ = synced_run
-    assert len(checks) >= 5
+    assert len(checks) >= 4
     assert [problems for _, problems in checks] == [[] for _ in checks]
 
 

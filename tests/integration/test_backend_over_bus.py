@@ -96,7 +96,7 @@ def test_every_keyframe_gets_a_map_update_in_order(lockstep_run):
     run = lockstep_run
     assert [s.index for s in run.states] == list(range(LOCKSTEP_FRAMES))
     sent = [s.keyframe_id for s in run.states if s.keyframe_id >= 0]
-    assert len(sent) >= 5
+    assert len(sent) >= 3
     assert run.updates == sent
     assert run.end_count == len(sent)
     assert run.exit_codes == {"backend": 0, "frontend": 0, "source": 0}
@@ -130,7 +130,7 @@ def test_live_mode_processes_every_keyframe(tmp_path):
     run = _follow(tmp_path, "it-backend-live", source)
     sent = [s.keyframe_id for s in run.states if s.keyframe_id >= 0]
     assert len(run.states) >= LIVE_FRAMES // 2  # a slow frontend may skip frames, not keyframes' updates
-    assert len(sent) >= 5
+    assert len(sent) >= 3
     assert sorted(run.updates) == sent and run.end_count == len(sent)
     assert run.final_trajectory is not None and run.final_trajectory.keyframes_processed == len(sent)
     assert run.exit_codes == {"backend": 0, "frontend": 0, "source": 0}

@@ -34,6 +34,6 @@ def test_two_lockstep_runs_write_identical_trajectories(tmp_path):
         assert a == b, f"{name} differs between two lockstep runs"
     metrics = json.loads((first / "metrics.json").read_text())
     assert metrics["frames"] == FRAMES and metrics["keyframes_from"] == "backend"
-    assert metrics["keyframes"]["sent"] == metrics["keyframes"]["processed"] >= 5
-    assert len((first / "keyframes.tum").read_text().splitlines()) >= 1 + 5  # header + keyframes kept
+    assert metrics["keyframes"]["sent"] == metrics["keyframes"]["processed"] >= 3
+    assert len((first / "keyframes.tum").read_text().splitlines()) >= 1 + 3  # header + keyframes kept
     assert {"local_ba", "triangulation", "total"} <= set(metrics["backend_timing"])

@@ -49,7 +49,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "run",
         help="run SLAM on a dataset or synthetic scene and write recordings/<run-id>/",
-        description="Start the source and tracking processes over zenoh, follow the poses, and write the "
+        description="Start the source, tracking and mapping processes over zenoh, follow the poses, and write the "
         "trajectories, metrics.json (ATE/RPE when there is ground truth) and a plot to OUTPUT/<run-id>/.",
     )
     parser.add_argument(
@@ -58,7 +58,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "(default: source.spec of the config, which defaults to synthetic)",
     )
     parser.add_argument("--output", type=Path, default=Path("recordings"), help="folder of the run folders (default recordings)")
-    parser.add_argument("--config", type=Path, default=None, help="YAML with sections bus, source, frontend, evaluation")
+    parser.add_argument("--config", type=Path, default=None, help="YAML with sections bus, source, frontend, backend, evaluation")
     parser.add_argument("--orbslam-settings", type=Path, default=None, help="ORB-SLAM2/3 settings file: calibration and ORB values")
     pacing = parser.add_mutually_exclusive_group()
     pacing.add_argument(
