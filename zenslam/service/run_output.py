@@ -84,6 +84,7 @@ class RunLog:
         self.backend_ended = False  # the backend's end of stream arrived
         self.backend_timings: dict[int, dict[str, float]] = {}  # keyframes processed -> ms per step of that one
         self.backend_keyframes: codec.KeyframeTrajectoryMessage | None = None  # the backend's final keyframe poses
+        self.backend_queue_max = 0  # most keyframes the backend reported waiting in its inbox after a step
 
     def add_map_update(self, update: object) -> None:
         """Count a backend/map_update message (a MapUpdate, or the stream's end)."""
@@ -96,6 +97,7 @@ class RunLog:
         """Keep the per-step timings of each keyframe the backend reports."""
         if status.state == "running" and status.timings_ms:
             self.backend_timings[status.processed] = dict(status.timings_ms)
+            self.backend_queue_max = max(self.backend_queue_max, status.queue_depth)
 
     def keyframe_counts(self) -> dict[str, int]:
         """Keyframes the frontend sent (states with a keyframe) and the backend processed (updates received)."""
@@ -205,6 +207,7 @@ def write_outputs(
     sections["keyframes"] = log.keyframe_counts()
     sections["keyframes_from"] = "backend" if log.backend_keyframes is not None else "frontend"
     sections["backend_timing"] = log.backend_timing()
+    sections["backend_queue_depth_max"] = log.backend_queue_max
     sections.update(extra or {})
     if error is not None:
         sections["evaluation_error"] = error
