@@ -1,6 +1,6 @@
 """The configuration of one run: a YAML file with one section per stage, and ORB-SLAM3 settings files.
 
-``load_run_config`` reads the YAML (sections ``bus``, ``source``, ``frontend``, ``backend``, ``evaluation``; unknown
+``load_run_config`` reads the YAML (sections ``bus``, ``source``, ``frontend``, ``backend``, ``evaluation``, ``recorder``; unknown
 keys are an error). ``read_orbslam_settings`` reads an ORB-SLAM3 (or ORB-SLAM2) settings file with OpenCV's
 FileStorage, and ``apply_orbslam_settings`` makes its rectified calibration override the source's
 and its ORB/threshold values override the frontend's, so users can bring their existing files.
@@ -82,6 +82,34 @@ class BackendConfig:
 
 
 @dataclass(frozen=True)
+class RecorderConfig:
+    """The recorder process (the ``recorder`` section): every bus message to ``<run>/run.mcap``."""
+
+    enabled: bool = True  # start the recorder with ``zenslam run``
+    # The /camera/* Foxglove images drawn by viewers; sensor/frame itself is always recorded losslessly.
+    image_format: Literal["png", "jpeg"] = "png"
+    jpeg_quality: int = 90  # JPEG quality 1-100 (image_format jpeg)
+    png_compression: int = 1  # zlib level 0-9 (image_format png); 1 is fast and already halves natural images
+    # Uncompressed bytes per zstd chunk; a killed recorder loses the open chunk (``zenslam recover`` keeps the rest).
+    chunk_size: int = 4 * 1024 * 1024  # bytes
+    # Messages waiting for the writer thread; when full, publishers block (lossless: nothing is dropped).
+    queue: int = 64  # messages
+    quiet_s: float = 0.3  # seconds without a message that count as drained, at the end
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.jpeg_quality <= 100:
+            raise ConfigError(f"recorder.jpeg_quality={self.jpeg_quality} must be between 1 and 100")
+        if not 0 <= self.png_compression <= 9:
+            raise ConfigError(f"recorder.png_compression={self.png_compression} must be a zlib level between 0 and 9")
+        if self.chunk_size < 1024:
+            raise ConfigError(f"recorder.chunk_size={self.chunk_size} must be at least 1024 bytes")
+        if self.queue < 1:
+            raise ConfigError(f"recorder.queue={self.queue} must be at least 1 message")
+        if not self.quiet_s >= 0:
+            raise ConfigError(f"recorder.quiet_s={self.quiet_s} must be >= 0 seconds")
+
+
+@dataclass(frozen=True)
 class RunConfig:
     """Everything a run needs, one section per stage; written resolved next to the run's outputs."""
 
@@ -91,6 +119,7 @@ class RunConfig:
     backend: BackendConfig = field(default_factory=BackendConfig)
     # Monocular runs are compared after a Sim(3) alignment whatever ``alignment`` says (no metric scale).
     evaluation: EvaluationConfig = field(default_factory=EvaluationConfig)
+    recorder: RecorderConfig = field(default_factory=RecorderConfig)
 
 
 def load_run_config(path: str | Path | None) -> RunConfig:
