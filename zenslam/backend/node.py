@@ -17,6 +17,7 @@ import logging
 import sys
 import time
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 import zenoh
@@ -30,6 +31,9 @@ from zenslam.service import bus
 from zenslam.service.run_config import BackendConfig, load_run_config
 from zenslam.service.supervisor import StopFlag, add_process_arguments, bus_config_with, setup_process_logging
 
+if TYPE_CHECKING:
+    from zenslam.service.rerun_log import BackendLog
+
 logger = logging.getLogger(__name__)
 
 STAGE = "backend"
@@ -39,8 +43,9 @@ _POLL_S = 0.02  # seconds the loop waits for a keyframe before answering queries
 class BackendNode:
     """Local mapping on decoded keyframes, and the map and trajectory replies; no transport in here."""
 
-    def __init__(self, mapper: LocalMapper) -> None:
+    def __init__(self, mapper: LocalMapper, rerun: BackendLog | None = None) -> None:
         self.mapper = mapper
+        self.rerun = rerun  # logs the map, graphs and timings after each keyframe to the stage's .rrd
         self.processed = 0  # keyframes processed
         self.finished = False  # the input's end of stream has been processed
 
@@ -53,6 +58,8 @@ class BackendNode:
         """Insert one keyframe and run local mapping on it; the update lists everything that changed."""
         update = self.mapper.process(keyframe)
         self.processed += 1
+        if self.rerun is not None:
+            self.rerun.log_keyframe(keyframe, self.mapper)
         return update
 
     @property
@@ -178,6 +185,8 @@ def _process(outputs: _Outputs, inbox: bus.Inbox, queryables: _Queryables, node:
         outputs.update.put(codec.encode_map_update(update))
         step_ms = (time.perf_counter() - started) * 1e3
         depth = inbox.depth
+        if node.rerun is not None:
+            node.rerun.log_queue_depth(message, depth)
         timings = node.last_timings_ms
         outputs.send_status(codec.StageStatusMessage(STAGE, "running", node.processed, step_ms, depth, timings_ms=timings))
         logger.debug("keyframe %d: %.1f ms (local BA %.1f ms), queue %d", message.id, step_ms, timings.get("local_ba", 0.0), depth)
@@ -227,7 +236,13 @@ def main(argv: list[str] | None = None) -> int:
     try:
         config = load_run_config(args.config)
         node = BackendNode.from_config(config.backend)
-        with bus.open_session(bus_config_with(config.bus, args.connect)) as session:
+        from zenslam.service import rerun_log
+
+        with (
+            rerun_log.open_stage_recording(STAGE, args.session, args.config, config.rerun) as recording,
+            bus.open_session(bus_config_with(config.bus, args.connect)) as session,
+        ):
+            node.rerun = rerun_log.BackendLog(recording) if recording is not None else None
             serve(session, args.session, node, config.backend, stop)
     except ZenslamError as exc:
         logger.error("%s", exc)

@@ -19,7 +19,7 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import zenoh
@@ -31,6 +31,9 @@ from zenslam.schemas.map_update import MapUpdate
 from zenslam.service import bus
 from zenslam.service.run_config import BackendConfig, load_run_config
 from zenslam.service.supervisor import StopFlag, add_process_arguments, bus_config_with, setup_process_logging
+
+if TYPE_CHECKING:
+    from zenslam.service.rerun_log import FrontendLog
 
 logger = logging.getLogger(__name__)
 
@@ -84,8 +87,9 @@ def keyframe_message(keyframe: Any, calibration: PinholeCalibration, sensor: Sen
 class FrontendNode:
     """Runs the pipeline on decoded frames and encodes its outputs; no transport in here."""
 
-    def __init__(self, make_pipeline: PipelineFactory):
+    def __init__(self, make_pipeline: PipelineFactory, rerun: FrontendLog | None = None):
         self._make_pipeline = make_pipeline
+        self.rerun = rerun  # logs each frame's keypoints, pose, state and timings to the stage's .rrd
         self._pipeline: Pipeline | None = None
         self._camera: tuple[PinholeCalibration, SensorKind] | None = None
         self.frames = 0  # frames handled
@@ -113,6 +117,8 @@ class FrontendNode:
         out = self._pipeline.step(frame.index, frame.stamp_ns, frame.left, right=frame.right, depth_m=frame.depth_m)
         step_ms = (time.perf_counter() - started) * 1e3
         self.frames += 1
+        if self.rerun is not None:
+            self._log_to_rerun(message, out)
         keyframe_bytes, keyframe_id = None, -1
         if out.keyframe is not None:
             keyframe_id = int(out.keyframe.id)
@@ -133,6 +139,12 @@ class FrontendNode:
             keyframe_id=keyframe_id,
         )
         return FrontendMessages(keyframe_bytes, pose_bytes, codec.encode_tracking_state(state), step_ms, keyframe_id)
+
+    def _log_to_rerun(self, message: codec.FrameMessage, out: Any) -> None:
+        from zenslam.service.rerun_log import tracked_keypoints
+
+        self.rerun.log_camera(message.calibration)
+        self.rerun.log_frame(out, tracked_keypoints(self._pipeline, message.frame.index))
 
     def apply_map_update(self, update: MapUpdate) -> None:
         """Apply the backend's correction to the pipeline's map before the next frame is tracked."""
@@ -295,7 +307,13 @@ def main(argv: list[str] | None = None) -> int:
         # OpenCV's pool slowed small calls 3x here; the extractor runs left/right on its own threads.
         cv2.setNumThreads(1)
         node = FrontendNode(default_pipeline_factory(config.frontend))
-        with bus.open_session(bus_config_with(config.bus, args.connect)) as session:
+        from zenslam.service import rerun_log
+
+        with (
+            rerun_log.open_stage_recording(STAGE, args.session, args.config, config.rerun) as recording,
+            bus.open_session(bus_config_with(config.bus, args.connect)) as session,
+        ):
+            node.rerun = rerun_log.FrontendLog(recording) if recording is not None else None
             timeout_s = config.source.start_timeout_s
             missing = bus.wait_for_alive(session, args.session, args.wait_for, timeout_s, stop.keep_going)
             if missing and not stop():

@@ -13,6 +13,7 @@ import logging
 import sys
 import time
 from collections.abc import Callable, Iterable
+from typing import TYPE_CHECKING
 
 import zenoh
 
@@ -23,6 +24,9 @@ from zenslam.service import bus
 from zenslam.service.run_config import SourceConfig, load_run_config
 from zenslam.service.sources import SensorFrame, open_source
 from zenslam.service.supervisor import StopFlag, add_process_arguments, bus_config_with, setup_process_logging
+
+if TYPE_CHECKING:
+    from zenslam.service.rerun_log import SourceLog
 
 logger = logging.getLogger(__name__)
 
@@ -76,11 +80,12 @@ def play(
     config: SourceConfig,
     should_stop: Callable[[], bool],
     source_name: str = "",
+    rerun: SourceLog | None = None,
 ) -> int:
     """Publish ``frames`` on sensor/frame, then an end-of-stream message; returns the frames sent.
 
     The caller has made sure the consumers are up. Stops early (still sending end-of-stream) when
-    ``should_stop()`` turns true or after ``config.max_frames`` frames.
+    ``should_stop()`` turns true or after ``config.max_frames`` frames. ``rerun`` logs each frame sent.
     """
     key = keys.sensor_frame(session_name)
     # Lockstep frames must all arrive, in order; live frames may be dropped when a link is congested.
@@ -105,6 +110,8 @@ def play(
             started = time.perf_counter()
             frame_pub.put(codec.encode_sensor_frame(frame, calibration, sensor, source_name, config.depth_encoding))
             sent += 1
+            if rerun is not None:
+                rerun.log_frame(frame)  # while the frontend tracks it
             if states is not None:
                 _wait_for_answer(states, frame.index, config.answer_timeout_s, should_stop)
             status = codec.StageStatusMessage(STAGE, "running", sent, (time.perf_counter() - started) * 1e3)
@@ -134,13 +141,19 @@ def main(argv: list[str] | None = None) -> int:
         config = load_run_config(args.config)
         source = open_source(args.source or config.source.spec)
         calibration = config.source.calibration or source.calibration
-        with bus.open_session(bus_config_with(config.bus, args.connect)) as session:
+        from zenslam.service import rerun_log
+
+        with (
+            rerun_log.open_stage_recording(STAGE, args.session, args.config, config.rerun) as recording,
+            bus.open_session(bus_config_with(config.bus, args.connect)) as session,
+        ):
+            rerun = rerun_log.SourceLog(recording) if recording is not None else None
             with bus.declare_alive(session, args.session, STAGE):
                 timeout_s = config.source.start_timeout_s
                 missing = bus.wait_for_alive(session, args.session, args.wait_for, timeout_s, stop.keep_going)
                 if missing and not stop():
                     raise bus.BusError(f"stage(s) {sorted(missing)} did not come up within {timeout_s:.0f} s")
-                play(session, args.session, source, calibration, source.sensor, config.source, stop, source.name)
+                play(session, args.session, source, calibration, source.sensor, config.source, stop, source.name, rerun)
     except ZenslamError as exc:
         logger.error("%s", exc)
         return 2

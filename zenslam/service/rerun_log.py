@@ -1,0 +1,317 @@
+"""The rerun recording of each stage process: one ``<run>/<stage>.rrd`` per process, one recording per run.
+
+This is the only module that configures rerun. Every stage process opens a ``StageRecording``
+(application id "zenslam", recording id = the run id, so the viewer opens the files of a run as
+one recording) saved next to the run's ``config.yaml``, with the default blueprint of
+``default_blueprint``. Data is logged on explicit timelines only: ``frame`` (the source's frame
+index) and ``sensor_time`` (the frame's stamp); rerun's automatic wall-clock ``log_time`` and
+``log_tick`` are switched off and the wall-clock start-time property is not sent, so two lockstep
+runs log the same data (the timing entities aside, which hold measured milliseconds).
+
+Entity paths mirror the packages::
+
+    source/camera/left              the left image (every ``image_every_n``-th frame)
+    frontend/keypoints              every ORB keypoint of the frame (Points2D, level-0 pixels)
+    frontend/matches                the keypoints tracked to map points (Points2D)
+    frontend/pose                   T_world_cam (Transform3D), with a camera frustum below it
+    frontend/state                  the tracking state when it changes (TextLog)
+    frontend/counts/<name>          tracked points, keypoints (Scalars)
+    frontend/timing/<stage>         milliseconds per tracking stage (Scalars)
+    backend/keyframes               keyframe centres (Points3D, world, metres), per keyframe
+    backend/map_points              every map point (Points3D, world, metres), per keyframe
+    backend/covisibility            covisibility edges between keyframe centres (LineStrips3D)
+    backend/trajectory              the keyframe centres in time order (LineStrips3D)
+    backend/local_ba/before|after   local BA graph error before and after optimisation (Scalars)
+    backend/counts/<name>           keyframes, map points, keyframe queue depth (Scalars)
+    backend/timing/<step>           milliseconds per local-mapping step (Scalars)
+
+The loggers read what the algorithms already expose (TrackingOutput, KeyframeMessage, the
+LocalMapper's map and statistics); algorithm modules never import rerun.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from zenslam.camera import PinholeCalibration
+from zenslam.service.run_config import RerunConfig
+from zenslam.service.sources.frame import SensorFrame
+
+logger = logging.getLogger(__name__)
+
+APPLICATION_ID = "zenslam"
+FRAME_TIMELINE = "frame"  # sequence: the source's frame index
+SENSOR_TIMELINE = "sensor_time"  # the frame's stamp: a timestamp, or a duration for stamps counted from 0
+RRD_SUFFIX = ".rrd"
+# Stamps before 2000-01-01 are taken as time since the sequence start (KITTI, synthetic), not epoch time.
+_EPOCH_STAMP_MIN_NS = 946_684_800 * 1_000_000_000
+
+# Colours (RGB) the blueprint's views show; fixed so two recordings look alike.
+_KEYPOINT_RGB = (150, 150, 150)
+_MATCH_RGB = (40, 220, 60)
+_KEYFRAME_RGB = (60, 120, 255)
+_MAP_POINT_RGB = (230, 230, 230)
+_COVISIBILITY_RGB = (255, 170, 0)
+_TRAJECTORY_RGB = (255, 60, 60)
+
+
+def rrd_path(run_dir: str | Path, stage: str) -> Path:
+    """The file a stage writes: ``<run_dir>/<stage>.rrd``."""
+    return Path(run_dir) / f"{stage}{RRD_SUFFIX}"
+
+
+def default_blueprint() -> rrb.Blueprint:
+    """The layout the viewer opens with: the image with keypoints, the 3D map, and time series below."""
+    image = rrb.Spatial2DView(
+        name="left image", origin="/", contents=["source/camera/left", "frontend/keypoints", "frontend/matches"]
+    )
+    world = rrb.Spatial3DView(
+        name="map",
+        origin="/",
+        contents=[
+            "frontend/pose/**",
+            "backend/keyframes",
+            "backend/map_points",
+            "backend/covisibility",
+            "backend/trajectory",
+        ],
+    )
+    timings = rrb.TimeSeriesView(name="timings (ms)", origin="/", contents=["frontend/timing/**", "backend/timing/**"])
+    counts = rrb.TimeSeriesView(name="counts", origin="/", contents=["frontend/counts/**", "backend/counts/**"])
+    ba = rrb.TimeSeriesView(name="local BA error", origin="backend/local_ba")
+    states = rrb.TextLogView(name="tracking state", origin="frontend/state")
+    return rrb.Blueprint(
+        rrb.Vertical(
+            rrb.Horizontal(image, world),
+            rrb.Horizontal(timings, counts, rrb.Tabs(ba, states)),
+            row_shares=[3, 2],
+        ),
+        collapse_panels=True,
+    )
+
+
+def sensor_time(stamp_ns: int) -> dict[str, np.datetime64 | np.timedelta64]:
+    """The ``set_time`` argument for a stamp in ns: a timestamp for epoch stamps, a duration for stamps from 0."""
+    stamp_ns = int(stamp_ns)
+    if stamp_ns >= _EPOCH_STAMP_MIN_NS:
+        return {"timestamp": np.datetime64(stamp_ns, "ns")}
+    return {"duration": np.timedelta64(stamp_ns, "ns")}
+
+
+class StageRecording:
+    """One stage's recording stream, saved to ``<run_dir>/<stage>.rrd``; use with ``with`` (flushes on exit)."""
+
+    def __init__(self, run_dir: str | Path, run_id: str, stage: str, config: RerunConfig) -> None:
+        self.path = rrd_path(run_dir, stage)
+        self.stage = stage
+        self.config = config
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        # No properties: the recording-start property is wall-clock time and would differ run to run.
+        self.stream = rr.RecordingStream(APPLICATION_ID, recording_id=run_id, send_properties=False)
+        self.stream.set_log_time_enabled(False)  # wall clock: logged data must compare equal across runs
+        self.stream.set_log_tick_enabled(False)  # counts log calls, which differ between processes
+        self.stream.save(self.path, default_blueprint=default_blueprint())
+        self._closed = False
+
+    def __enter__(self) -> StageRecording:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def at(self, index: int, stamp_ns: int) -> None:
+        """Log what follows at frame ``index`` and stamp ``stamp_ns`` (ns) on both timelines."""
+        self.stream.set_time(FRAME_TIMELINE, sequence=int(index))
+        self.stream.set_time(SENSOR_TIMELINE, **sensor_time(stamp_ns))
+
+    def log(self, entity_path: str, entity: Any, static: bool = False) -> None:
+        self.stream.log(entity_path, entity, static=static)
+
+    def scalars(self, prefix: str, values: Mapping[str, float]) -> None:
+        """One Scalars entity ``<prefix>/<name>`` per value, in sorted name order."""
+        for name in sorted(values):
+            self.stream.log(f"{prefix}/{name}", rr.Scalars(float(values[name])))
+
+    def close(self) -> None:
+        """Write everything logged to the file and close it (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        self.stream.flush()
+        self.stream.disconnect()
+        logger.info("rerun recording written to %s", self.path)
+
+
+@contextmanager
+def open_stage_recording(
+    stage: str, run_id: str, config_path: str | Path | None, config: RerunConfig
+) -> Iterator[StageRecording | None]:
+    """The stage's recording next to the run's config file, or None when disabled or there is no run folder.
+
+    Stage processes get the run's resolved ``config.yaml`` (``--config``), which lives in the run
+    folder: the ``.rrd`` goes beside it.
+    """
+    if not config.enabled:
+        yield None
+        return
+    if config_path is None:
+        logger.info("no --config, hence no run folder: %s writes no rerun recording", stage)
+        yield None
+        return
+    with StageRecording(Path(config_path).parent, run_id, stage, config) as recording:
+        yield recording
+
+
+def _log_world_axes(recording: StageRecording) -> None:
+    # zenslam's world is the first camera's frame: x right, y down, z forward.
+    recording.log("/", rr.ViewCoordinates.RDF, static=True)
+
+
+class SourceLog:
+    """What the source process logs: the left image of every ``image_every_n``-th frame."""
+
+    def __init__(self, recording: StageRecording) -> None:
+        self.recording = recording
+
+    def log_frame(self, frame: SensorFrame) -> None:
+        config = self.recording.config
+        if frame.index % config.image_every_n != 0:
+            return
+        self.recording.at(frame.index, frame.stamp_ns)
+        image = rr.Image(frame.left, color_model="L")
+        self.recording.log("source/camera/left", image.compress(jpeg_quality=config.jpeg_quality) if config.jpeg else image)
+
+
+class FrontendLog:
+    """What the frontend process logs per frame: keypoints, tracked points, pose, state, counts, timings."""
+
+    def __init__(self, recording: StageRecording) -> None:
+        self.recording = recording
+        self._camera: PinholeCalibration | None = None
+        self._last_state: tuple[str, str | None] | None = None
+        _log_world_axes(recording)
+
+    def log_camera(self, calibration: PinholeCalibration) -> None:
+        """The camera frustum under frontend/pose (static; logged again only if the calibration changes)."""
+        if calibration == self._camera:
+            return
+        self._camera = calibration
+        pinhole = rr.Pinhole(
+            image_from_camera=calibration.K,
+            resolution=[calibration.width, calibration.height],
+            camera_xyz=rr.ViewCoordinates.RDF,
+            image_plane_distance=0.3,
+        )
+        self.recording.log("frontend/pose/camera", pinhole, static=True)
+
+    def log_frame(self, output: Any, keypoints: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+        """Log one TrackingOutput; ``keypoints`` = (px (N, 2) level-0 pixels, tracked (N,) bool) when known."""
+        rec = self.recording
+        rec.at(output.index, output.stamp_ns)
+        if keypoints is not None:
+            px, tracked = keypoints
+            rec.log("frontend/keypoints", rr.Points2D(px, radii=1.5, colors=_KEYPOINT_RGB))
+            rec.log("frontend/matches", rr.Points2D(px[tracked], radii=2.5, colors=_MATCH_RGB))
+            rec.log("frontend/counts/keypoints", rr.Scalars(float(len(px))))
+        if output.T_world_cam is not None:
+            T = np.asarray(output.T_world_cam, dtype=float)
+            rec.log("frontend/pose", rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]))
+        state = (output.state, output.lost_reason)
+        if state != self._last_state:
+            self._last_state = state
+            text = output.state if output.lost_reason is None else f"{output.state}: {output.lost_reason}"
+            rec.log("frontend/state", rr.TextLog(text, level="INFO" if output.state == "ok" else "WARN"))
+        rec.log("frontend/counts/tracked", rr.Scalars(float(output.n_tracked)))
+        rec.scalars("frontend/timing", output.timings_ms)
+
+
+def tracked_keypoints(pipeline: Any, index: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """(px (N, 2), tracked (N,) bool) of frame ``index`` from the tracker's last frame; None when not at hand.
+
+    TrackingOutput does not carry the keypoints; the tracker keeps the last tracked frame with the
+    map-point row of each keypoint (-1: none). A lost frame is not kept: None.
+    """
+    last = getattr(getattr(pipeline, "tracker", None), "_last", None)
+    frame = getattr(last, "frame", None)
+    if frame is None or frame.index != index:
+        return None
+    px = np.asarray(frame.features.px, dtype=np.float32).reshape(-1, 2)
+    rows = np.asarray(last.rows)
+    return px, rows >= 0
+
+
+class BackendLog:
+    """What the backend process logs per keyframe: the map, the graphs, local BA errors, counts, timings."""
+
+    def __init__(self, recording: StageRecording) -> None:
+        self.recording = recording
+        _log_world_axes(recording)
+
+    def log_keyframe(self, keyframe: Any, mapper: Any) -> None:
+        """Log the LocalMapper's map after it processed ``keyframe`` (a KeyframeMessage), at that keyframe's frame."""
+        rec = self.recording
+        rec.at(keyframe.frame_index, keyframe.stamp_ns)
+        bmap = mapper.map
+        keyframes = sorted(bmap.keyframes.values(), key=lambda kf: (kf.stamp_ns, kf.id))
+        centres = {kf.id: kf.centre_world for kf in keyframes}
+        positions = np.array([centres[kf.id] for kf in keyframes], dtype=float).reshape(-1, 3)
+        rec.log("backend/keyframes", rr.Points3D(positions, radii=0.05, colors=_KEYFRAME_RGB))
+        rec.log("backend/trajectory", rr.LineStrips3D([positions], colors=_TRAJECTORY_RGB))
+        point_ids = sorted(bmap.points)
+        p_world = np.array([bmap.points[p].p_world for p in point_ids], dtype=float).reshape(-1, 3)
+        rec.log("backend/map_points", rr.Points3D(p_world, radii=0.02, colors=_MAP_POINT_RGB))
+        edges = [(centres[a], centres[b]) for a, b, _ in bmap.covisibility.edges() if a in centres and b in centres]
+        rec.log("backend/covisibility", rr.LineStrips3D(np.array(edges, dtype=float).reshape(-1, 2, 3), colors=_COVISIBILITY_RGB))
+        ba = getattr(mapper, "last_ba_stats", {}) or {}
+        if "initial_error" in ba and "final_error" in ba:
+            rec.log("backend/local_ba/before", rr.Scalars(float(ba["initial_error"])))
+            rec.log("backend/local_ba/after", rr.Scalars(float(ba["final_error"])))
+        rec.scalars("backend/counts", {"keyframes": len(keyframes), "map_points": len(point_ids)})
+        rec.scalars("backend/timing", mapper.last_timings_ms)
+
+    def log_queue_depth(self, keyframe: Any, depth: int) -> None:
+        """Keyframes waiting in the backend's inbox after ``keyframe`` was processed."""
+        self.recording.at(keyframe.frame_index, keyframe.stamp_ns)
+        self.recording.log("backend/counts/queue_depth", rr.Scalars(float(depth)))
+
+
+# ---- reading recordings back (tests, comparisons of runs) ----
+
+
+def recording_ids(path: str | Path) -> list[tuple[str, str]]:
+    """(application id, recording id) of every recording store in the .rrd file ``path``."""
+    from rerun.chunk import RrdReader
+
+    return [(entry.application_id, entry.recording_id) for entry in RrdReader(Path(path)).recordings()]
+
+
+def read_rrd(path: str | Path) -> dict[tuple[str, str, int | None], list[Any]]:
+    """Everything logged in the .rrd file ``path``, keyed by (entity path, component, frame index).
+
+    The frame index is None for static data. Each value lists the logged cells (pyarrow arrays,
+    compared with ``==``) in logging order. Rows not on the frame timeline are keyed with None too.
+    """
+    from rerun.chunk import RrdReader
+
+    cells: dict[tuple[str, str, int | None], list[tuple[Any, Any]]] = {}
+    for chunk in RrdReader(Path(path)).store().stream().to_chunks():
+        batch = chunk.to_record_batch()
+        names = batch.schema.names
+        row_ids = batch.column("rerun.controls.RowId").to_pylist()
+        frames = batch.column(FRAME_TIMELINE).to_pylist() if FRAME_TIMELINE in names else [None] * batch.num_rows
+        components = [n for n in names if n not in ("rerun.controls.RowId", FRAME_TIMELINE, SENSOR_TIMELINE)]
+        for component in components:
+            column = batch.column(component)
+            for row in range(batch.num_rows):
+                if column[row].is_valid:
+                    key = (chunk.entity_path, component, frames[row])
+                    cells.setdefault(key, []).append((row_ids[row], column.slice(row, 1)))
+    return {key: [cell for _, cell in sorted(values, key=lambda v: v[0])] for key, values in cells.items()}
