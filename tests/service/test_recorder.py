@@ -1,0 +1,170 @@
+"""The recorder: raw bus messages plus Foxglove images, transforms and point clouds; the map rebuilt from
+keyframes and updates; recording a live session to MCAP."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import cv2
+import numpy as np
+import pytest
+from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+
+from zenslam.camera import PinholeCalibration
+from zenslam.schemas import codec, keys
+from zenslam.schemas.map_update import KeyframeCorrection, MapUpdate
+from zenslam.service import bus, mcap_io
+from zenslam.service.recorder import MapAccumulator, Recorder, record
+from zenslam.service.run_config import RecorderConfig
+from zenslam.service.sources import SensorFrame
+
+SESSION = "rec-test"
+ENCODING = "application/protobuf;{}"
+CAL = PinholeCalibration(50.0, 50.0, 32.0, 24.0, 64, 48, 0.1)
+
+
+def _frame(i: int, seed: int = 0) -> bytes:
+    rng = np.random.default_rng(seed + i)
+    left = rng.integers(0, 256, (48, 64), dtype=np.uint8)
+    right = np.roll(left, 3, axis=1)
+    return codec.encode_sensor_frame(SensorFrame(i, 1_000_000 * (i + 1), left, right), CAL, "stereo")
+
+
+def _keyframe(kf_id: int, stamp_ns: int, point_ids: list[int], points: np.ndarray) -> codec.KeyframeMessage:
+    T = np.eye(4)
+    T[0, 3] = kf_id
+    n = 2
+    return codec.KeyframeMessage(
+        id=kf_id, stamp_ns=stamp_ns, frame_index=kf_id, T_world_cam=T, calibration=CAL, sensor="stereo",
+        keypoints_px=np.zeros((n, 2), np.float32), levels=np.zeros(n, np.int16), angles_deg=np.zeros(n, np.float32),
+        right_u=np.zeros(n, np.float32), depth_m=np.ones(n, np.float32), descriptors=np.zeros((n, 32), np.uint8),
+        map_point_ids=np.full(n, -1, np.int64), scale_factors=np.ones(1), new_point_ids=np.array(point_ids, np.int64),
+        new_points_world=np.asarray(points, float).reshape(-1, 3),
+    )
+
+
+def _update(kf_id: int, point_ids: list[int], points: np.ndarray, removed: list[int]) -> MapUpdate:
+    p = len(point_ids)
+    T = np.eye(4)
+    T[1, 3] = 5.0
+    return MapUpdate(
+        keyframe_id=kf_id, stamp_ns=0, keyframes=(KeyframeCorrection(kf_id, T, np.full(2, -1, np.int64)),),
+        point_ids=np.array(point_ids, np.int64), p_world=np.asarray(points, float).reshape(-1, 3),
+        descriptors=np.zeros((p, 32), np.uint8), normals=np.zeros((p, 3)), min_distance_m=np.zeros(p), max_distance_m=np.zeros(p),
+        removed_point_ids=np.array(removed, np.int64),
+    )
+
+
+def _record_all(tmp_path, messages, config=RecorderConfig()):
+    path = tmp_path / "run.mcap"
+    with mcap_io.RecordingWriter(path) as writer:
+        recorder = Recorder(writer, config, SESSION)
+        for key, schema, data in messages:
+            recorder.record(key, ENCODING.format(schema), data)
+    return path, recorder
+
+
+def _by_topic(path) -> dict[str, list[mcap_io.RecordedMessage]]:
+    out: dict[str, list[mcap_io.RecordedMessage]] = {}
+    for m in mcap_io.iter_messages(path):
+        out.setdefault(m.topic, []).append(m)
+    return out
+
+
+def test_frames_are_recorded_raw_and_as_lossless_png_images(tmp_path):
+    path, _ = _record_all(tmp_path, [(keys.sensor_frame(SESSION), codec.SENSOR_FRAME, _frame(i)) for i in range(3)])
+    topics = _by_topic(path)
+    assert [m.schema for m in topics["/camera/left"]] == ["foxglove.CompressedImage"] * 3
+    assert [m.log_time_ns for m in topics["/sensor/frame"]] == [1_000_000, 2_000_000, 3_000_000]
+    raw = mcap_io.decode(topics["/sensor/frame"][1])
+    for topic, expected in (("/camera/left", raw.frame.left), ("/camera/right", raw.frame.right)):
+        image = CompressedImage.FromString(topics[topic][1].data)
+        assert image.format == "png" and image.timestamp.nanos == 2_000_000
+        decoded = cv2.imdecode(np.frombuffer(image.data, np.uint8), cv2.IMREAD_UNCHANGED)
+        np.testing.assert_array_equal(decoded, expected)
+
+
+def test_jpeg_images_on_request(tmp_path):
+    config = RecorderConfig(image_format="jpeg", jpeg_quality=95)
+    path, _ = _record_all(tmp_path, [(keys.sensor_frame(SESSION), codec.SENSOR_FRAME, _frame(0))], config)
+    image = CompressedImage.FromString(_by_topic(path)["/camera/left"][0].data)
+    assert image.format == "jpeg" and image.data[:2] == b"\xff\xd8"
+
+
+def test_poses_get_a_frame_transform_and_unstamped_messages_the_last_stamp(tmp_path):
+    T = np.eye(4)
+    T[:3, 3] = (1.0, 2.0, 3.0)
+    T[:3, :3] = cv2.Rodrigues(np.array([0.1, -0.2, 0.3]))[0]
+    status = codec.encode_stage_status(codec.StageStatusMessage("frontend", "running", 1))
+    path, _ = _record_all(tmp_path, [
+        (keys.frontend_pose(SESSION), codec.POSE_IN_FRAME, codec.encode_pose_in_frame(codec.StampedPose(7_000, T))),
+        (keys.status(SESSION, "frontend"), codec.STAGE_STATUS, status),
+    ])
+    topics = _by_topic(path)
+    tf = FrameTransform.FromString(topics["/tf"][0].data)
+    assert (tf.parent_frame_id, tf.child_frame_id) == ("world", "camera")
+    assert (tf.translation.x, tf.translation.y, tf.translation.z) == (1.0, 2.0, 3.0)
+    pose = mcap_io.decode(topics["/frontend/pose"][0]).T_world_cam
+    q = np.array([tf.rotation.w, tf.rotation.x, tf.rotation.y, tf.rotation.z])
+    from zenslam.geometry import quat_wxyz_to_R
+
+    np.testing.assert_allclose(quat_wxyz_to_R(q), pose[:3, :3], atol=1e-12)
+    assert topics["/frontend/status"][0].log_time_ns == 7_000
+
+
+def test_map_accumulator_applies_replacements_and_removals():
+    acc = MapAccumulator()
+    acc.add_keyframe(_keyframe(0, 100, [1, 2, 3], np.arange(9.0)))
+    acc.apply(_update(0, [2, 9], [[0, 0, 7.0], [1, 1, 1.0]], removed=[3]))
+    ids, p_world = acc.point_array()
+    assert ids.tolist() == [1, 2, 9]
+    np.testing.assert_array_equal(p_world, [[0, 1, 2], [0, 0, 7], [1, 1, 1]])
+    stamps, poses = acc.keyframe_trajectory()
+    assert stamps.tolist() == [100] and poses[0, 1, 3] == 5.0
+
+
+def test_keyframes_and_map_updates_give_point_clouds(tmp_path):
+    kf = codec.encode_keyframe(_keyframe(0, 500, [1, 2], [[0, 0, 1.0], [0, 0, 2.0]]))
+    update = codec.encode_map_update(_update(0, [3], [[0, 0, 3.0]], removed=[1]))
+    path, _ = _record_all(tmp_path, [
+        (keys.frontend_keyframe(SESSION), codec.KEYFRAME, kf),
+        (keys.backend_map_update(SESSION), codec.MAP_UPDATE, update),
+    ])
+    clouds = _by_topic(path)["/map/points"]
+    assert [m.schema for m in clouds] == ["foxglove.PointCloud"] * 2
+    last = PointCloud.FromString(clouds[-1].data)
+    assert [f.name for f in last.fields] == ["x", "y", "z"] and last.point_stride == 12
+    np.testing.assert_array_equal(np.frombuffer(last.data, "<f4").reshape(-1, 3), [[0, 0, 2], [0, 0, 3]])
+    assert clouds[-1].log_time_ns == 500  # the update has no stamp of its own: the keyframe's
+
+
+def test_an_undecodable_message_is_still_recorded(tmp_path):
+    path, recorder = _record_all(tmp_path, [(keys.frontend_keyframe(SESSION), codec.KEYFRAME, b"\xff\xff\xff")])
+    assert recorder.undecodable == 1
+    assert [m.data for m in _by_topic(path)["/frontend/keyframe"]] == [b"\xff\xff\xff"]
+
+
+def test_record_a_session_until_stopped(tmp_path):
+    hub_endpoint = bus.free_tcp_endpoint()
+    path = tmp_path / "live.mcap"
+    stop = threading.Event()
+    with bus.open_session(bus.BusConfig(listen=(hub_endpoint,))) as hub, bus.open_session(bus.BusConfig(connect=(hub_endpoint,))) as peer:
+        result: dict = {}
+        thread = threading.Thread(target=lambda: result.update(record(hub, SESSION, path, RecorderConfig(queue=2, quiet_s=0.2), stop.is_set)))
+        thread.start()
+        assert not bus.wait_for_alive(peer, SESSION, ["recorder"], timeout_s=10.0)
+        publisher = bus.declare_publisher(peer, keys.frontend_state(SESSION), codec.TRACKING_STATE, "lossless")
+        assert bus.wait_for_subscribers(publisher, timeout_s=5.0)
+        for i in range(50):
+            publisher.put(codec.encode_tracking_state(codec.TrackingStateMessage(i, 10 * (i + 1), "ok")))
+        publisher.put(codec.encode_end_of_stream(codec.TRACKING_STATE, 50))
+        time.sleep(0.1)
+        stop.set()
+        thread.join(timeout=20)
+        assert not thread.is_alive()
+    assert result == {"/frontend/state": 51}
+    states = [m for m in mcap_io.iter_messages(path)]
+    assert [m.log_time_ns for m in states] == [10 * (i + 1) for i in range(50)] + [500]

@@ -1,0 +1,333 @@
+"""The recorder process: every message under zenslam/<session>/ into run.mcap, plus what viewers draw.
+
+Each bus message is written as it came, on the topic of its key without the session prefix
+(``/sensor/frame``, ``/frontend/pose``, ...), with its protobuf schema embedded. Alongside, for
+Foxglove and rerun: ``/camera/left`` and ``/camera/right`` (foxglove.CompressedImage, PNG or
+JPEG), ``/tf`` (foxglove.FrameTransform world -> camera for every pose) and ``/map/points``
+(foxglove.PointCloud of the map as rebuilt from keyframes and map updates). Log and publish
+times are the messages' own ``stamp_ns`` (messages without one, such as statuses, take the
+latest stamp seen), so a lockstep run's timeline does not depend on the wall clock.
+
+The subscription is lossless: its callback only enqueues into a bounded queue (blocking zenoh,
+hence the publishers, when full) and one worker thread encodes and writes. The process ends on
+SIGINT, when its parent is gone, or when every stage it follows has come and gone; it then drains
+the queue and writes the MCAP summary and index.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import queue
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterable
+from pathlib import Path
+
+import cv2
+import numpy as np
+import zenoh
+from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
+from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
+
+from zenslam.errors import ZenslamError
+from zenslam.schemas import codec, keys
+from zenslam.schemas.map_update import MapUpdate
+from zenslam.service import bus, mcap_io
+from zenslam.service.run_config import RecorderConfig, RunConfig, load_run_config
+from zenslam.service.supervisor import (
+    ProcessSpec,
+    StopFlag,
+    Supervisor,
+    add_process_arguments,
+    bus_config_with,
+    setup_process_logging,
+)
+
+logger = logging.getLogger(__name__)
+
+STAGE = "recorder"
+RECORDING_NAME = "run.mcap"
+FOLLOWED_STAGES = ("source", "frontend", "backend")
+CAMERA_TOPICS = ("/camera/left", "/camera/right")
+TF_TOPIC = "/tf"
+MAP_POINTS_TOPIC = "/map/points"
+WORLD_FRAME = "world"
+CAMERA_FRAME = "camera"
+_NS_PER_S = 1_000_000_000
+
+
+class MapAccumulator:
+    """The map as the bus tells it: keyframe poses and point positions from keyframes, then map updates.
+
+    Map updates replace what they list and delete what they remove (their replacement
+    semantics), so the last state equals the backend's map as far as its updates said.
+    """
+
+    def __init__(self) -> None:
+        self.keyframe_stamps_ns: dict[int, int] = {}
+        self.keyframe_poses: dict[int, np.ndarray] = {}  # id -> T_world_cam (4, 4)
+        self.points: dict[int, np.ndarray] = {}  # id -> p_world (3,) metres
+
+    def add_keyframe(self, keyframe: codec.KeyframeMessage) -> None:
+        """A new keyframe's pose and the map points it created."""
+        self.keyframe_stamps_ns[keyframe.id] = keyframe.stamp_ns
+        self.keyframe_poses[keyframe.id] = np.array(keyframe.T_world_cam, dtype=float)
+        for point_id, p_world in zip(keyframe.new_point_ids.tolist(), np.asarray(keyframe.new_points_world, dtype=float)):
+            self.points[point_id] = p_world
+
+    def apply(self, update: MapUpdate) -> None:
+        """Replace the listed keyframe poses and points, delete the removed ones."""
+        for correction in update.keyframes:
+            self.keyframe_poses[correction.id] = np.array(correction.T_world_cam, dtype=float)
+        for point_id, p_world in zip(update.point_ids.tolist(), np.asarray(update.p_world, dtype=float)):
+            self.points[point_id] = p_world
+        for point_id in update.removed_point_ids.tolist():
+            self.points.pop(point_id, None)
+        for keyframe_id in update.removed_keyframe_ids.tolist():
+            self.keyframe_poses.pop(keyframe_id, None)
+
+    def point_array(self) -> tuple[np.ndarray, np.ndarray]:
+        """(ids (P,) int64, p_world (P, 3) metres), ordered by id."""
+        ids = np.array(sorted(self.points), dtype=np.int64)
+        p_world = np.array([self.points[i] for i in ids.tolist()], dtype=float).reshape(-1, 3)
+        return ids, p_world
+
+    def keyframe_trajectory(self) -> tuple[np.ndarray, np.ndarray]:
+        """(stamps_ns (K,) int64, T_world_cam (K, 4, 4)) of the keyframes still in the map, oldest first."""
+        ids = sorted((self.keyframe_stamps_ns.get(i, 0), i) for i in self.keyframe_poses)
+        stamps = np.array([stamp for stamp, _ in ids], dtype=np.int64)
+        poses = np.array([self.keyframe_poses[i] for _, i in ids], dtype=float).reshape(-1, 4, 4)
+        return stamps, poses
+
+
+def _set_stamp(timestamp, stamp_ns: int) -> None:
+    timestamp.seconds, timestamp.nanos = divmod(int(stamp_ns), _NS_PER_S)
+
+
+def compressed_image(image: np.ndarray, stamp_ns: int, config: RecorderConfig, frame_id: str = CAMERA_FRAME) -> bytes:
+    """A foxglove.CompressedImage of a uint8 grey image, PNG or JPEG as ``config.image_format`` says."""
+    if config.image_format == "jpeg":
+        ok, data = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, config.jpeg_quality])
+    else:
+        ok, data = cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, config.png_compression])
+    if not ok:
+        raise mcap_io.RecordingError(f"OpenCV could not encode a {image.dtype} {image.shape} image as {config.image_format}")
+    msg = CompressedImage(frame_id=frame_id, data=data.tobytes(), format=config.image_format)
+    _set_stamp(msg.timestamp, stamp_ns)
+    return msg.SerializeToString()
+
+
+def frame_transform(pose: PoseInFrame) -> bytes:
+    """The foxglove.FrameTransform parent ``pose.frame_id`` -> child ``camera`` of a PoseInFrame."""
+    msg = FrameTransform(parent_frame_id=pose.frame_id or WORLD_FRAME, child_frame_id=CAMERA_FRAME)
+    msg.timestamp.CopyFrom(pose.timestamp)
+    msg.translation.x, msg.translation.y, msg.translation.z = pose.pose.position.x, pose.pose.position.y, pose.pose.position.z
+    msg.rotation.CopyFrom(pose.pose.orientation)
+    return msg.SerializeToString()
+
+
+def point_cloud(p_world: np.ndarray, stamp_ns: int) -> bytes:
+    """A foxglove.PointCloud of (P, 3) points in metres, world frame, as float32 x, y, z."""
+    msg = PointCloud(frame_id=WORLD_FRAME, point_stride=12)
+    _set_stamp(msg.timestamp, stamp_ns)
+    msg.pose.orientation.w = 1.0
+    for offset, name in enumerate("xyz"):
+        msg.fields.add(name=name, offset=4 * offset, type=PackedElementField.FLOAT32)
+    msg.data = np.ascontiguousarray(p_world, dtype="<f4").tobytes()
+    return msg.SerializeToString()
+
+
+class Recorder:
+    """Writes one bus message and what is derived from it; testable without the bus."""
+
+    def __init__(self, writer: mcap_io.RecordingWriter, config: RecorderConfig, session: str):
+        self.writer = writer
+        self.config = config
+        self.session = session
+        self.map = MapAccumulator()
+        self.last_stamp_ns = 0  # the latest stamp seen: the log time of messages without one
+        self.undecodable = 0  # messages recorded raw whose derived channels could not be made
+
+    def record(self, key: str, encoding: str, data: bytes) -> None:
+        """Record the message ``data`` that arrived on zenoh ``key`` with ``encoding`` (which names its schema)."""
+        topic = mcap_io.topic_for_key(key, self.session)
+        schema = mcap_io.schema_from_encoding(encoding)
+        decoded = None
+        try:
+            decoded = mcap_io.DECODERS[schema](data) if schema in mcap_io.DECODERS else None
+        except codec.MessageError as exc:
+            self.undecodable += 1
+            logger.warning("%s: %s; recorded as is, nothing derived from it", topic, exc)
+        stamp_ns = int(getattr(decoded, "stamp_ns", 0) or getattr(getattr(decoded, "frame", None), "stamp_ns", 0))
+        self.last_stamp_ns = max(self.last_stamp_ns, stamp_ns)
+        log_time = stamp_ns or self.last_stamp_ns
+        self.writer.write(topic, schema, data, log_time)
+        if decoded is not None:
+            self._derive(decoded, data, log_time)
+
+    def _derive(self, decoded: object, data: bytes, log_time: int) -> None:
+        if isinstance(decoded, codec.FrameMessage):
+            for topic, image in zip(CAMERA_TOPICS, (decoded.frame.left, decoded.frame.right)):
+                if image is not None:
+                    self.writer.write(topic, mcap_io.COMPRESSED_IMAGE, compressed_image(image, log_time, self.config), log_time)
+        elif isinstance(decoded, codec.StampedPose):
+            self.writer.write(TF_TOPIC, mcap_io.FRAME_TRANSFORM, frame_transform(PoseInFrame.FromString(data)), log_time)
+        elif isinstance(decoded, codec.KeyframeMessage):
+            self.map.add_keyframe(decoded)
+            self._write_map(log_time)
+        elif isinstance(decoded, MapUpdate):
+            self.map.apply(decoded)
+            self._write_map(log_time)
+
+    def _write_map(self, log_time: int) -> None:
+        _, p_world = self.map.point_array()
+        self.writer.write(MAP_POINTS_TOPIC, mcap_io.POINT_CLOUD, point_cloud(p_world, log_time), log_time)
+
+
+class _Followed:
+    """Liveliness of the stages the recorder follows: done once each has appeared and gone."""
+
+    def __init__(self, session: zenoh.Session, session_name: str, stages: Iterable[str]):
+        self.stages = set(stages)
+        self.seen: set[str] = set()
+        self.gone: set[str] = set()
+        self._prefix = keys.alive(session_name, "x")[:-1]
+        self._subscriber = None
+        if self.stages:
+            self._subscriber = session.liveliness().declare_subscriber(
+                keys.all_alive(session_name), zenoh.handlers.FifoChannel(64), history=True
+            )
+
+    def done(self) -> bool:
+        if self._subscriber is None:
+            return False
+        while (sample := self._subscriber.try_recv()) is not None:
+            name = str(sample.key_expr).removeprefix(self._prefix)
+            if sample.kind == zenoh.SampleKind.PUT:
+                self.seen.add(name)
+            elif name in self.seen:
+                self.gone.add(name)
+        return self.stages <= self.gone
+
+    def close(self) -> None:
+        if self._subscriber is not None:
+            self._subscriber.undeclare()
+
+
+class _Worker:
+    """The writer thread: takes (key, encoding, bytes) from the queue and records them."""
+
+    def __init__(self, recorder: Recorder, capacity: int):
+        self.queue: queue.Queue[tuple[str, str, bytes] | None] = queue.Queue(maxsize=capacity)
+        self.recorder = recorder
+        self.error: BaseException | None = None
+        self.received = 0
+        self.last_arrival = time.monotonic()
+        self.thread = threading.Thread(target=self._run, name="recorder-writer", daemon=True)
+        self.thread.start()
+
+    def on_sample(self, sample: zenoh.Sample) -> None:
+        """zenoh's callback: enqueue only; blocks when the queue is full (back-pressure, nothing lost)."""
+        self.queue.put((str(sample.key_expr), str(sample.encoding), sample.payload.to_bytes()))
+        self.received += 1
+        self.last_arrival = time.monotonic()
+
+    def _run(self) -> None:
+        while (item := self.queue.get()) is not None:
+            if self.error is not None:
+                continue  # keep draining so publishers are not blocked by a failed writer
+            try:
+                self.recorder.record(*item)
+            except Exception as exc:  # reported by record() once the thread is joined
+                logger.exception("recording failed")
+                self.error = exc
+
+    def close(self) -> None:
+        self.queue.put(None)
+        self.thread.join()
+
+
+def record(
+    session: zenoh.Session,
+    session_name: str,
+    path: Path,
+    config: RecorderConfig,
+    should_stop: Callable[[], bool],
+    follow: Iterable[str] = (),
+) -> dict[str, int]:
+    """Record the session's messages to the MCAP file ``path`` until ``should_stop()`` or every stage in
+    ``follow`` has come and gone; returns the messages written per topic."""
+    writer = mcap_io.RecordingWriter(path, chunk_size=config.chunk_size)
+    worker = _Worker(Recorder(writer, config, session_name), config.queue)
+    followed = _Followed(session, session_name, follow)
+    try:
+        # Declared before the liveliness token: whoever waits for the recorder to be alive knows it listens.
+        subscriber = session.declare_subscriber(keys.everything(session_name), worker.on_sample)
+        try:
+            with bus.declare_alive(session, session_name, STAGE):
+                logger.info("recording %s to %s", keys.everything(session_name), path)
+                while not should_stop() and not followed.done() and worker.error is None:
+                    time.sleep(0.02)
+                while time.monotonic() - worker.last_arrival < config.quiet_s or not worker.queue.empty():
+                    time.sleep(0.02)  # drain what is still arriving
+        finally:
+            subscriber.undeclare()
+            followed.close()
+    finally:
+        worker.close()
+        writer.finish()
+    if worker.error is not None:
+        raise mcap_io.RecordingError(f"recording to {path} failed: {worker.error}") from worker.error
+    logger.info("wrote %d messages on %d topics to %s", sum(writer.counts.values()), len(writer.counts), path)
+    return dict(writer.counts)
+
+
+def start_recorder(
+    supervisor: Supervisor, session: zenoh.Session, config: RunConfig, run_dir: Path, keep_waiting: Callable[[], bool]
+) -> Path | None:
+    """``zenslam run``'s hook: start the recorder (before any other stage) and wait for it to listen.
+
+    It follows the source, frontend and backend and exits by itself once they have all exited,
+    so the supervisor's ``wait_exit`` also waits for the recording to be finished. Returns the
+    recording's path, or None when ``recorder.enabled`` is false.
+    """
+    if not config.recorder.enabled:
+        return None
+    path = Path(run_dir) / RECORDING_NAME
+    args = ["--output", str(path)]
+    for stage in FOLLOWED_STAGES:
+        args += ["--follow", stage]
+    supervisor.start(ProcessSpec(STAGE, "zenslam.service.recorder", tuple(args)))
+    supervisor.wait_until_alive(session, [STAGE], config.source.start_timeout_s, keep_waiting)
+    return path
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point: ``python -m zenslam.service.recorder --session S --output run.mcap [--follow STAGE] ...``."""
+    parser = argparse.ArgumentParser(prog="zenslam-recorder", description=__doc__.splitlines()[0])
+    add_process_arguments(parser)
+    parser.add_argument("--output", type=Path, required=True, help="the MCAP file to write (e.g. recordings/<run-id>/run.mcap)")
+    parser.add_argument(
+        "--follow", action="append", default=[], metavar="STAGE",
+        help="stage to follow: once every followed stage has appeared and exited, finish (repeatable)",
+    )
+    args = parser.parse_args(argv)
+    setup_process_logging(args.verbose, STAGE)
+    stop = StopFlag(args.parent_pid).install()
+    try:
+        config = load_run_config(args.config)
+        with bus.open_session(bus_config_with(config.bus, args.connect)) as session:
+            record(session, args.session, args.output, config.recorder, stop, args.follow)
+    except ZenslamError as exc:
+        logger.error("%s", exc)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
