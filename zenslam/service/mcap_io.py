@@ -23,7 +23,7 @@ from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 from google.protobuf.message import Message
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
-from mcap.records import Channel, Schema
+from mcap.records import Attachment, Channel, Header, Metadata, Schema
 from mcap.records import Message as McapMessage
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
@@ -291,3 +291,72 @@ def iter_decoded(path: str | Path, topics: Iterable[str]) -> Iterator[tuple[Reco
     """(message, decoded) for every message of ``topics`` in log-time order."""
     for message in iter_messages(path, topics):
         yield message, decode(message)
+
+
+@dataclass
+class RecoveryReport:
+    """What a recovery pass kept: messages per topic, schemas, channels, and how the input ended."""
+
+    messages: dict[str, int]
+    schemas: int = 0
+    channels: int = 0
+    attachments: int = 0
+    metadata: int = 0
+    complete: bool = False  # the input ended with its footer: nothing was lost
+    stop_reason: str = ""  # why the pass stopped early (a truncated or corrupt record)
+
+    @property
+    def total(self) -> int:
+        return sum(self.messages.values())
+
+
+def recover(broken: str | Path, fixed: str | Path, chunk_size: int = 4 * 1024 * 1024) -> RecoveryReport:
+    """Copy every complete record of ``broken`` (e.g. a killed recorder's file) into an indexed MCAP ``fixed``.
+
+    A streaming pass keeps every finished chunk and message up to the first truncated or corrupt
+    record; the output gets a fresh summary and index so any seeking reader opens it.
+    """
+    broken, fixed = Path(broken), Path(fixed)
+    if broken.resolve() == fixed.resolve():
+        raise RecordingError(f"recovering {broken} into itself would destroy it; give another output path")
+    report = RecoveryReport(messages={})
+    end = StreamEnd()
+    schema_ids: dict[int, int] = {0: 0}
+    channels: dict[int, tuple[int, str]] = {}  # input channel id -> (output id, topic)
+    fixed.parent.mkdir(parents=True, exist_ok=True)
+    stream = _UnbufferedFile(fixed)
+    writer = Writer(stream, chunk_size=chunk_size, compression=CompressionType.ZSTD)
+    try:
+        started = False
+        for record in stream_records(broken, end):
+            if isinstance(record, Header):
+                writer.start(profile=record.profile, library=record.library or "zenslam recover")
+                started = True
+                continue
+            if not started:
+                writer.start(profile="", library="zenslam recover")
+                started = True
+            if isinstance(record, Schema) and record.id not in schema_ids:
+                schema_ids[record.id] = writer.register_schema(record.name, record.encoding, record.data)
+                report.schemas += 1
+            elif isinstance(record, Channel) and record.id not in channels:
+                new_id = writer.register_channel(record.topic, record.message_encoding, schema_ids.get(record.schema_id, 0), record.metadata)
+                channels[record.id] = (new_id, record.topic)
+                report.channels += 1
+            elif isinstance(record, McapMessage) and record.channel_id in channels:
+                new_id, topic = channels[record.channel_id]
+                writer.add_message(new_id, record.log_time, record.data, record.publish_time, record.sequence)
+                report.messages[topic] = report.messages.get(topic, 0) + 1
+            elif isinstance(record, Attachment):
+                writer.add_attachment(record.create_time, record.log_time, record.name, record.media_type, record.data)
+                report.attachments += 1
+            elif isinstance(record, Metadata):
+                writer.add_metadata(record.name, record.metadata)
+                report.metadata += 1
+        if not started:
+            writer.start(profile="", library="zenslam recover")
+        writer.finish()
+    finally:
+        stream.close()
+    report.complete, report.stop_reason = end.complete, end.reason
+    return report
