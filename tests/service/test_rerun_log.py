@@ -1,0 +1,159 @@
+"""The stage recordings: the file each stage writes, its timelines, and what the stage loggers put in it."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from zenslam.camera import PinholeCalibration
+from zenslam.service import rerun_log
+from zenslam.service.rerun_log import BackendLog, FrontendLog, SourceLog, StageRecording, read_rrd, recording_ids
+from zenslam.service.run_config import RerunConfig
+from zenslam.service.sources.frame import SensorFrame
+
+CALIBRATION = PinholeCalibration(400.0, 400.0, 80.0, 60.0, 160, 120, 0.1)
+
+
+def _frames(data: dict, entity: str, component: str) -> list[int | None]:
+    """The frame indices at which ``entity`` logged ``component``, ascending (None = static, first)."""
+    return sorted((k[2] for k in data if k[0] == entity and k[1] == component), key=lambda f: -1 if f is None else f)
+
+
+def _value(data: dict, entity: str, component: str, frame: int | None) -> list:
+    (cell,) = data[(entity, component, frame)]
+    return cell.to_pylist()[0]
+
+
+def test_sensor_time_is_a_duration_for_stamps_from_zero_and_a_timestamp_for_epoch_stamps():
+    assert rerun_log.sensor_time(103_000_000) == {"duration": np.timedelta64(103_000_000, "ns")}
+    euroc = 1_403_715_273_262_142_976
+    assert rerun_log.sensor_time(euroc) == {"timestamp": np.datetime64(euroc, "ns")}
+
+
+def test_a_stage_recording_is_its_own_file_of_the_run_recording_with_explicit_timelines_only(tmp_path):
+    with StageRecording(tmp_path, "run-42", "frontend", RerunConfig()) as recording:
+        recording.at(3, 150_000_000)
+        recording.scalars("frontend/timing", {"b": 2.0, "a": 1.0})
+    path = tmp_path / "frontend.rrd"
+    assert recording.path == path and path.stat().st_size > 0
+    assert recording_ids(path) == [("zenslam", "run-42")]
+    from rerun.chunk import RrdReader
+
+    assert RrdReader(path).blueprints(), "the default blueprint is saved with the recording"
+    timelines = {name for chunk in RrdReader(path).store().stream().to_chunks() for name in chunk.timeline_names}
+    assert timelines == {"frame", "sensor_time"}  # no wall-clock log_time, no log_tick
+    data = read_rrd(path)
+    assert set(data) == {("/frontend/timing/a", "Scalars:scalars", 3), ("/frontend/timing/b", "Scalars:scalars", 3)}
+    assert _value(data, "/frontend/timing/b", "Scalars:scalars", 3) == [2.0]
+
+
+def test_open_stage_recording_writes_beside_the_config_or_nothing(tmp_path):
+    config_path = tmp_path / "run" / "config.yaml"
+    with rerun_log.open_stage_recording("backend", "r", config_path, RerunConfig()) as recording:
+        assert recording is not None
+    assert (tmp_path / "run" / "backend.rrd").is_file()
+    with rerun_log.open_stage_recording("backend", "r", config_path, RerunConfig(enabled=False)) as recording:
+        assert recording is None
+    with rerun_log.open_stage_recording("backend", "r", None, RerunConfig()) as recording:
+        assert recording is None
+
+
+@pytest.mark.parametrize("jpeg", [False, True])
+def test_the_source_logs_every_nth_left_image(tmp_path, jpeg):
+    image = np.random.default_rng(0).integers(0, 255, (120, 160), dtype=np.uint8)
+    with StageRecording(tmp_path, "r", "source", RerunConfig(image_every_n=2, jpeg=jpeg)) as recording:
+        source = SourceLog(recording)
+        for index in range(5):
+            source.log_frame(SensorFrame(index, index * 50_000_000, image, right=image))
+    data = read_rrd(tmp_path / "source.rrd")
+    component = "EncodedImage:blob" if jpeg else "Image:buffer"
+    assert _frames(data, "/source/camera/left", component) == [0, 2, 4]
+    if not jpeg:
+        (buffer,) = _value(data, "/source/camera/left", "Image:buffer", 2)
+        assert bytes(buffer) == image.tobytes()
+
+
+def _output(index: int, state: str = "ok", lost_reason: str | None = None, T=None, n_tracked: int = 2) -> SimpleNamespace:
+    return SimpleNamespace(
+        index=index, stamp_ns=index * 100_000_000, state=state, lost_reason=lost_reason,
+        T_world_cam=T, n_tracked=n_tracked, timings_ms={"extraction": 1.5, "total": 3.0},
+    )  # fmt: skip
+
+
+def test_the_frontend_logs_keypoints_tracked_points_pose_state_counts_and_timings(tmp_path):
+    px = np.array([[10, 20], [30, 40], [50, 60]], dtype=np.float32)
+    tracked = np.array([True, False, True])
+    T = np.eye(4)
+    T[:3, 3] = [1.0, -2.0, 0.5]
+    with StageRecording(tmp_path, "r", "frontend", RerunConfig()) as recording:
+        frontend = FrontendLog(recording)
+        frontend.log_camera(CALIBRATION)
+        frontend.log_frame(_output(0, T=T), (px, tracked))
+        frontend.log_frame(_output(1, T=T), (px, tracked))  # same state: no new state line
+        frontend.log_frame(_output(2, state="lost", lost_reason="too_few_matches", n_tracked=0))
+    data = read_rrd(tmp_path / "frontend.rrd")
+    assert _value(data, "/frontend/keypoints", "Points2D:positions", 0) == px.tolist()
+    assert _value(data, "/frontend/matches", "Points2D:positions", 1) == px[tracked].tolist()
+    assert _frames(data, "/frontend/pose", "Transform3D:translation") == [0, 1]  # lost: no pose
+    assert _value(data, "/frontend/pose", "Transform3D:translation", 1) == [[1.0, -2.0, 0.5]]
+    assert _frames(data, "/frontend/state", "TextLog:text") == [0, 2]
+    assert _value(data, "/frontend/state", "TextLog:text", 2) == ["lost: too_few_matches"]
+    assert _frames(data, "/frontend/counts/tracked", "Scalars:scalars") == [0, 1, 2]
+    assert _value(data, "/frontend/timing/extraction", "Scalars:scalars", 2) == [1.5]
+    assert _frames(data, "/frontend/pose/camera", "Pinhole:image_from_camera") == [None]  # static frustum
+
+
+def test_tracked_keypoints_come_from_the_trackers_last_frame_of_that_index():
+    frame = SimpleNamespace(index=7, features=SimpleNamespace(px=np.array([[1.0, 2.0], [3.0, 4.0]])))
+    pipeline = SimpleNamespace(tracker=SimpleNamespace(_last=SimpleNamespace(frame=frame, rows=np.array([-1, 5]))))
+    px, tracked = rerun_log.tracked_keypoints(pipeline, 7)
+    np.testing.assert_array_equal(px, [[1.0, 2.0], [3.0, 4.0]])
+    np.testing.assert_array_equal(tracked, [False, True])
+    assert rerun_log.tracked_keypoints(pipeline, 8) is None  # frame 8 was lost: the tracker kept frame 7
+    assert rerun_log.tracked_keypoints(SimpleNamespace(), 7) is None
+
+
+@dataclass
+class _Keyframe:
+    id: int
+    stamp_ns: int
+    centre_world: np.ndarray
+
+
+@dataclass
+class _Mapper:
+    """What BackendLog reads of a LocalMapper: the map (keyframes, points, covisibility), BA stats, timings."""
+
+    map: SimpleNamespace
+    last_ba_stats: dict = field(default_factory=dict)
+    last_timings_ms: dict = field(default_factory=lambda: {"local_ba": 12.0, "total": 20.0})
+
+
+def _mapper(ba: bool) -> _Mapper:
+    keyframes = {i: _Keyframe(i, 100 * i, np.array([float(i), 0.0, 0.0])) for i in (2, 0, 1)}  # insertion order != time order
+    points = {5: SimpleNamespace(p_world=np.array([0.0, 1.0, 5.0])), 3: SimpleNamespace(p_world=np.array([1.0, 1.0, 4.0]))}
+    graph = SimpleNamespace(edges=lambda: [(0, 1, 40), (0, 2, 20), (1, 2, 30)])
+    stats = {"initial_error": 9.0, "final_error": 1.0} if ba else {}
+    return _Mapper(SimpleNamespace(keyframes=keyframes, points=points, covisibility=graph), stats)
+
+
+def test_the_backend_logs_the_map_its_graphs_local_ba_counts_and_timings(tmp_path):
+    with StageRecording(tmp_path, "r", "backend", RerunConfig()) as recording:
+        backend = BackendLog(recording)
+        backend.log_keyframe(SimpleNamespace(frame_index=4, stamp_ns=400), _mapper(ba=False))
+        backend.log_keyframe(SimpleNamespace(frame_index=9, stamp_ns=900), _mapper(ba=True))
+        backend.log_queue_depth(SimpleNamespace(frame_index=9, stamp_ns=900), 2)
+    data = read_rrd(tmp_path / "backend.rrd")
+    assert _value(data, "/backend/keyframes", "Points3D:positions", 9) == [[0, 0, 0], [1, 0, 0], [2, 0, 0]]
+    assert _value(data, "/backend/trajectory", "LineStrips3D:strips", 9) == [[[0, 0, 0], [1, 0, 0], [2, 0, 0]]]
+    assert _value(data, "/backend/map_points", "Points3D:positions", 9) == [[1, 1, 4], [0, 1, 5]]  # ids ascending
+    strips = _value(data, "/backend/covisibility", "LineStrips3D:strips", 4)
+    assert strips == [[[0, 0, 0], [1, 0, 0]], [[0, 0, 0], [2, 0, 0]], [[1, 0, 0], [2, 0, 0]]]
+    assert _frames(data, "/backend/local_ba/before", "Scalars:scalars") == [9]  # no BA at frame 4
+    assert _value(data, "/backend/local_ba/after", "Scalars:scalars", 9) == [1.0]
+    assert _value(data, "/backend/counts/map_points", "Scalars:scalars", 4) == [2.0]
+    assert _value(data, "/backend/counts/queue_depth", "Scalars:scalars", 9) == [2.0]
+    assert _frames(data, "/backend/timing/local_ba", "Scalars:scalars") == [4, 9]
