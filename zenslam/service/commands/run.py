@@ -24,6 +24,7 @@ from tqdm import tqdm
 from zenslam.backend.node import query_trajectory
 from zenslam.schemas import codec, keys
 from zenslam.service import bus
+from zenslam.service.recorder import start_recorder
 from zenslam.service.run_config import RunConfig, apply_orbslam_settings, load_run_config, read_orbslam_settings
 from zenslam.service.run_output import (
     RunLog,
@@ -212,6 +213,7 @@ def track(config: RunConfig, run_id: str, run_dir: Path, config_path: Path, sour
             supervisor = Supervisor(run_dir, run_id, config_path, hub, env=_child_env(config))
             with supervisor, bus.declare_alive(session, run_id, "run"):
                 timeout_s = config.source.start_timeout_s
+                start_recorder(supervisor, session, config, run_dir, stop.keep_going)  # first: it hears every message
                 supervisor.start(ProcessSpec("backend", "zenslam.backend.node"))
                 supervisor.wait_until_alive(session, ["backend"], timeout_s, stop.keep_going)
                 supervisor.start(ProcessSpec("frontend", "zenslam.frontend.node", ("--map-updates", "--wait-for", "backend")))
