@@ -1,0 +1,87 @@
+"""A lockstep run writes one .rrd per stage process, all of one recording, and two runs log the same data.
+
+Two ``zenslam run --lockstep`` commands on a short synthetic sequence. Each run folder must hold
+source.rrd, frontend.rrd and backend.rrd with the run id as recording id, the documented entity
+paths, every frame on the frame timeline (the source's images, the frontend's poses) and the
+backend's entries at its keyframes' frames. On the frame timeline both runs must log identical
+values, measured timings (and the backend's queue depth, which depends on when the inbox is
+looked at) aside.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from zenslam.service.rerun_log import read_rrd, recording_ids
+
+pytestmark = pytest.mark.integration
+
+FRAMES = 12
+
+ENTITIES = {
+    "source": {"/source/camera/left"},
+    "frontend": {"/frontend/keypoints", "/frontend/matches", "/frontend/pose", "/frontend/state", "/frontend/counts/tracked",
+                 "/frontend/timing/total", "/frontend/timing/extraction", "/frontend/pose/camera"},
+    "backend": {"/backend/keyframes", "/backend/map_points", "/backend/covisibility", "/backend/trajectory",
+                "/backend/local_ba/before", "/backend/local_ba/after", "/backend/timing/local_ba", "/backend/timing/total",
+                "/backend/counts/map_points", "/backend/counts/queue_depth"},
+}  # fmt: skip
+
+
+def _run(output: Path, run_id: str) -> Path:
+    command = [sys.executable, "-m", "zenslam.service.cli", "run", "synthetic", "--lockstep", "--max-frames", str(FRAMES),
+               "--output", str(output), "--run-id", run_id, "--no-progress"]  # fmt: skip
+    result = subprocess.run(command, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-3000:]
+    return output / run_id
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory) -> tuple[Path, Path]:
+    output = tmp_path_factory.mktemp("recordings")
+    return _run(output, "rerun-a"), _run(output, "rerun-b")
+
+
+def _frames(data: dict, entity: str) -> set[int | None]:
+    return {frame for (path, _, frame) in data if path == entity}
+
+
+def _comparable(data: dict) -> dict:
+    """What must repeat between lockstep runs: everything but measured times and the inbox depth."""
+    return {key: cells for key, cells in data.items() if "/timing/" not in key[0] and key[0] != "/backend/counts/queue_depth"}
+
+
+def test_each_stage_writes_its_rrd_of_the_run_recording(runs):
+    run_dir = runs[0]
+    assert sorted(p.name for p in run_dir.glob("*.rrd")) == ["backend.rrd", "frontend.rrd", "source.rrd"]
+    for stage, entities in ENTITIES.items():
+        path = run_dir / f"{stage}.rrd"
+        assert recording_ids(path) == [("zenslam", "rerun-a")]
+        logged = {key[0] for key in read_rrd(path)}
+        assert entities <= logged, f"{path} lacks {sorted(entities - logged)}"
+
+
+def test_every_frame_is_on_the_frame_timeline(runs):
+    run_dir = runs[0]
+    metrics = json.loads((run_dir / "metrics.json").read_text())
+    source, frontend, backend = (read_rrd(run_dir / f"{stage}.rrd") for stage in ("source", "frontend", "backend"))
+    assert _frames(source, "/source/camera/left") == set(range(FRAMES))
+    assert _frames(frontend, "/frontend/pose") == set(range(FRAMES))  # the synthetic loop tracks every frame
+    assert _frames(frontend, "/frontend/keypoints") == set(range(FRAMES))
+    keyframe_frames = _frames(backend, "/backend/keyframes")
+    assert len(keyframe_frames) == metrics["keyframes"]["processed"] >= 3
+    assert keyframe_frames <= set(range(FRAMES)) and 0 in keyframe_frames
+    assert _frames(backend, "/backend/local_ba/after") <= keyframe_frames
+
+
+def test_two_lockstep_runs_log_the_same_data(runs):
+    for stage in ("source", "frontend", "backend"):
+        a, b = (_comparable(read_rrd(run / f"{stage}.rrd")) for run in runs)
+        assert a.keys() == b.keys(), f"{stage}: entities/frames differ: {sorted(set(a) ^ set(b))[:10]}"
+        differing = sorted((key for key in a if a[key] != b[key]), key=str)
+        assert not differing, f"{stage}: values differ between two lockstep runs at {differing[:10]}"
