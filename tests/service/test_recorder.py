@@ -168,3 +168,25 @@ def test_record_a_session_until_stopped(tmp_path):
     assert result == {"/frontend/state": 51}
     states = [m for m in mcap_io.iter_messages(path)]
     assert [m.log_time_ns for m in states] == [10 * (i + 1) for i in range(50)] + [500]
+
+
+def test_recording_ends_by_itself_once_the_followed_stages_have_come_and_gone(tmp_path):
+    hub_endpoint = bus.free_tcp_endpoint()
+    path = tmp_path / "follow.mcap"
+    with bus.open_session(bus.BusConfig(listen=(hub_endpoint,))) as hub, bus.open_session(bus.BusConfig(connect=(hub_endpoint,))) as peer:
+        result: dict = {}
+        config = RecorderConfig(quiet_s=0.1)
+        thread = threading.Thread(target=lambda: result.update(record(hub, SESSION, path, config, lambda: False, ["source"])))
+        thread.start()
+        assert not bus.wait_for_alive(peer, SESSION, ["recorder"], timeout_s=10.0)
+        token = bus.declare_alive(peer, SESSION, "source")
+        publisher = bus.declare_publisher(peer, keys.status(SESSION, "source"), codec.STAGE_STATUS, "lossless")
+        assert bus.wait_for_subscribers(publisher, timeout_s=5.0)
+        publisher.put(codec.encode_stage_status(codec.StageStatusMessage("source", "finished", 3)))
+        time.sleep(0.2)
+        assert thread.is_alive()  # the source is still there
+        token.undeclare()
+        thread.join(timeout=10)
+        assert not thread.is_alive()
+    assert result == {"/source/status": 1}
+    assert mcap_io.has_summary(path)

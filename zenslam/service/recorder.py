@@ -259,9 +259,14 @@ def record(
     config: RecorderConfig,
     should_stop: Callable[[], bool],
     follow: Iterable[str] = (),
+    max_drain_s: float = 5.0,
 ) -> dict[str, int]:
     """Record the session's messages to the MCAP file ``path`` until ``should_stop()`` or every stage in
-    ``follow`` has come and gone; returns the messages written per topic."""
+    ``follow`` has come and gone; returns the messages written per topic.
+
+    At the end it keeps taking messages until none has arrived for ``config.quiet_s`` seconds, or
+    for at most ``max_drain_s`` seconds while publishers are still sending.
+    """
     writer = mcap_io.RecordingWriter(path, chunk_size=config.chunk_size)
     worker = _Worker(Recorder(writer, config, session_name), config.queue)
     followed = _Followed(session, session_name, follow)
@@ -273,8 +278,9 @@ def record(
                 logger.info("recording %s to %s", keys.everything(session_name), path)
                 while not should_stop() and not followed.done() and worker.error is None:
                     time.sleep(0.02)
-                while time.monotonic() - worker.last_arrival < config.quiet_s or not worker.queue.empty():
-                    time.sleep(0.02)  # drain what is still arriving
+                drain_until = time.monotonic() + max_drain_s
+                while time.monotonic() - worker.last_arrival < config.quiet_s and time.monotonic() < drain_until:
+                    time.sleep(0.02)  # take what is still arriving; the queue itself is emptied by the worker
         finally:
             subscriber.undeclare()
             followed.close()
