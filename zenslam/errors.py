@@ -33,3 +33,19 @@ class SourceSpecError(ZenslamError):
 
 class TrajectoryError(ZenslamError):
     """A trajectory file cannot be read, or two trajectories cannot be compared."""
+
+
+class MessageError(ZenslamError):
+    """A bus message cannot be encoded or decoded (wrong schema, truncated, inconsistent arrays)."""
+
+
+class BusError(ZenslamError):
+    """The bus cannot be opened, or a peer process did not appear or answer in time."""
+
+
+class ProcessError(ZenslamError):
+    """A stage process failed to start, died, or did not stop when asked."""
+
+
+class RecordingError(ZenslamError):
+    """A recording cannot be opened, read or written."""

@@ -16,7 +16,7 @@ from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 from google.protobuf.message import DecodeError, Message
 
 from zenslam.camera import PinholeCalibration, SensorKind
-from zenslam.errors import CalibrationError, ZenslamError
+from zenslam.errors import CalibrationError, MessageError, ZenslamError
 from zenslam.geometry import R_to_quat_wxyz, quat_wxyz_to_R
 from zenslam.schemas import zenslam_pb2 as pb
 from zenslam.schemas.map_update import KeyframeCorrection, MapUpdate
@@ -60,10 +60,6 @@ _STAGE: dict[str, int] = {
     "failed": pb.STAGE_STATE_FAILED,
 }
 _NS_PER_S = 1_000_000_000
-
-
-class MessageError(ZenslamError):
-    """A bus message cannot be encoded or decoded (wrong schema, truncated, inconsistent arrays)."""
 
 
 @dataclass(frozen=True)

@@ -26,17 +26,13 @@ from typing import Generic, Literal, TypeVar
 
 import zenoh
 
-from zenslam.errors import ConfigError, ZenslamError
+from zenslam.errors import BusError, ConfigError, ZenslamError
 from zenslam.schemas import keys
 
 logger = logging.getLogger(__name__)
 
 T = TypeVar("T")
 Delivery = Literal["lossless", "live"]
-
-
-class BusError(ZenslamError):
-    """The bus cannot be opened, or a peer process did not appear or answer in time."""
 
 
 @dataclass(frozen=True)

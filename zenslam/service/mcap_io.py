@@ -29,7 +29,7 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 from mcap_protobuf.schema import build_file_descriptor_set
 
-from zenslam.errors import ZenslamError
+from zenslam.errors import RecordingError, ZenslamError
 from zenslam.schemas import codec, keys
 
 logger = logging.getLogger(__name__)
@@ -58,10 +58,6 @@ DECODERS: dict[str, Callable[[bytes], Any]] = {
     codec.MAP_SNAPSHOT: codec.decode_map_snapshot,
     codec.POSE_IN_FRAME: codec.decode_pose_in_frame,
 }
-
-
-class RecordingError(ZenslamError):
-    """A recording cannot be opened, read or written."""
 
 
 def topic_for_key(key: str, session: str) -> str:

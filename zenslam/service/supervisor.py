@@ -25,14 +25,10 @@ from types import FrameType
 
 import zenoh
 
-from zenslam.errors import ZenslamError
+from zenslam.errors import ProcessError, ZenslamError
 from zenslam.service import bus
 
 logger = logging.getLogger(__name__)
-
-
-class ProcessError(ZenslamError):
-    """A stage process failed to start, died, or did not stop when asked."""
 
 
 @dataclass(frozen=True)
