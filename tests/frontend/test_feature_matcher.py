@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from zenslam.frontend.descriptors import hamming_distance
+from zenslam.descriptors import hamming_distance
 from zenslam.frontend.feature_matcher import match_by_descriptor, rotation_consistent, search_by_projection
 
 

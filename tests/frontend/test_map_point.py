@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from zenslam.frontend.descriptors import hamming_distance
+from zenslam.descriptors import hamming_distance
 from zenslam.frontend.map_point import (
     MapPoint,
     mean_viewing_direction,

@@ -13,7 +13,7 @@ import logging
 import cv2
 import numpy as np
 
-from zenslam.frontend.descriptors import hamming_distance_pairs
+from zenslam.descriptors import hamming_distance_pairs
 
 logger = logging.getLogger(__name__)
 

@@ -10,7 +10,7 @@ import numpy as np
 
 from zenslam.camera import PinholeCalibration
 from zenslam.errors import CalibrationError, ConfigError
-from zenslam.frontend.descriptors import hamming_distance_pairs
+from zenslam.descriptors import hamming_distance_pairs
 from zenslam.frontend.orb_extractor import Features
 
 logger = logging.getLogger(__name__)
