@@ -3,7 +3,8 @@
 Spec strings (what ``zenslam run SOURCE`` and ``zenslam inspect SOURCE`` take):
 ``kitti:<root>/sequences/NN``, ``euroc:<sequence folder holding mav0/>``, ``tum:<sequence folder>``,
 ``synthetic`` (the loop scene) or ``synthetic:<scene>`` with scene one of loop, figure_eight, still,
-optionally followed by ``/<sensor>`` (stereo, rgbd, mono), e.g. ``synthetic:figure_eight/rgbd``.
+optionally followed by ``/<sensor>`` (stereo, rgbd, mono), e.g. ``synthetic:figure_eight/rgbd``;
+``mcap:<recording>`` replays the sensor frames of a run's ``run.mcap``.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from zenslam.service.sources.frame import ImuSamples, SensorFrame, Source
 
 __all__ = ["ImuSamples", "SensorFrame", "Source", "open_source", "SOURCE_KINDS"]
 
-SOURCE_KINDS = ("kitti", "euroc", "tum", "synthetic")
+SOURCE_KINDS = ("kitti", "euroc", "tum", "synthetic", "mcap")
 
 
 def open_source(spec: str) -> Source:
@@ -26,7 +27,7 @@ def open_source(spec: str) -> Source:
     if kind not in SOURCE_KINDS:
         raise SourceSpecError(
             f"unknown source {spec!r}: use one of kitti:<root>/sequences/NN, euroc:<folder>, tum:<folder>, "
-            "synthetic[:<scene>[/<sensor>]]"
+            "synthetic[:<scene>[/<sensor>]], mcap:<run.mcap>"
         )
     if not argument:
         raise SourceSpecError(f"source {spec!r} needs a path after '{kind}:', e.g. {kind}:/data/{kind}/sequence")
@@ -39,6 +40,10 @@ def open_source(spec: str) -> Source:
         from zenslam.service.sources.euroc import EurocSource
 
         return EurocSource(path)
+    if kind == "mcap":
+        from zenslam.service.sources.mcap_source import McapSource
+
+        return McapSource(path)
     from zenslam.service.sources.tum import TumSource
 
     return TumSource(path)
