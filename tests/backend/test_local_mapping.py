@@ -233,7 +233,22 @@ def test_ba_window_fixes_the_gauge_and_the_outer_keyframes() -> None:
         keypoint = bmap.points[int(obs_points[o])].observations[kf.id]
         np.testing.assert_array_equal(problem.obs_px[o], kf.keypoints_px[keypoint])
         assert problem.obs_inv_sigma2[o] == pytest.approx(1.2 ** (-2 * kf.levels[keypoint]))
-        assert np.isnan(problem.obs_right_u[o]) == (kf.right_u[keypoint] < 0)
+        far = kf.depth_m[keypoint] > BAWindowConfig().stereo_max_depth_baselines * CAL.baseline_m
+        assert np.isnan(problem.obs_right_u[o]) == (kf.right_u[keypoint] < 0 or far)
+
+
+def test_ba_window_takes_far_stereo_observations_as_monocular() -> None:
+    frontend, mapper = SyntheticFrontend(seed=4), LocalMapper(LocalMappingConfig(), StubAdjuster())
+    run(frontend, mapper, 4)
+    bmap, current = mapper.map, max(mapper.map.keyframes)
+    all_stereo, _, _ = local_ba_window(bmap, current, BAWindowConfig(stereo_max_depth_baselines=0.0))
+    limit = 40.0  # baselines: the synthetic scene's depths (2-8 m, baseline 0.1 m) straddle it
+    near_only, obs_points, obs_kfs = local_ba_window(bmap, current, BAWindowConfig(stereo_max_depth_baselines=limit))
+    depth = np.array([bmap.keyframes[int(k)].depth_m[bmap.points[int(p)].observations[int(k)]] for p, k in zip(obs_points, obs_kfs)])
+    stereo_all = np.isfinite(all_stereo.obs_right_u)
+    assert np.any(stereo_all & (depth > limit * CAL.baseline_m)) and np.any(stereo_all & (depth <= limit * CAL.baseline_m))
+    np.testing.assert_array_equal(np.isfinite(near_only.obs_right_u), stereo_all & (depth <= limit * CAL.baseline_m))
+    np.testing.assert_array_equal(near_only.obs_px, all_stereo.obs_px)
 
 
 def test_ba_outliers_leave_both_sides_and_weak_points_go() -> None:

@@ -1,0 +1,186 @@
+"""Benchmark what the backend does to accuracy: frontend alone vs frontend + local mapping, in one process.
+
+For each clip (KITTI 06 0-50 stereo, EuRoC V1_01 micro, and with ``--synthetic`` the synthetic
+loop and figure-eight, stereo and RGB-D) two runs are made with the same configuration:
+- frontend only: ``FrontendPipeline.step`` on every frame;
+- with the backend, in lockstep order without the bus: ``step``; when it makes a keyframe, the
+  keyframe goes through the bus codec to ``BackendNode.step`` (local mapping + gtsam local BA),
+  and its ``MapUpdate`` (through the codec too) is applied with ``pipeline.apply_map_update``
+  before the next frame.
+Printed and written: ATE (evo, SE(3)) of the per-frame poses of both runs and of the backend's
+final keyframe poses, keyframes made / left after culling, map points per keyframe, lost frames,
+the frontend's and the backend's per-step times (mean / median / max ms) and the whole run's
+wall time against the clip's real duration.
+
+Run: ``/work/venv/bin/python benchmarks/backend_quality.py [--data ../shared/data] [--synthetic]
+[--only kitti]`` (writes benchmarks/results/backend_quality.json).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+
+from zenslam.backend.node import BackendNode
+from zenslam.frontend.node import keyframe_message
+from zenslam.frontend.pipeline import FrontendConfig, FrontendPipeline
+from zenslam.schemas import codec
+from zenslam.service.evaluation.metrics import EvaluationConfig, evaluate
+from zenslam.service.run_config import BackendConfig
+from zenslam.trajectory import Trajectory
+
+REPO = Path(__file__).resolve().parents[1]
+RESULTS = REPO / "benchmarks" / "results" / "backend_quality.json"
+
+
+def summary(values_ms: list[float]) -> dict[str, float]:
+    if not values_ms:
+        return {"mean": 0.0, "median": 0.0, "max": 0.0}
+    return {"mean": statistics.fmean(values_ms), "median": statistics.median(values_ms), "max": max(values_ms)}
+
+
+def ate_of(stamps_ns: list[int], poses: list[np.ndarray], ground_truth: Trajectory) -> dict:
+    """ATE (SE(3) alignment) of a trajectory against the truth, the path length, and the Sim(3)
+    alignment's scale and ATE (a scale error shows as ATE growing along a straight path)."""
+    estimate = Trajectory(np.asarray(stamps_ns, np.int64), np.stack(poses))
+    evaluation = evaluate(estimate, ground_truth)
+    sim3 = evaluate(estimate, ground_truth, EvaluationConfig(alignment="sim3"))
+    ate = evaluation.to_json()["ate"]
+    return {"rmse_m": ate["rmse_m"], "max_m": ate["max_m"], "percent_of_path": ate["rmse_percent_of_path"],
+            "path_length_m": evaluation.path_length_m, "sim3_rmse_m": sim3.ate.rmse_m,
+            "sim3_scale": sim3.ate.scale}  # fmt: skip
+
+
+def run_once(frames, calibration, sensor, ground_truth: Trajectory, with_backend: bool,
+             frontend_config: FrontendConfig, backend_config: BackendConfig) -> dict:  # fmt: skip
+    """Track every frame (images loaded beforehand), optionally with the backend in lockstep."""
+    pipeline = FrontendPipeline(frontend_config, calibration, sensor)
+    backend = BackendNode.from_config(backend_config) if with_backend else None
+    stamps, poses, states, frontend_ms, backend_steps = [], [], [], [], []
+    n_keyframes = 0
+    start = time.perf_counter()
+    for frame in frames:
+        out = pipeline.step(frame.index, frame.stamp_ns, frame.left, right=frame.right, depth_m=frame.depth_m)
+        frontend_ms.append(out.timings_ms["total"])
+        states.append(out.state)
+        if out.T_world_cam is not None:
+            stamps.append(out.stamp_ns)
+            poses.append(out.T_world_cam)
+        if out.keyframe is None:
+            continue
+        n_keyframes += 1
+        if backend is not None:
+            message = codec.decode_keyframe(codec.encode_keyframe(keyframe_message(out.keyframe, calibration, sensor)))
+            update = backend.step(message)
+            backend_steps.append(backend.last_timings_ms)
+            pipeline.apply_map_update(codec.decode_map_update(codec.encode_map_update(update)))
+    wall_s = time.perf_counter() - start
+    result = {
+        "frames": len(frames),
+        "wall_s": wall_s,
+        "states": {s: states.count(s) for s in ("ok", "lost", "initializing")},
+        "keyframes_made": n_keyframes,
+        "ate_per_frame": ate_of(stamps, poses, ground_truth),
+        "frontend_total_ms": summary(frontend_ms),
+    }
+    if backend is not None:
+        result.update(backend_report(backend, backend_steps, ground_truth))
+    return result
+
+
+def backend_report(backend: BackendNode, steps: list[dict[str, float]], ground_truth: Trajectory) -> dict:
+    """Keyframes kept, points per keyframe, keyframe-pose ATE and per-step times of the backend."""
+    bmap = backend.mapper.map
+    kfs = list(bmap.keyframes.values())
+    per_kf = [int(np.count_nonzero(kf.map_point_ids >= 0)) for kf in kfs]
+    report = {
+        "keyframes_kept": len(kfs),
+        "map_points": len(bmap.points),
+        "map_points_per_keyframe": len(bmap.points) / max(len(kfs), 1),
+        "observations_per_keyframe": summary([float(n) for n in per_kf]),
+        "backend_totals": dict(backend.mapper.totals),
+        "backend_timing_ms": {key: summary([s.get(key, 0.0) for s in steps]) for key in (steps[0] if steps else {})},
+    }
+    if len(kfs) >= 3:
+        report["ate_keyframes"] = ate_of([kf.stamp_ns for kf in kfs], [kf.T_world_cam for kf in kfs], ground_truth)
+    return report
+
+
+def run(name: str, source, backend_only: bool) -> dict:
+    frames = list(source)
+    ground_truth = source.ground_truth()
+    frontend_config, backend_config = FrontendConfig(), BackendConfig()
+    args = (frames, source.calibration, source.sensor, ground_truth)
+    stamps = np.array([f.stamp_ns for f in frames], np.int64)
+    real_s = float((stamps[-1] - stamps[0] + np.median(np.diff(stamps))) * 1e-9)
+    result = {"name": name, "sensor": source.sensor, "real_time_s": real_s, "load_before": os.getloadavg()}
+    if not backend_only:
+        result["frontend_only"] = run_once(*args, False, frontend_config, backend_config)
+    result["with_backend"] = run_once(*args, True, frontend_config, backend_config)
+    return result
+
+
+def sources(data: Path, synthetic: bool, only: str | None):
+    from zenslam.service.sources.euroc import EurocSource
+    from zenslam.service.sources.kitti import KittiSource
+
+    named = [("kitti_06_clip", lambda: KittiSource(data / "kitti_odometry" / "sequences" / "06")),
+             ("euroc_v1_01_micro", lambda: EurocSource(data / "euroc" / "V1_01_easy_micro"))]  # fmt: skip
+    if synthetic:
+        from zenslam.service.sources.synthetic import SyntheticSource, scene_config
+
+        for scene in ("loop", "figure_eight"):
+            for sensor in ("stereo", "rgbd"):
+                config = scene_config(scene, sensor=sensor)
+                named.append((f"synthetic_{scene}_{sensor}", lambda c=config: SyntheticSource(c)))
+    for name, make in named:
+        if only is None or only in name:
+            yield name, make()
+
+
+def print_run(r: dict) -> None:
+    print(f"{r['name']} ({r['sensor']}, real time {r['real_time_s']:.1f} s):")
+    for key in ("frontend_only", "with_backend"):
+        if key not in r:
+            continue
+        x = r[key]
+        a = x["ate_per_frame"]
+        line = (f"  {key:<14} ATE {a['rmse_m'] * 100:6.2f} cm ({a['percent_of_path']:.3f} % of {a['path_length_m']:.1f} m; "
+                f"sim3 {a['sim3_rmse_m'] * 100:.2f} cm, scale {a['sim3_scale']:.4f})"
+                f"  states {x['states']}  keyframes {x['keyframes_made']}  wall {x['wall_s']:.1f} s")  # fmt: skip
+        if "keyframes_kept" in x:
+            kfa = x.get("ate_keyframes", {}).get("rmse_m", float("nan"))
+            line += (f"\n                 kept {x['keyframes_kept']}  points/kf {x['map_points_per_keyframe']:.0f}"
+                     f"  keyframe ATE {kfa * 100:.2f} cm  totals {x['backend_totals']}")  # fmt: skip
+            for step, t in x["backend_timing_ms"].items():
+                line += f"\n                   {step:<17} mean {t['mean']:6.1f} median {t['median']:6.1f} max {t['max']:6.1f} ms"
+        print(line)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, default=REPO.parent / "shared" / "data", help="benchmark clips root")
+    parser.add_argument("--synthetic", action="store_true", help="also run the synthetic loop and figure-eight")
+    parser.add_argument("--only", default=None, help="run only the clips whose name contains this")
+    parser.add_argument("--backend-only", action="store_true", help="skip the frontend-only runs")
+    args = parser.parse_args()
+    runs = []
+    for name, source in sources(args.data, args.synthetic, args.only):
+        runs.append(run(name, source, args.backend_only))
+        print_run(runs[-1])
+    report = {"machine": platform.platform(), "python": platform.python_version(), "cpu_count": os.cpu_count(),
+              "config": "FrontendConfig(), BackendConfig() defaults", "runs": runs}  # fmt: skip
+    RESULTS.parent.mkdir(parents=True, exist_ok=True)
+    RESULTS.write_text(json.dumps(report, indent=2) + "\n")
+    print(f"wrote {RESULTS}")
+
+
+if __name__ == "__main__":
+    main()
