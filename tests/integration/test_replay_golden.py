@@ -1,0 +1,97 @@
+"""Replay as a regression test: the committed golden recording, and a fresh KITTI run, replay identically.
+
+The golden (recordings/golden/synthetic_loop: 20 lockstep frames of the synthetic loop at 256x192)
+guards behaviour: any change in what the frontend or backend publish fails here. When a change is
+intended, regenerate it with ``python scripts/regenerate_golden.py`` and commit it with the change.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from zenslam.service import replay
+from zenslam.service.run_config import RecorderConfig, RerunConfig, RunConfig, run_config_to_yaml
+from zenslam.service.sources.mcap_source import McapSource
+
+pytestmark = pytest.mark.integration
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+GOLDEN = REPO_ROOT / "recordings" / "golden" / "synthetic_loop" / "run.mcap"
+REGENERATE = "if the change is intended, run `python scripts/regenerate_golden.py` and commit the new golden with it"
+MAX_GOLDEN_BYTES = 4_000_000
+
+
+def _zenslam(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    command = [sys.executable, "-m", "zenslam.service.cli", *args]
+    return subprocess.run(command, capture_output=True, text=True, timeout=900, cwd=cwd)
+
+
+def _verdict(result: subprocess.CompletedProcess) -> str:
+    """The line after the run's own summary: "identical" or "first difference: ..."."""
+    lines = result.stdout.splitlines()
+    return next((line for line in lines if line == "identical" or line.startswith("first difference")), "")
+
+
+def test_the_golden_is_a_small_lockstep_recording():
+    assert GOLDEN.is_file(), f"{GOLDEN} is missing; run `python scripts/regenerate_golden.py`"
+    assert GOLDEN.stat().st_size < MAX_GOLDEN_BYTES
+    config = replay.recorded_run_config(GOLDEN)
+    assert config.source.lockstep
+    assert len(McapSource(GOLDEN)) == 20
+    counts = {topic: len(messages) for topic, messages in replay.read_topics(GOLDEN, replay.COMPARED_TOPICS).items()}
+    assert counts[replay.POSE_TOPIC] == 20 and counts[replay.KEYFRAME_TOPIC] >= 1 + 3  # 3 keyframes and the end
+
+
+def test_golden_replays_identically_through_the_whole_pipeline(tmp_path):
+    result = _zenslam("replay", str(GOLDEN), "--output", str(tmp_path), "--run-id", "golden-replay", "--no-progress", cwd=tmp_path)
+    assert result.returncode == 0 and _verdict(result) == "identical", (
+        f"{_verdict(result) or result.stderr[-3000:]}\n{result.stdout[-2000:]}\n{REGENERATE}"
+    )
+    assert (tmp_path / "golden-replay" / "run.mcap").is_file()
+
+
+def test_golden_replays_identically_through_the_backend_alone():
+    comparison = replay.replay_backend(GOLDEN, replay.recorded_run_config(GOLDEN).backend)
+    assert comparison.identical, f"{comparison.lines()[0]}\n{REGENERATE}"
+    recorded, replayed = comparison.counts[replay.MAP_UPDATE_TOPIC]
+    assert recorded == replayed >= 1 + 3
+
+
+@pytest.fixture(scope="module")
+def kitti_recording(kitti_root: Path, tmp_path_factory) -> Path:
+    """A fresh lockstep run of the KITTI 06 clip (rerun off: replay compares the MCAP only)."""
+    output = tmp_path_factory.mktemp("kitti")
+    config = output / "config.yaml"
+    config.write_text(run_config_to_yaml(RunConfig(rerun=RerunConfig(enabled=False), recorder=RecorderConfig(image_format="jpeg"))))
+    spec = f"kitti:{kitti_root / 'sequences' / '06'}"
+    result = _zenslam("run", spec, "--lockstep", "--config", str(config), "--output", str(output), "--run-id", "kitti",
+                      "--no-progress", cwd=output)  # fmt: skip
+    assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-3000:]
+    return output / "kitti" / "run.mcap"
+
+
+@pytest.mark.dataset
+def test_a_kitti_run_replays_identically_through_the_whole_pipeline(kitti_recording, tmp_path):
+    result = _zenslam("replay", str(kitti_recording), "--output", str(tmp_path), "--run-id", "again", "--no-progress", cwd=tmp_path)
+    assert result.returncode == 0 and _verdict(result) == "identical", result.stdout[-2000:] + result.stderr[-3000:]
+    assert "  /frontend/pose: 51 recorded, 51 replayed" in result.stdout
+
+
+@pytest.mark.dataset
+def test_a_kitti_run_replays_identically_through_the_backend_alone(kitti_recording, tmp_path):
+    result = _zenslam("replay", str(kitti_recording), "--stage", "backend", cwd=tmp_path)
+    assert result.returncode == 0 and _verdict(result) == "identical", result.stdout[-2000:] + result.stderr[-3000:]
+
+
+def test_a_behaviour_change_in_the_backend_is_caught():
+    """The guard works: one local-BA iteration fewer changes the map updates, and the report says where."""
+    backend = replay.recorded_run_config(GOLDEN).backend
+    changed = dataclasses.replace(backend, local_ba=dataclasses.replace(backend.local_ba, refine_iterations=1))
+    comparison = replay.replay_backend(GOLDEN, changed)
+    assert not comparison.identical
+    assert comparison.difference.topic == replay.MAP_UPDATE_TOPIC and comparison.difference.field
