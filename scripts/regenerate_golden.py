@@ -8,6 +8,8 @@ recorder's Foxglove camera images as JPEG, to keep the file small) and copies th
 ``run.mcap`` and ``config.yaml`` to ``recordings/golden/<name>/``. The committed config's
 ``source.spec`` names the golden recording itself: its sensor/frame channel is the input.
 Commit both files together with the change that made them differ, and say why in the message.
+The run uses the code it is run with: run it on a clean checkout of the commit (uncommitted
+changes in the working tree would end up in the golden).
 """
 
 from __future__ import annotations

@@ -105,7 +105,9 @@ def test_identical_recordings(tmp_path):
     b = _write(tmp_path / "b.mcap", _run_streams())
     comparison = replay.compare_recordings(a, b)
     assert comparison.identical and comparison.lines()[0] == "identical"
-    assert comparison.counts == {replay.POSE_TOPIC: (4, 4), replay.STATE_TOPIC: (5, 5), replay.KEYFRAME_TOPIC: (3, 3), replay.MAP_UPDATE_TOPIC: (3, 3)}
+    assert comparison.counts == {
+        replay.POSE_TOPIC: (4, 4), replay.STATE_TOPIC: (5, 5), replay.KEYFRAME_TOPIC: (3, 3), replay.MAP_UPDATE_TOPIC: (3, 3)
+    }  # fmt: skip
 
 
 def test_the_earliest_difference_by_stamp_is_reported(tmp_path):

@@ -36,7 +36,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--stage", choices=("all", "backend"), default="all",
         help="all: source, frontend and backend again (default); backend: the recorded keyframes through a fresh backend",
     )
-    parser.add_argument("--output", type=Path, default=Path("recordings"), help="--stage all: folder of the new run folder (default recordings)")
+    parser.add_argument(
+        "--output", type=Path, default=Path("recordings"), help="--stage all: folder of the new run folder (default recordings)"
+    )
     parser.add_argument("--run-id", default=None, help="--stage all: name of the new run folder (default replay-<date-time-pid>)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.set_defaults(handler=run)
