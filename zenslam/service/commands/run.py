@@ -55,7 +55,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "source", nargs="?", default=None,
-        help="kitti:<root>/sequences/NN | euroc:<folder> | tum:<folder> | synthetic[:<scene>[/<sensor>]] "
+        help="kitti:<root>/sequences/NN | euroc:<folder> | tum:<folder> | synthetic[:<scene>[/<sensor>]] | mcap:<run.mcap> "
         "(default: source.spec of the config, which defaults to synthetic)",
     )
     parser.add_argument("--output", type=Path, default=Path("recordings"), help="folder of the run folders (default recordings)")
