@@ -53,3 +53,30 @@ def test_main_command_on_a_fresh_clone(tmp_path: Path):
     assert re.search(r"ATE", result.stdout), result.stdout[-3000:]
     runs = list((clone / "recordings").glob("*/metrics.json"))
     assert len(runs) == 1, f"expected one run folder with metrics.json, found {runs}"
+
+
+def test_tour_commands_run_in_order(tmp_path: Path):
+    """Every line of the README's tour, run from a checkout whose ../shared/data is the real one."""
+    from conftest import shared_data_root
+
+    data = shared_data_root()
+    if not (data / "kitti_odometry").is_dir():
+        pytest.skip(f"the tour uses the KITTI clip; not found at {data}")
+    checkout = tmp_path / "checkout"
+    checkout.mkdir()
+    (tmp_path / "shared").mkdir()
+    (tmp_path / "shared" / "data").symlink_to(data)
+    bin_dir = Path(sys.executable).parent
+    for line in readme_command("tour").splitlines():
+        result = subprocess.run(
+            ["bash", "-c", line], cwd=checkout, capture_output=True, text=True, timeout=900,
+            env={"PATH": f"{bin_dir}:/usr/local/bin:/usr/bin:/bin", "HOME": str(Path.home())},
+        )
+        assert result.returncode == 0, f"{line}\n{result.stdout[-2000:]}\n{result.stderr[-2000:]}"
+        if line.startswith("zenslam run "):
+            assert "ATE RMSE" in result.stdout, result.stdout[-2000:]
+        if line.startswith("zenslam replay"):
+            assert "identical" in result.stdout
+    assert (checkout / "recordings" / "kitti06" / "eval" / "metrics.json").is_file()
+    assert (checkout / "recordings" / "kitti06" / "export" / "points.ply").is_file()
+    assert (checkout / "recordings" / "loop_tum" / "metrics.json").is_file()
