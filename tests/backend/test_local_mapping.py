@@ -233,22 +233,28 @@ def test_ba_window_fixes_the_gauge_and_the_outer_keyframes() -> None:
         keypoint = bmap.points[int(obs_points[o])].observations[kf.id]
         np.testing.assert_array_equal(problem.obs_px[o], kf.keypoints_px[keypoint])
         assert problem.obs_inv_sigma2[o] == pytest.approx(1.2 ** (-2 * kf.levels[keypoint]))
-        far = kf.depth_m[keypoint] > BAWindowConfig().stereo_max_depth_baselines * CAL.baseline_m
-        assert np.isnan(problem.obs_right_u[o]) == (kf.right_u[keypoint] < 0 or far)
+        assert np.isnan(problem.obs_right_u[o]) == (kf.right_u[keypoint] < 0)
+        far = kf.right_u[keypoint] >= 0 and kf.depth_m[keypoint] > BAWindowConfig().stereo_max_depth_baselines * CAL.baseline_m
+        assert problem.obs_right_sigma_scale[o] == (BAWindowConfig().far_right_sigma_scale if far else 1.0)
 
 
-def test_ba_window_takes_far_stereo_observations_as_monocular() -> None:
+def test_ba_window_weakens_or_drops_far_disparities() -> None:
     frontend, mapper = SyntheticFrontend(seed=4), LocalMapper(LocalMappingConfig(), StubAdjuster())
     run(frontend, mapper, 4)
     bmap, current = mapper.map, max(mapper.map.keyframes)
     all_stereo, _, _ = local_ba_window(bmap, current, BAWindowConfig(stereo_max_depth_baselines=0.0))
+    assert np.all(all_stereo.obs_right_sigma_scale == 1.0)
     limit = 40.0  # baselines: the synthetic scene's depths (2-8 m, baseline 0.1 m) straddle it
-    near_only, obs_points, obs_kfs = local_ba_window(bmap, current, BAWindowConfig(stereo_max_depth_baselines=limit))
+    config = BAWindowConfig(stereo_max_depth_baselines=limit, far_right_sigma_scale=5.0)
+    weak, _, _ = local_ba_window(bmap, current, config)
+    config = BAWindowConfig(stereo_max_depth_baselines=limit, far_right_sigma_scale=float("inf"))
+    near_only, obs_points, obs_kfs = local_ba_window(bmap, current, config)
     depth = np.array([bmap.keyframes[int(k)].depth_m[bmap.points[int(p)].observations[int(k)]] for p, k in zip(obs_points, obs_kfs)])
     stereo_all = np.isfinite(all_stereo.obs_right_u)
     assert np.any(stereo_all & (depth > limit * CAL.baseline_m)) and np.any(stereo_all & (depth <= limit * CAL.baseline_m))
     np.testing.assert_array_equal(np.isfinite(near_only.obs_right_u), stereo_all & (depth <= limit * CAL.baseline_m))
     np.testing.assert_array_equal(near_only.obs_px, all_stereo.obs_px)
+    np.testing.assert_array_equal(weak.obs_right_sigma_scale, np.where(stereo_all & (depth > limit * CAL.baseline_m), 5.0, 1.0))
 
 
 def test_ba_outliers_leave_both_sides_and_weak_points_go() -> None:
@@ -274,3 +280,19 @@ def test_with_the_real_bundle_adjuster_poses_stay_on_the_truth() -> None:
     assert mapper.last_ba_stats  # BA ran
     for kf_id, kf in mapper.map.keyframes.items():
         assert np.linalg.norm(kf.T_world_cam[:3, 3] - frontend.pose(kf_id)[:3, 3]) < 0.02  # metres
+
+
+def test_a_backlog_defers_fusion_ba_and_keyframe_culling_to_the_last_queued_keyframe() -> None:
+    frontend, adjuster = SyntheticFrontend(seed=6), StubAdjuster()
+    mapper = LocalMapper(LocalMappingConfig(), adjuster)
+    run(frontend, mapper, 3)
+    n_ba = len(adjuster.problems)
+    message = frontend.next_message()
+    update = mapper.process(message, queued=2)
+    frontend.apply(update)
+    assert len(adjuster.problems) == n_ba and mapper.last_stats.deferred == 1
+    assert mapper.last_stats.fusion_matches == 0 and mapper.last_stats.keyframes_culled == 0
+    assert any(c.id == message.id for c in update.keyframes)  # inserted, its associations published
+    assert mapper.map.check_consistency() == []
+    frontend.apply(mapper.process(frontend.next_message(), queued=0))
+    assert len(adjuster.problems) == n_ba + 1 and mapper.last_stats.deferred == 0

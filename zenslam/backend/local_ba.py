@@ -112,6 +112,9 @@ class BAProblem:
     obs_px: np.ndarray  # (O, 2) left keypoint (u, v) in level-0 pixels
     obs_right_u: np.ndarray  # (O,) right-image u in pixels; NaN for a monocular observation
     obs_inv_sigma2: np.ndarray  # (O,) 1 / scale_factor**(2 * level) (1/px^2)
+    # (O,) multiplier of the right-image u's sigma (>= 1; far stereo observations get a weaker
+    # disparity); None = 1 everywhere.
+    obs_right_sigma_scale: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         # Coerce to the documented dtypes (no copy when they already match), then check consistency.
@@ -120,6 +123,8 @@ class BAProblem:
             "p_world": np.float64, "obs_keyframe": np.intp, "obs_point": np.intp, "obs_px": np.float64,
             "obs_right_u": np.float64, "obs_inv_sigma2": np.float64,
         }  # fmt: skip
+        if self.obs_right_sigma_scale is not None:
+            dtypes["obs_right_sigma_scale"] = np.float64
         for name, dtype in dtypes.items():
             object.__setattr__(self, name, np.asarray(getattr(self, name), dtype=dtype))
         _check_problem(self)
@@ -214,6 +219,7 @@ class _Window:
     point_row_of_key: dict[int, int]
     usable: np.ndarray  # (O,) bool: finite pixel and positive information
     stereo: np.ndarray  # (O,) bool
+    right_sigma_scale: np.ndarray  # (O,) multiplier of the right u's sigma
     chi2_threshold: np.ndarray  # (O,)
     min_depth_m: float
     cal_mono: gtsam.Cal3_S2
@@ -236,6 +242,9 @@ class _Window:
             point_row_of_key={k: i for i, k in enumerate(point_keys)},
             usable=usable,
             stereo=stereo,
+            right_sigma_scale=(
+                np.ones(len(info)) if problem.obs_right_sigma_scale is None else problem.obs_right_sigma_scale
+            ),
             chi2_threshold=np.where(stereo, config.chi2_stereo, config.chi2_mono),
             min_depth_m=config.min_depth_m,
             cal_mono=gtsam.Cal3_S2(c.fx, c.fy, 0.0, c.cx, c.cy),
@@ -255,7 +264,8 @@ class _Window:
         err2 = (u - p.obs_px[:, 0]) ** 2 + (v - p.obs_px[:, 1]) ** 2
         if self.cal_stereo is not None:
             u_right = u - c.bf * inv_z
-            err2 = err2 + np.where(self.stereo, (u_right - np.nan_to_num(p.obs_right_u)) ** 2, 0.0)
+            right_err2 = (u_right - np.nan_to_num(p.obs_right_u)) ** 2 / self.right_sigma_scale**2
+            err2 = err2 + np.where(self.stereo, right_err2, 0.0)
         return err2 * p.obs_inv_sigma2, z
 
     def classify(self, state: _State) -> np.ndarray:
@@ -348,12 +358,13 @@ def _build_graph(window: _Window, state: _State, active: np.ndarray, robust: boo
     pose_keys, point_keys = window.pose_keys, window.point_keys.tolist()
     kf_list, pt_list = p.obs_keyframe[rows].tolist(), p.obs_point[rows].tolist()
     px, right_u, info = p.obs_px[rows].tolist(), p.obs_right_u[rows].tolist(), p.obs_inv_sigma2[rows].tolist()
+    right_scale = window.right_sigma_scale[rows].tolist()
     for i, is_stereo in enumerate(window.stereo[rows].tolist()):
         x, l = pose_keys[kf_list[i]], point_keys[pt_list[i]]
         u, v = px[i]
         if is_stereo:
             measured = gtsam.StereoPoint2(u, right_u[i], v)
-            graph.add(gtsam.GenericStereoFactor3D(measured, noise.get(info[i], 3), x, l, window.cal_stereo))
+            graph.add(gtsam.GenericStereoFactor3D(measured, noise.get(info[i], 3, right_scale[i]), x, l, window.cal_stereo))
         else:
             graph.add(gtsam.GenericProjectionFactorCal3_S2(np.array((u, v)), noise.get(info[i], 2), x, l, window.cal_mono))
     values = gtsam.Values()
@@ -377,13 +388,17 @@ class _NoiseModels:
     def __init__(self, robust: bool, config: LocalBAConfig) -> None:
         self._robust = robust
         self._huber = {2: config.huber_mono, 3: config.huber_stereo}
-        self._cache: dict[tuple[float, int], gtsam.noiseModel.Base] = {}
+        self._cache: dict[tuple[float, int, float], gtsam.noiseModel.Base] = {}
 
-    def get(self, inv_sigma2: float, dim: int) -> gtsam.noiseModel.Base:
-        key = (inv_sigma2, dim)
+    def get(self, inv_sigma2: float, dim: int, right_sigma_scale: float = 1.0) -> gtsam.noiseModel.Base:
+        key = (inv_sigma2, dim, right_sigma_scale)
         model = self._cache.get(key)
         if model is None:
-            model = gtsam.noiseModel.Isotropic.Sigma(dim, 1.0 / math.sqrt(inv_sigma2))
+            sigma = 1.0 / math.sqrt(inv_sigma2)
+            if dim == 3 and right_sigma_scale != 1.0:  # StereoPoint2 order: uL, uR, v
+                model = gtsam.noiseModel.Diagonal.Sigmas(np.array([sigma, sigma * right_sigma_scale, sigma]))
+            else:
+                model = gtsam.noiseModel.Isotropic.Sigma(dim, sigma)
             if self._robust:
                 # Huber on the whitened residual norm: quadratic up to the chi2 threshold's root, linear beyond.
                 model = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(self._huber[dim]), model)
@@ -423,6 +438,8 @@ def _check_problem(problem: BAProblem) -> None:
         "keyframe_ids": (K,), "T_world_cam": (K, 4, 4), "fixed": (K,), "point_ids": (P,), "p_world": (P, 3),
         "obs_keyframe": (O,), "obs_point": (O,), "obs_px": (O, 2), "obs_right_u": (O,), "obs_inv_sigma2": (O,),
     }  # fmt: skip
+    if problem.obs_right_sigma_scale is not None:
+        expected["obs_right_sigma_scale"] = (O,)
     problems = [
         f"{name} has shape {np.shape(getattr(problem, name))}, expected {shape}"
         for name, shape in expected.items()

@@ -39,14 +39,18 @@ class BAWindowConfig:
     """Which keyframes and points go into local bundle adjustment (ORB-SLAM's LocalBundleAdjustment)."""
 
     enabled: bool = True  # run local BA at all
-    max_local_keyframes: int = 20  # optimised poses: the new keyframe and its best connected ones
-    max_fixed_keyframes: int = 10  # other keyframes seeing local points, held fixed, most points first
+    # 10 + 5: KITTI windows of ~6,000 observations (~145 ms, benchmarks/local_ba.py) instead of
+    # 20 + 10 (~200 ms); the same or better ATE on the KITTI clip and the synthetic loop.
+    max_local_keyframes: int = 10  # optimised poses: the new keyframe and its best connected ones
+    max_fixed_keyframes: int = 5  # other keyframes seeing local points, held fixed, most points first
     min_keyframes: int = 3  # BA runs once the map holds this many keyframes (ORB-SLAM: more than 2)
-    # Stereo/RGB-D observations deeper than this many baselines enter BA as monocular (u, v) ones:
-    # a few pixels of disparity carry a depth bias that a window of stereo factors turns into scale
-    # drift. On the KITTI 06 clip the Sim(3) scale of the trajectory went 0.9960 (all stereo),
-    # 0.9979 (35), 0.9994 (20), 1.0009 (15), 1.0032 (10); 0 keeps every observation stereo.
+    # Stereo/RGB-D observations deeper than this many baselines get their right-image u's sigma
+    # multiplied by ``far_right_sigma_scale`` (a threshold of 0 = never): a few pixels of disparity carry a depth
+    # bias (KITTI 06: ~0.1 px, levels 5-7 up to 0.3 px) that a window of stereo factors turns into
+    # scale drift, while dropping them (monocular) lets the scale drift the other way where most
+    # of the scene is far (synthetic rooms). See benchmarks/backend_quality.py.
     stereo_max_depth_baselines: float = 20.0  # baselines (stereo or RGB-D virtual)
+    far_right_sigma_scale: float = 4.0  # unitless multiplier; inf = far observations monocular
 
 
 @dataclass(frozen=True)
@@ -56,6 +60,9 @@ class LocalMappingConfig:
     min_covisibility_weight: int = 15  # shared points for a covisibility edge (ORB-SLAM: 15; 15-30 allowed)
     essential_min_weight: int = 100  # shared points for a covisibility edge of the essential graph
     min_keyframes_per_point: int = 2  # a point losing observations (BA outliers, culled keyframe) below this goes
+    # ORB-SLAM's CheckNewKeyFrames: while more keyframes wait in the inbox, a keyframe is inserted,
+    # culled and triangulated only; fusion, local BA and keyframe culling run on the last queued one.
+    defer_when_queued: bool = True
     point_culling: PointCullingConfig = field(default_factory=PointCullingConfig)
     triangulation: TriangulationConfig = field(default_factory=TriangulationConfig)
     fusion: FusionConfig = field(default_factory=FusionConfig)
@@ -89,6 +96,7 @@ class LocalMappingStats:
     ba_outliers: int = 0  # observations dropped by local BA
     points_removed_after_ba: int = 0  # points dropped by BA or left with too few observations
     keyframes_culled: int = 0
+    deferred: int = 0  # 1 when fusion, local BA and keyframe culling waited for queued keyframes
 
 
 class LocalMapper:
@@ -104,8 +112,13 @@ class LocalMapper:
         self.last_ba_stats: dict = {}  # the bundle adjuster's stats of the last call
         self.totals: Counter[str] = Counter()  # LocalMappingStats fields summed over all calls
 
-    def process(self, keyframe: KeyframeMessage) -> MapUpdate:
-        """Run local mapping on one keyframe; returns what changed in the map."""
+    def process(self, keyframe: KeyframeMessage, queued: int = 0) -> MapUpdate:
+        """Run local mapping on one keyframe; returns what changed in the map.
+
+        ``queued`` is the number of keyframes still waiting behind this one (0 in lockstep); with
+        ``defer_when_queued`` a backlog skips fusion, local BA and keyframe culling, as ORB-SLAM does.
+        """
+        deferred = self.config.defer_when_queued and queued > 0
         timings: dict[str, float] = {}
         started = time.perf_counter()
         counts: dict[str, int] = {}
@@ -121,18 +134,23 @@ class LocalMapper:
         with _timed(timings, "triangulation"):
             created = create_new_points(self.map, kf_id, self.config.triangulation)
             self.recent_points.extend(created)
+        culled_kfs: list[int] = []
         with _timed(timings, "fusion"):
-            before = len(self.map.changes.removed_points)
-            counts["fusion_matches"] = fuse_with_neighbours(self.map, kf_id, self.config.fusion)
-            counts["points_fused"] = len(self.map.changes.removed_points) - before
+            if not deferred:
+                before = len(self.map.changes.removed_points)
+                counts["fusion_matches"] = fuse_with_neighbours(self.map, kf_id, self.config.fusion)
+                counts["points_fused"] = len(self.map.changes.removed_points) - before
         with _timed(timings, "local_ba"):
-            counts.update(self._local_ba(kf_id))
+            if not deferred:
+                counts.update(self._local_ba(kf_id))
         with _timed(timings, "keyframe_culling"):
-            culled_kfs, touched = cull_redundant_keyframes(self.map, kf_id, self.config.keyframe_culling)
-            self.map.remove_weak_points(touched, self.config.min_keyframes_per_point)
+            if not deferred:
+                culled_kfs, touched = cull_redundant_keyframes(self.map, kf_id, self.config.keyframe_culling)
+                self.map.remove_weak_points(touched, self.config.min_keyframes_per_point)
         update = _map_update(self.map, kf_id, keyframe.stamp_ns, self.map.take_changes())
         timings["total"] = (time.perf_counter() - started) * 1e3
         counts.update(points_created=len(created), points_culled=len(culled), keyframes_culled=len(culled_kfs))
+        counts["deferred"] = int(deferred)
         self.last_stats = LocalMappingStats(**counts)
         self.totals.update(counts)
         self.last_timings_ms = timings
@@ -231,7 +249,12 @@ def local_ba_window(
                 obs_pt.append(row)
                 obs_kp.append(keypoint)
     obs_kf_arr, obs_pt_arr, obs_kp_arr = (np.asarray(a, dtype=np.int64) for a in (obs_kf, obs_pt, obs_kp))
-    px, right_u, inv_sigma2 = _observation_arrays(bmap, kf_ids, obs_kf_arr, obs_kp_arr, config.stereo_max_depth_baselines)
+    px, right_u, inv_sigma2, far = _observation_arrays(bmap, kf_ids, obs_kf_arr, obs_kp_arr, config.stereo_max_depth_baselines)
+    if np.isinf(config.far_right_sigma_scale):
+        right_u[far] = np.nan
+        right_scale = np.ones(len(obs_kf_arr))
+    else:
+        right_scale = np.where(far, config.far_right_sigma_scale, 1.0)
     ids = np.asarray(point_ids, dtype=np.int64)
     problem = BAProblem(
         calibration=bmap.keyframes[kf_id].calibration,
@@ -245,6 +268,7 @@ def local_ba_window(
         obs_px=px,
         obs_right_u=right_u,
         obs_inv_sigma2=inv_sigma2,
+        obs_right_sigma_scale=right_scale,
     )
     return problem, ids[obs_pt_arr], np.asarray(kf_ids, dtype=np.int64)[obs_kf_arr]
 
@@ -252,9 +276,10 @@ def local_ba_window(
 def _observation_arrays(
     bmap: BackendMap, kf_ids: list[int], obs_kf: np.ndarray, obs_kp: np.ndarray, stereo_max_depth_baselines: float
 ):
-    """Pixels (O, 2), right u (O,) (NaN mono, or deeper than ``stereo_max_depth_baselines`` when > 0)
-    and 1/sigma^2 (O,) of observations, gathered per keyframe."""
+    """Pixels (O, 2), right u (O,) (NaN mono), 1/sigma^2 (O,) of observations, gathered per keyframe,
+    and which stereo ones are deeper than ``stereo_max_depth_baselines`` (O,) bool (none when 0)."""
     px = np.zeros((len(obs_kf), 2))
+    far = np.zeros(len(obs_kf), dtype=bool)
     right_u = np.full(len(obs_kf), np.nan)
     inv_sigma2 = np.zeros(len(obs_kf))
     for row, k in enumerate(kf_ids):
@@ -263,10 +288,10 @@ def _observation_arrays(
         px[sel] = kf.keypoints_px[kps]
         stereo = kf.right_u[kps] >= 0
         if stereo_max_depth_baselines > 0 and kf.calibration.baseline_m:
-            stereo &= kf.depth_m[kps] <= stereo_max_depth_baselines * kf.calibration.baseline_m
+            far[sel] = stereo & (kf.depth_m[kps] > stereo_max_depth_baselines * kf.calibration.baseline_m)
         right_u[sel] = np.where(stereo, kf.right_u[kps], np.nan)
         inv_sigma2[sel] = 1.0 / kf.level_sigma2[kf.levels[kps]]
-    return px, right_u, inv_sigma2
+    return px, right_u, inv_sigma2, far
 
 
 def apply_ba_result(
