@@ -20,7 +20,7 @@ from zenslam.errors import CalibrationError, MessageError, ZenslamError
 from zenslam.geometry import R_to_quat_wxyz, quat_wxyz_to_R
 from zenslam.schemas import zenslam_pb2 as pb
 from zenslam.schemas.map_update import KeyframeCorrection, MapUpdate
-from zenslam.service.sources.frame import SensorFrame
+from zenslam.schemas.sensor_data import SensorFrame
 
 # Schema names: the protobuf full names, also used as the zenoh encoding schema and MCAP schema.
 SENSOR_FRAME = "zenslam.SensorFrame"

@@ -1,41 +1,17 @@
-"""What every source yields: timestamped sensor frames, IMU samples, and the Source protocol."""
+"""The Source protocol: what every dataset reader and scene implements (frames are schemas.sensor_data)."""
 
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
 
 from zenslam.camera import PinholeCalibration, SensorKind
+from zenslam.schemas.sensor_data import ImuSamples, SensorFrame
 from zenslam.trajectory import Trajectory
 
-
-@dataclass(frozen=True)
-class SensorFrame:
-    """One synchronised capture.
-
-    ``left`` is the rectified, undistorted grey image (uint8, HxW) of the left / only camera.
-    ``right`` is the rectified right image for stereo, ``depth_m`` the metric depth (float32, HxW,
-    0 where unknown) registered to ``left`` for RGB-D.
-    """
-
-    index: int
-    stamp_ns: int
-    left: np.ndarray
-    right: np.ndarray | None = None
-    depth_m: np.ndarray | None = None
-
-
-@dataclass(frozen=True)
-class ImuSamples:
-    """IMU measurements in the IMU (body) frame: gyro rad/s, accelerometer m/s^2, at ``stamps_ns``."""
-
-    stamps_ns: np.ndarray  # (N,) int64
-    gyro_rad_s: np.ndarray  # (N, 3)
-    accel_m_s2: np.ndarray  # (N, 3)
-    T_cam_imu: np.ndarray  # (4, 4) maps IMU coordinates to the (rectified left) camera frame
+__all__ = ["ImuSamples", "SensorFrame", "Source"]
 
 
 class Source(Protocol):
