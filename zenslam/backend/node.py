@@ -230,6 +230,10 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point: ``python -m zenslam.backend.node --session S [--config FILE] [--connect EP] ...``."""
     parser = argparse.ArgumentParser(prog="zenslam-backend", description=__doc__.splitlines()[0])
     add_process_arguments(parser)
+    parser.add_argument(
+        "--wait-for", action="append", default=[], metavar="STAGE",
+        help="stage whose liveliness token must be present before the backend starts (repeatable)",
+    )
     args = parser.parse_args(argv)
     setup_process_logging(args.verbose, STAGE)
     stop = StopFlag(args.parent_pid).install()
@@ -243,6 +247,7 @@ def main(argv: list[str] | None = None) -> int:
             bus.open_session(bus_config_with(config.bus, args.connect)) as session,
         ):
             node.rerun = rerun_log.BackendLog(recording) if recording is not None else None
+            bus.require_alive(session, args.session, args.wait_for, config.source.start_timeout_s, stop.keep_going)
             serve(session, args.session, node, config.backend, stop)
     except ZenslamError as exc:
         logger.error("%s", exc)

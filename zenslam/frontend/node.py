@@ -315,9 +315,7 @@ def main(argv: list[str] | None = None) -> int:
         ):
             node.rerun = rerun_log.FrontendLog(recording) if recording is not None else None
             timeout_s = config.source.start_timeout_s
-            missing = bus.wait_for_alive(session, args.session, args.wait_for, timeout_s, stop.keep_going)
-            if missing and not stop():
-                raise bus.BusError(f"stage(s) {sorted(missing)} did not come up within {timeout_s:.0f} s")
+            bus.require_alive(session, args.session, args.wait_for, timeout_s, stop.keep_going)
             backend = config.backend if args.map_updates else None
             serve(session, args.session, node, config.source.lockstep, config.bus, stop, backend=backend)
     except ZenslamError as exc:

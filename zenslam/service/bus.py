@@ -221,6 +221,23 @@ def wait_for_alive(
     return missing
 
 
+def require_alive(
+    session: zenoh.Session,
+    session_name: str,
+    processes: Iterable[str],
+    timeout_s: float,
+    keep_waiting: Callable[[], bool] = lambda: True,
+) -> None:
+    """Wait for the named processes' tokens; raise BusError naming those missing after ``timeout_s``.
+
+    Seeing a process's token also means its earlier declarations (a recorder's subscriber, declared
+    before its token) have reached this session: one peer's declarations arrive in order.
+    """
+    missing = wait_for_alive(session, session_name, processes, timeout_s, keep_waiting)
+    if missing and keep_waiting():
+        raise BusError(f"stage(s) {sorted(missing)} did not come up within {timeout_s:.0f} s")
+
+
 def wait_for_subscribers(publisher: zenoh.Publisher, timeout_s: float, keep_waiting: Callable[[], bool] = lambda: True) -> bool:
     """Wait until some subscriber matches ``publisher``; False if none did within ``timeout_s`` seconds."""
     deadline = time.monotonic() + timeout_s

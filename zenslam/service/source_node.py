@@ -150,9 +150,7 @@ def main(argv: list[str] | None = None) -> int:
             rerun = rerun_log.SourceLog(recording) if recording is not None else None
             with bus.declare_alive(session, args.session, STAGE):
                 timeout_s = config.source.start_timeout_s
-                missing = bus.wait_for_alive(session, args.session, args.wait_for, timeout_s, stop.keep_going)
-                if missing and not stop():
-                    raise bus.BusError(f"stage(s) {sorted(missing)} did not come up within {timeout_s:.0f} s")
+                bus.require_alive(session, args.session, args.wait_for, timeout_s, stop.keep_going)
                 play(session, args.session, source, calibration, source.sensor, config.source, stop, source.name, rerun)
     except ZenslamError as exc:
         logger.error("%s", exc)

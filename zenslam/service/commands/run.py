@@ -213,12 +213,16 @@ def track(config: RunConfig, run_id: str, run_dir: Path, config_path: Path, sour
             supervisor = Supervisor(run_dir, run_id, config_path, hub, env=_child_env(config))
             with supervisor, bus.declare_alive(session, run_id, "run"):
                 timeout_s = config.source.start_timeout_s
-                start_recorder(supervisor, session, config, run_dir, stop.keep_going)  # first: it hears every message
-                supervisor.start(ProcessSpec("backend", "zenslam.backend.node"))
+                # The recorder comes first, and each stage waits until it sees the recorder's token
+                # before publishing: then the recorder's subscription has reached it too.
+                recording = start_recorder(supervisor, session, config, run_dir, stop.keep_going)
+                heard = ("--wait-for", "recorder") if recording is not None else ()
+                supervisor.start(ProcessSpec("backend", "zenslam.backend.node", heard))
                 supervisor.wait_until_alive(session, ["backend"], timeout_s, stop.keep_going)
-                supervisor.start(ProcessSpec("frontend", "zenslam.frontend.node", ("--map-updates", "--wait-for", "backend")))
+                frontend_args = ("--map-updates", "--wait-for", "backend", *heard)
+                supervisor.start(ProcessSpec("frontend", "zenslam.frontend.node", frontend_args))
                 supervisor.wait_until_alive(session, ["frontend"], timeout_s, stop.keep_going)
-                supervisor.start(ProcessSpec("source", "zenslam.service.source_node", ("--wait-for", "frontend")))
+                supervisor.start(ProcessSpec("source", "zenslam.service.source_node", ("--wait-for", "frontend", *heard)))
                 completed = _follow(follower, supervisor, stop) and _follow_backend(follower, supervisor, stop)
                 if completed:
                     follower.log.backend_keyframes = query_trajectory(session, run_id, _QUERY_TIMEOUT_S)
