@@ -72,9 +72,15 @@ def mean_viewing_direction(p_world: np.ndarray, centres_world: np.ndarray) -> np
 
     Not renormalised, as in ORB-SLAM (the viewing-angle test divides by the point distance only).
     """
-    rays = np.asarray(p_world, dtype=float)[None, :] - np.asarray(centres_world, dtype=float)
-    rays /= np.maximum(np.linalg.norm(rays, axis=1, keepdims=True), 1e-12)
-    return rays.mean(axis=0)
+    p_world = np.asarray(p_world, dtype=float)
+    return mean_viewing_directions(p_world[None], np.asarray(centres_world, dtype=float)[None])[0]
+
+
+def mean_viewing_directions(p_world: np.ndarray, centres_world: np.ndarray) -> np.ndarray:
+    """``mean_viewing_direction`` of P points (P, 3), each seen from K camera centres (P, K, 3) -> (P, 3)."""
+    rays = np.asarray(p_world, dtype=float)[:, None, :] - np.asarray(centres_world, dtype=float)
+    rays /= np.maximum(np.linalg.norm(rays, axis=2, keepdims=True), 1e-12)
+    return rays.mean(axis=1)
 
 
 def radius_by_viewing_cos(view_cos: np.ndarray) -> np.ndarray:

@@ -7,7 +7,7 @@ import pytest
 
 from zenslam.frontend.keyframe import KeyFrame
 from zenslam.frontend.local_map import IdAllocator, LocalMap, LocalMapConfig
-from zenslam.frontend.map_point import representative_descriptor
+from zenslam.map_point_rules import representative_descriptor
 from zenslam.frontend.orb_extractor import Features
 from zenslam.geometry import make_T
 from zenslam.schemas.map_update import BACKEND_POINT_ID_BASE, KeyframeCorrection, MapUpdate

@@ -23,6 +23,7 @@ from zenslam.camera import PinholeCalibration, SensorKind
 from zenslam.errors import ZenslamError
 from zenslam.geometry import invert_T, transform_points
 from zenslam.map_point_rules import (
+    mean_viewing_directions,
     predict_scale_level,
     representative_descriptors,
     scale_invariance_range,
@@ -426,10 +427,7 @@ class BackendMap:
         """Normals and distance ranges of points that all have the same number of observations."""
         p_world = np.array([pt.p_world for pt in pts])
         observers = np.array([[centres[k] for k in sorted(pt.observations)] for pt in pts])  # (P, K, 3)
-        # map_point_rules.mean_viewing_direction, batched over P points: mean of unit rays, not renormalised.
-        rays = p_world[:, None, :] - observers
-        rays /= np.maximum(np.linalg.norm(rays, axis=2, keepdims=True), 1e-12)
-        normals = rays.mean(axis=1)
+        normals = mean_viewing_directions(p_world, observers)
         refs = [pt.first_keyframe_id if pt.first_keyframe_id in pt.observations else min(pt.observations) for pt in pts]
         distance = np.linalg.norm(p_world - np.array([centres[r] for r in refs]), axis=1)
         level = np.array([self.keyframes[r].levels[pt.observations[r]] for pt, r in zip(pts, refs)], dtype=np.int64)

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from zenslam.frontend.keyframe import KeyFrame
-from zenslam.frontend.map_point import representative_descriptors, scale_invariance_range
+from zenslam.map_point_rules import representative_descriptors, scale_invariance_range
 from zenslam.schemas.map_update import KeyframeCorrection, MapUpdate
 
 logger = logging.getLogger(__name__)

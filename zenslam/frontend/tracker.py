@@ -35,11 +35,12 @@ from zenslam.frontend.keyframe_decision import (
     close_point_counts,
     need_new_keyframe,
 )
+from zenslam.frontend.frustum import project_in_frustum
 from zenslam.frontend.local_map import LocalMap, LocalMapConfig
-from zenslam.frontend.map_point import project_in_frustum, radius_by_viewing_cos
 from zenslam.frontend.motion_model import ConstantVelocityModel
 from zenslam.frontend.pose_optimizer import PoseOptimizerConfig, optimize_pose
 from zenslam.geometry import invert_T
+from zenslam.map_point_rules import radius_by_viewing_cos
 from zenslam.schemas.map_update import MapUpdate
 
 logger = logging.getLogger(__name__)

@@ -1,4 +1,4 @@
-"""Map point rules: representative descriptor, viewing direction, scale-invariance range, scale prediction."""
+"""Shared map point rules: representative descriptor, viewing direction, scale-invariance range, scale prediction."""
 
 from __future__ import annotations
 
@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from zenslam.descriptors import hamming_distance
-from zenslam.frontend.map_point import (
-    MapPoint,
+from zenslam.map_point_rules import (
     mean_viewing_direction,
+    mean_viewing_directions,
     predict_scale_level,
     radius_by_viewing_cos,
     representative_descriptor,
@@ -86,52 +86,10 @@ def test_radius_by_viewing_cos() -> None:
     assert radius_by_viewing_cos(np.array([0.999, 0.99])).tolist() == [2.5, 4.0]
 
 
-def test_map_point_updates() -> None:
-    rng = np.random.default_rng(3)
-    descs = rng.integers(0, 256, (3, 32), dtype=np.uint8)
-    point = MapPoint(id=7, p_world=np.array([0.0, 0.0, 4.0]), descriptor=descs[0])
-    point.add_observation(10, 5)
-    point.add_observation(11, 9)
-    assert point.reference_keyframe_id == 10
-    assert point.observations == {10: 5, 11: 9}
-    point.update_descriptor(descs)
-    assert np.array_equal(point.descriptor, representative_descriptor(descs))
-    point.update_normal_and_depth(
-        centres_world=np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 2.0]]),
-        reference_centre_world=np.zeros(3),
-        reference_level=1,
-        scale_factor=1.2,
-        n_levels=8,
-    )
-    assert np.allclose(point.normal, [0.0, 0.0, 1.0])
-    assert point.max_distance_m == pytest.approx(4.0 * 1.2)
-    assert point.min_distance_m == pytest.approx(4.0 * 1.2 / 1.2**7)
-    assert point.predict_scale(4.0, 1.2, 8) == 1
-    assert point.in_distance_range(4.0) and not point.in_distance_range(100.0)
-    point.n_visible, point.n_found = 8, 2
-    assert point.found_ratio() == pytest.approx(0.25)
-
-
-def test_project_in_frustum_applies_each_visibility_test() -> None:
-    from zenslam.camera import PinholeCalibration
-    from zenslam.frontend.map_point import project_in_frustum
-
-    cal = PinholeCalibration(fx=500.0, fy=500.0, cx=320.0, cy=240.0, width=640, height=480, baseline_m=0.1)
-    p_world = np.array(
-        [
-            [0.0, 0.0, 5.0],  # visible
-            [0.0, 0.0, -5.0],  # behind
-            [10.0, 0.0, 5.0],  # outside the image
-            [0.0, 0.0, 50.0],  # beyond 1.2 x max distance
-            [0.0, 0.0, 5.0],  # viewed from the side of its normal (cos < 0.5)
-        ]
-    )
-    normals = np.array([[0, 0, 1.0], [0, 0, -1.0], [0, 0, 1.0], [0, 0, 1.0], [1.0, 0, 0.2]])
-    min_d = np.full(5, 1.0)
-    max_d = np.array([10.0, 10.0, 10.0, 10.0, 10.0])
-    proj = project_in_frustum(np.eye(4), p_world, normals, min_d, max_d, cal, 1.2, 8, 0.5)
-    assert proj.visible.tolist() == [True, False, False, False, False]
-    assert np.allclose(proj.px[0], [320.0, 240.0])
-    assert proj.right_u[0] == pytest.approx(320.0 - 500.0 * 0.1 / 5.0)
-    assert proj.view_cos[0] == pytest.approx(1.0)
-    assert proj.level[0] == int(predict_scale_level(5.0, 10.0, 1.2, 8))
+def test_batched_viewing_directions_match_one_by_one() -> None:
+    rng = np.random.default_rng(5)
+    p_world = rng.normal(size=(6, 3)) * 5.0
+    centres = rng.normal(size=(6, 4, 3))
+    batched = mean_viewing_directions(p_world, centres)
+    for k in range(6):
+        np.testing.assert_array_equal(batched[k], mean_viewing_direction(p_world[k], centres[k]))
