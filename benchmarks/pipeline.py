@@ -48,6 +48,13 @@ def real_time_s(spec: str) -> float:
     return float((stamps[-1] - stamps[0] + np.median(np.diff(stamps))) * 1e-9)
 
 
+def stream_span_s(run_dir: Path) -> float | None:
+    """Seconds from the frontend's first frame to the backend's end of stream, from the run's stage logs."""
+    first = log_time(run_dir / "logs" / "frontend.log", "first frame")
+    end = log_time(run_dir / "logs" / "backend.log", "end of stream")
+    return None if first is None or end is None else end - first
+
+
 def log_time(path: Path, pattern: str) -> float | None:
     """POSIX time of the first line of a stage log containing ``pattern``."""
     for line in path.read_text(errors="replace").splitlines():
@@ -70,15 +77,13 @@ def run(name: str, spec: str, mode: str, output: Path) -> dict:
         raise SystemExit(f"{' '.join(command)} failed:\n{result.stdout[-2000:]}\n{result.stderr[-3000:]}")
     run_dir = output / run_id
     metrics = json.loads((run_dir / "metrics.json").read_text())
-    first = log_time(run_dir / "logs" / "frontend.log", "first frame")
-    end = log_time(run_dir / "logs" / "backend.log", "end of stream")
+    span_s = stream_span_s(run_dir)
     truth = open_source(spec).ground_truth()
     try:
         keyframes_ate = evaluate(read_tum(run_dir / "keyframes.tum"), truth).ate.rmse_m
     except TrajectoryError:  # e.g. one keyframe on a still clip: nothing to align
         keyframes_ate = None
     real_s = real_time_s(spec)
-    span_s = end - first if first is not None and end is not None else None
     return {
         "name": name,
         "mode": mode,

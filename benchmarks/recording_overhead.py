@@ -19,7 +19,6 @@ import argparse
 import json
 import os
 import platform
-import re
 import statistics
 import subprocess
 import sys
@@ -29,19 +28,11 @@ from datetime import datetime
 from pathlib import Path
 
 from mcap.reader import make_reader
+from pipeline import stream_span_s  # same measurement as the pipeline benchmark (benchmarks/ is on sys.path)
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results" / "recording_overhead.json"
-_STAMP = re.compile(r"^(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3}) ")
 
-
-def log_time(path: Path, pattern: str) -> float | None:
-    """POSIX time of the first line of a stage log containing ``pattern``."""
-    for line in path.read_text(errors="replace").splitlines():
-        match = _STAMP.match(line)
-        if match and pattern in line:
-            return datetime.strptime(match.group(1), "%Y-%m-%d %H:%M:%S,%f").timestamp()
-    return None
 
 
 def one_run(spec: str, recorder: bool, image_format: str, output: Path, run_id: str) -> dict:
@@ -57,9 +48,7 @@ def one_run(spec: str, recorder: bool, image_format: str, output: Path, run_id: 
     if result.returncode != 0:
         raise SystemExit(f"{' '.join(command)} failed:\n{result.stdout[-2000:]}\n{result.stderr[-3000:]}")
     run_dir = output / run_id
-    first = log_time(run_dir / "logs" / "frontend.log", "first frame")
-    end = log_time(run_dir / "logs" / "backend.log", "end of stream")
-    figures = {"recorder": recorder, "span_s": None if first is None or end is None else end - first,
+    figures = {"recorder": recorder, "span_s": stream_span_s(run_dir),
                "wall_s": wall_s, "load_1min_before": load}  # fmt: skip
     mcap_path = run_dir / "run.mcap"
     if recorder:
