@@ -90,6 +90,7 @@ class FrontendNode:
     def __init__(self, make_pipeline: PipelineFactory, rerun: FrontendLog | None = None):
         self._make_pipeline = make_pipeline
         self.rerun = rerun  # logs each frame's keypoints, pose, state and timings to the stage's .rrd
+        self._unlogged: tuple[codec.FrameMessage, Any] | None = None  # handled, not yet logged to rerun
         self._pipeline: Pipeline | None = None
         self._camera: tuple[PinholeCalibration, SensorKind] | None = None
         self.frames = 0  # frames handled
@@ -118,7 +119,7 @@ class FrontendNode:
         step_ms = (time.perf_counter() - started) * 1e3
         self.frames += 1
         if self.rerun is not None:
-            self._log_to_rerun(message, out)
+            self._unlogged = (message, out)  # logged by log_last_frame once its messages are out
         keyframe_bytes, keyframe_id = None, -1
         if out.keyframe is not None:
             keyframe_id = int(out.keyframe.id)
@@ -139,6 +140,13 @@ class FrontendNode:
             keyframe_id=keyframe_id,
         )
         return FrontendMessages(keyframe_bytes, pose_bytes, codec.encode_tracking_state(state), step_ms, keyframe_id)
+
+    def log_last_frame(self) -> None:
+        """Log the last handled frame to rerun: called after its messages are sent, so the ~1 ms of
+        logging does not delay the pose, and before a map update changes the tracker's last frame."""
+        if self._unlogged is not None:
+            self._log_to_rerun(*self._unlogged)
+            self._unlogged = None
 
     def _log_to_rerun(self, message: codec.FrameMessage, out: Any) -> None:
         from zenslam.service.rerun_log import tracked_keypoints
@@ -261,6 +269,7 @@ def serve(
                     outputs.send_status(codec.StageStatusMessage(STAGE, "failed", node.frames, detail=f"{type(exc).__name__}: {exc}"))
                     raise
                 outputs.send(sent)
+                node.log_last_frame()
                 if updates is not None and lockstep and sent.keyframe_id >= 0:
                     updates.wait_for(node, sent.keyframe_id, should_stop)
                 status = codec.StageStatusMessage(STAGE, "running", node.frames, sent.step_ms, frames.depth, node.skipped)
