@@ -353,6 +353,14 @@ class BackendMap:
         self._stale_geometry.add(point_id)
         self.changes.points.add(point_id)
 
+    def set_point_positions(self, point_ids: list[int], p_world: np.ndarray) -> None:
+        """Move points ``point_ids`` to the rows of ``p_world`` (N, 3) (metres, world frame)."""
+        rows = np.array(p_world, dtype=float).reshape(len(point_ids), 3)
+        for point_id, row in zip(point_ids, rows):
+            self.point(point_id).p_world = row
+        self._stale_geometry.update(point_ids)
+        self.changes.points.update(point_ids)
+
     # ---- keyframes ---------------------------------------------------------------------------------
     def add_keyframe(self, kf: BackendKeyframe) -> None:
         """Insert a keyframe: its ``map_point_ids`` (existing points, each at most once) become
