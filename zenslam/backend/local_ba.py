@@ -359,8 +359,9 @@ def _constrained_points(window: _Window, active: np.ndarray) -> np.ndarray:
     p = window.problem
     n_points = len(p.point_ids)
     stereo_count = np.bincount(p.obs_point[active & window.stereo], minlength=n_points)
-    pairs = np.unique(np.stack([p.obs_point[active], p.obs_keyframe[active]], axis=1), axis=0)
-    view_count = np.bincount(pairs[:, 0], minlength=n_points) if len(pairs) else np.zeros(n_points, dtype=int)
+    # distinct (point, keyframe) pairs as one integer each: a 1-D unique is far cheaper than axis=0
+    pairs = np.unique(p.obs_point[active].astype(np.int64) * len(p.keyframe_ids) + p.obs_keyframe[active])
+    view_count = np.bincount(pairs // len(p.keyframe_ids), minlength=n_points)
     return (stereo_count > 0) | (view_count >= 2)
 
 
@@ -380,7 +381,7 @@ def _build_graph(window: _Window, state: _State, active: np.ndarray, robust: boo
     for r in rows.tolist():
         graph.add(factors[r])
     values = gtsam.Values()
-    pose_keys, point_keys = window.pose_keys, window.point_keys.tolist()
+    pose_keys = window.pose_keys
     pose_rows = np.unique(p.obs_keyframe[rows])
     for k in pose_rows.tolist():
         pose = gtsam.Pose3(state.T_world_cam[k])
@@ -390,8 +391,8 @@ def _build_graph(window: _Window, state: _State, active: np.ndarray, robust: boo
     point_rows = np.unique(p.obs_point[rows])
     # extractPoint3 returns points in key order; keep the rows in that order to read them back.
     point_rows = point_rows[np.argsort(window.point_keys[point_rows], kind="stable")]
-    for j in point_rows.tolist():
-        values.insert(point_keys[j], gtsam.Point3(state.p_world[j]))
+    for key, p_world in zip(window.point_keys[point_rows].tolist(), state.p_world[point_rows]):
+        values.insert(key, p_world)  # a Point3 is a numpy (3,) array in gtsam's Python wrapper
     return graph, values, point_rows, pose_rows
 
 
@@ -402,10 +403,15 @@ def _build_factors(window: _Window, state: _State, rows: np.ndarray, robust: boo
     p = window.problem
     stereo = window.stereo[rows]
     # Observations sharing (1/sigma^2, dim, right-u scale) share a noise model object.
-    noise_of = np.stack([p.obs_inv_sigma2[rows], stereo.astype(float), np.where(stereo, window.right_sigma_scale[rows], 1.0)], axis=1)
-    distinct, which = np.unique(noise_of, axis=0, return_inverse=True)
+    infos, info_of = np.unique(p.obs_inv_sigma2[rows], return_inverse=True)
+    scales, scale_of = np.unique(np.where(stereo, window.right_sigma_scale[rows], 1.0), return_inverse=True)
+    combined = (info_of.reshape(-1) * 2 + stereo) * len(scales) + scale_of.reshape(-1)
+    distinct, which = np.unique(combined, return_inverse=True)
     noise = _NoiseModels(robust, config)
-    models = [noise.get(info, 3 if is_stereo else 2, scale) for info, is_stereo, scale in distinct.tolist()]
+    models = [
+        noise.get(float(infos[c // 2 // len(scales)]), 3 if (c // len(scales)) % 2 else 2, float(scales[c % len(scales)]))
+        for c in distinct.tolist()
+    ]
     which = which.reshape(-1).tolist()
     pose_keys, point_keys = window.pose_keys, window.point_keys.tolist()
     kf_list, pt_list = p.obs_keyframe[rows].tolist(), p.obs_point[rows].tolist()
