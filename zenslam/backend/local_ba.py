@@ -45,7 +45,8 @@ for a landmark that Huber down-weights); given only the true inliers and well-tr
 landmarks, its updates took 12-52 ms median but 35-350 ms for the last keyframes of a window,
 more in total than one batch solve. A persistent iSAM2 would also have to mirror every point
 creation, fusion, culling and outlier decision of local mapping by removing factors, so local BA
-keeps no state between calls.
+keeps no estimate between calls; only the last window's factor objects are kept, and reused where
+an observation is unchanged (``ba_factor_reuse``).
 """
 
 from __future__ import annotations
@@ -61,6 +62,7 @@ import gtsam
 import numpy as np
 
 from zenslam.backend import gtsam_keys
+from zenslam.backend.ba_factor_reuse import FactorTable
 from zenslam.camera import PinholeCalibration
 from zenslam.errors import ZenslamError
 
@@ -149,10 +151,12 @@ class BAResult:
 
 
 class LocalBundleAdjuster:
-    """Runs local BA on windows handed over one at a time; keeps no state between calls."""
+    """Runs local BA on windows handed over one at a time; keeps no estimate between calls, only the
+    last window's factors for reuse (``FactorTable``: the same factors, not rebuilt)."""
 
     def __init__(self, config: LocalBAConfig) -> None:
         self.config = config
+        self._last_factors: FactorTable | None = None
 
     def optimize(self, problem: BAProblem) -> BAResult:
         """Optimise the non-fixed poses and the constrained points of ``problem`` (see module doc)."""
@@ -161,6 +165,10 @@ class LocalBundleAdjuster:
         window = _Window.of(problem, config)
         state = _State(problem.T_world_cam.copy(), problem.p_world.copy())
         state.dropped_points |= ~np.isfinite(state.p_world).all(axis=1)
+        if self._last_factors is not None:
+            first_robust = config.robust_iterations > 0
+            state.factors.update(self._last_factors.reusable(problem, first_robust))
+            state.factor_robust.update(dict.fromkeys(state.factors, first_robust))
         active = window.usable.copy()
         schedule = [(True, config.robust_iterations)]
         if config.two_passes:
@@ -174,6 +182,7 @@ class LocalBundleAdjuster:
             active = window.classify(state) & ~state.dropped_points[problem.obs_point]
             if state.failure is not None:
                 break
+        self._last_factors = FactorTable.of(problem, state.factors, state.factor_robust)
         T_world_cam = state.T_world_cam
         T_world_cam[problem.fixed] = problem.T_world_cam[problem.fixed]
         has_inlier = np.bincount(problem.obs_point[active], minlength=len(problem.point_ids)) > 0
@@ -200,6 +209,7 @@ class _State:
     pass_active: np.ndarray | None = None  # (O,) bool, the observations the last pass started with
     # Factors by observation row, built by the first pass that needs them and reused by the next.
     factors: dict = field(default_factory=dict)
+    factor_robust: dict = field(default_factory=dict)  # by observation row: built with the Huber kernel
 
     def __post_init__(self) -> None:
         self.dropped_points = np.zeros(len(self.p_world), dtype=bool)
@@ -425,6 +435,7 @@ def _build_factors(window: _Window, state: _State, rows: np.ndarray, robust: boo
             factors[row] = gtsam.GenericStereoFactor3D(gtsam.StereoPoint2(u, right_u[i], v), models[which[i]], x, l, cal_stereo)
         else:
             factors[row] = gtsam.GenericProjectionFactorCal3_S2(np.array((u, v)), models[which[i]], x, l, cal_mono)
+    state.factor_robust.update(dict.fromkeys(rows.tolist(), robust))
 
 
 class _NoiseModels:
