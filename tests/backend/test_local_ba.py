@@ -256,19 +256,3 @@ def test_refinement_runs_only_when_the_robust_pass_left_something_to_do():
     assert result.stats["passes"] == 2 and not result.inlier_obs[outlier].any()
     assert pose_errors(result.T_world_cam, T_true)[0].max() < 0.01
 
-
-def test_factors_reused_from_the_last_window_give_the_same_result_as_fresh_ones():
-    first, _, _, _ = make_window(11, outlier_fraction=0.05)
-    obs_px = first.obs_px.copy()
-    obs_px[::7] += 0.3  # a seventh of the observations measure something else: their factors must be rebuilt
-    second = dataclasses.replace(first, obs_px=obs_px, obs_inv_sigma2=np.where(np.arange(len(obs_px)) % 11 == 0, 0.5, first.obs_inv_sigma2))
-    adjuster = LocalBundleAdjuster(LocalBAConfig())
-    adjuster.optimize(first)
-    table = adjuster._last_factors
-    reused = table.reusable(second, robust=True)
-    changed = (np.arange(len(obs_px)) % 7 == 0) | (np.arange(len(obs_px)) % 11 == 0)
-    assert len(reused) > 0.7 * len(obs_px) and not any(changed[r] for r in reused)
-    warm, fresh = adjuster.optimize(second), run(second)
-    assert warm.T_world_cam.tobytes() == fresh.T_world_cam.tobytes()
-    assert warm.p_world.tobytes() == fresh.p_world.tobytes()
-    assert warm.inlier_obs.tobytes() == fresh.inlier_obs.tobytes()

@@ -6,11 +6,10 @@ and every observation is a reprojection factor -- ``gtsam.GenericStereoFactor3D`
 RGB-D keypoints (uL, uR, v), ``gtsam.GenericProjectionFactorCal3_S2`` for monocular ones -- with
 isotropic noise sigma = 1/sqrt(inv_sigma2) px under a Huber kernel. Two passes as ORB-SLAM: a
 few robust iterations, then observations with chi2 above the 95% threshold (5.991 for 2 dof,
-7.815 for 3) or in front of no camera are dropped and the rest is refined. The refinement reuses
-the first pass's factors, kernel included (ORB-SLAM removes it, but every kept observation starts
-inside the kernel's quadratic zone, where it is the plain cost; rebuilding ~6,000 factors in
-Python cost ~15 ms a window), and is skipped when the robust pass converged before its cap and
-dropped nothing.
+7.815 for 3) or in front of no camera are dropped and the rest is refined without the kernel.
+The refinement is skipped when the robust pass converged before its cap and dropped nothing (every
+observation is then inside the kernel's quadratic zone, where it is the plain cost: the refinement
+would restart from the optimum of the same problem).
 Poses are gtsam ``Pose3`` = T_world_cam (the factors take the camera pose in the world). Fixed
 keyframes stay variables held by ``NonlinearEqualityPose3`` (a hard constraint: no prior with a
 made-up sigma changes the problem), and are copied to the result unchanged.
@@ -45,8 +44,9 @@ for a landmark that Huber down-weights); given only the true inliers and well-tr
 landmarks, its updates took 12-52 ms median but 35-350 ms for the last keyframes of a window,
 more in total than one batch solve. A persistent iSAM2 would also have to mirror every point
 creation, fusion, culling and outlier decision of local mapping by removing factors, so local BA
-keeps no estimate between calls; only the last window's factor objects are kept, and reused where
-an observation is unchanged (``ba_factor_reuse``).
+keeps no state between calls. (Reusing the previous window's factor objects for unchanged
+observations saved their ~6 ms of building but made gtsam's solve ~18% slower, so factors are
+built anew for each window.)
 """
 
 from __future__ import annotations
@@ -62,7 +62,6 @@ import gtsam
 import numpy as np
 
 from zenslam.backend import gtsam_keys
-from zenslam.backend.ba_factor_reuse import FactorTable
 from zenslam.camera import PinholeCalibration
 from zenslam.errors import ZenslamError
 
@@ -151,12 +150,10 @@ class BAResult:
 
 
 class LocalBundleAdjuster:
-    """Runs local BA on windows handed over one at a time; keeps no estimate between calls, only the
-    last window's factors for reuse (``FactorTable``: the same factors, not rebuilt)."""
+    """Runs local BA on windows handed over one at a time; keeps no state between calls."""
 
     def __init__(self, config: LocalBAConfig) -> None:
         self.config = config
-        self._last_factors: FactorTable | None = None
 
     def optimize(self, problem: BAProblem) -> BAResult:
         """Optimise the non-fixed poses and the constrained points of ``problem`` (see module doc)."""
@@ -165,10 +162,6 @@ class LocalBundleAdjuster:
         window = _Window.of(problem, config)
         state = _State(problem.T_world_cam.copy(), problem.p_world.copy())
         state.dropped_points |= ~np.isfinite(state.p_world).all(axis=1)
-        if self._last_factors is not None:
-            first_robust = config.robust_iterations > 0
-            state.factors.update(self._last_factors.reusable(problem, first_robust))
-            state.factor_robust.update(dict.fromkeys(state.factors, first_robust))
         active = window.usable.copy()
         schedule = [(True, config.robust_iterations)]
         if config.two_passes:
@@ -182,7 +175,6 @@ class LocalBundleAdjuster:
             active = window.classify(state) & ~state.dropped_points[problem.obs_point]
             if state.failure is not None:
                 break
-        self._last_factors = FactorTable.of(problem, state.factors, state.factor_robust)
         T_world_cam = state.T_world_cam
         T_world_cam[problem.fixed] = problem.T_world_cam[problem.fixed]
         has_inlier = np.bincount(problem.obs_point[active], minlength=len(problem.point_ids)) > 0
@@ -207,9 +199,9 @@ class _State:
     passes: int = 0
     converged: bool = False  # the last pass stopped before its iteration cap
     pass_active: np.ndarray | None = None  # (O,) bool, the observations the last pass started with
-    # Factors by observation row, built by the first pass that needs them and reused by the next.
-    factors: dict = field(default_factory=dict)
-    factor_robust: dict = field(default_factory=dict)  # by observation row: built with the Huber kernel
+    # Factors with (True) and without (False) the Huber kernel, by observation row: built once per
+    # window, reused by a retried pass.
+    factors: dict = field(default_factory=lambda: {True: {}, False: {}})
 
     def __post_init__(self) -> None:
         self.dropped_points = np.zeros(len(self.p_world), dtype=bool)
@@ -376,20 +368,14 @@ def _constrained_points(window: _Window, active: np.ndarray) -> np.ndarray:
 
 
 def _build_graph(window: _Window, state: _State, active: np.ndarray, robust: bool, config: LocalBAConfig):
-    """The factor graph and initial values of one pass, its point rows (in key order) and pose rows.
-
-    A factor built by an earlier pass is reused as it is: the refinement pass keeps the robust
-    pass's Huber kernel on the observations it keeps. Their chi2 is within the 95% threshold at
-    its start, i.e. their whitened residual is within the kernel's quadratic zone, where Huber is
-    the plain least-squares cost; building some 6,000 factors again cost more than the pass's solve.
-    """
+    """The factor graph and initial values of one pass, its point rows (in key order) and pose rows."""
     p = window.problem
     rows = np.flatnonzero(active & _constrained_points(window, active)[p.obs_point])
-    _build_factors(window, state, rows[[r not in state.factors for r in rows.tolist()]], robust, config)
+    built = state.factors[robust]
+    _build_factors(window, state, rows[[r not in built for r in rows.tolist()]], robust, config)
     graph = gtsam.NonlinearFactorGraph()
-    factors = state.factors
     for r in rows.tolist():
-        graph.add(factors[r])
+        graph.add(built[r])
     values = gtsam.Values()
     pose_keys = window.pose_keys
     pose_rows = np.unique(p.obs_keyframe[rows])
@@ -407,7 +393,7 @@ def _build_graph(window: _Window, state: _State, active: np.ndarray, robust: boo
 
 
 def _build_factors(window: _Window, state: _State, rows: np.ndarray, robust: bool, config: LocalBAConfig) -> None:
-    """Reprojection factors of observation ``rows`` into ``state.factors``; one noise model per distinct sigma."""
+    """Reprojection factors of observation ``rows`` into ``state.factors[robust]``; one noise model per distinct sigma."""
     if len(rows) == 0:
         return
     p = window.problem
@@ -427,7 +413,7 @@ def _build_factors(window: _Window, state: _State, rows: np.ndarray, robust: boo
     kf_list, pt_list = p.obs_keyframe[rows].tolist(), p.obs_point[rows].tolist()
     px, right_u = p.obs_px[rows].tolist(), p.obs_right_u[rows].tolist()
     cal_mono, cal_stereo = window.cal_mono, window.cal_stereo
-    factors = state.factors
+    factors = state.factors[robust]
     for i, (row, is_stereo) in enumerate(zip(rows.tolist(), stereo.tolist())):
         u, v = px[i]
         x, l = pose_keys[kf_list[i]], point_keys[pt_list[i]]
@@ -435,7 +421,6 @@ def _build_factors(window: _Window, state: _State, rows: np.ndarray, robust: boo
             factors[row] = gtsam.GenericStereoFactor3D(gtsam.StereoPoint2(u, right_u[i], v), models[which[i]], x, l, cal_stereo)
         else:
             factors[row] = gtsam.GenericProjectionFactorCal3_S2(np.array((u, v)), models[which[i]], x, l, cal_mono)
-    state.factor_robust.update(dict.fromkeys(rows.tolist(), robust))
 
 
 class _NoiseModels:
