@@ -456,8 +456,10 @@ class BackendMap:
         ref_arr = np.array(refs, dtype=np.int64)
         level = np.zeros(len(pts), dtype=np.int64)
         pyramid: dict[tuple[float, int], list[int]] = {}
-        for r in sorted(set(refs)):
-            kf, sel = self.keyframes[r], np.flatnonzero(ref_arr == r)
+        order = np.argsort(ref_arr, kind="stable")
+        distinct, starts = np.unique(ref_arr[order], return_index=True)
+        for r, sel in zip(distinct.tolist(), np.split(order, starts[1:])):
+            kf = self.keyframes[r]
             level[sel] = kf.levels[keypoint[sel]]
             pyramid.setdefault((kf.scale_factor, kf.n_levels), []).extend(sel.tolist())
         lo, hi = np.zeros(len(pts)), np.zeros(len(pts))
