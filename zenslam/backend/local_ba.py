@@ -7,9 +7,8 @@ RGB-D keypoints (uL, uR, v), ``gtsam.GenericProjectionFactorCal3_S2`` for monocu
 isotropic noise sigma = 1/sqrt(inv_sigma2) px under a Huber kernel. Two passes as ORB-SLAM: a
 few robust iterations, then observations with chi2 above the 95% threshold (5.991 for 2 dof,
 7.815 for 3) or in front of no camera are dropped and the rest is refined without the kernel.
-The refinement is skipped when the robust pass converged before its cap and dropped nothing (every
-observation is then inside the kernel's quadratic zone, where it is the plain cost: the refinement
-would restart from the optimum of the same problem).
+(Skipping the refinement when the robust pass converged and dropped nothing saved ~6% of the
+iterations on KITTI but cost 0.06-0.2 cm of ATE on the synthetic loop RGB-D and figure-eight.)
 Poses are gtsam ``Pose3`` = T_world_cam (the factors take the camera pose in the world). Fixed
 keyframes stay variables held by ``NonlinearEqualityPose3`` (a hard constraint: no prior with a
 made-up sigma changes the problem), and are copied to the result unchanged.
@@ -169,8 +168,6 @@ class LocalBundleAdjuster:
         for robust, iterations in schedule:
             if iterations <= 0:
                 continue
-            if not robust and state.converged and np.array_equal(active, state.pass_active):
-                break  # the refinement would restart from the robust pass's optimum on the same factors
             _run_pass(window, state, active & ~state.dropped_points[problem.obs_point], robust, iterations, config)
             active = window.classify(state) & ~state.dropped_points[problem.obs_point]
             if state.failure is not None:
@@ -197,8 +194,6 @@ class _State:
     final_error: float = math.nan
     failure: str | None = None
     passes: int = 0
-    converged: bool = False  # the last pass stopped before its iteration cap
-    pass_active: np.ndarray | None = None  # (O,) bool, the observations the last pass started with
     # Factors with (True) and without (False) the Huber kernel, by observation row: built once per
     # window, reused by a retried pass.
     factors: dict = field(default_factory=lambda: {True: {}, False: {}})
@@ -311,8 +306,6 @@ def _run_pass(
         state.final_error = float(optimizer.error())
         state.iterations += int(optimizer.iterations())
         state.passes += 1
-        state.converged = int(optimizer.iterations()) < iterations
-        state.pass_active = active
         _read_back(result, window, state, point_rows, pose_rows[~window.problem.fixed[pose_rows]])
         return
 
