@@ -196,7 +196,7 @@ def test_landmark_named_by_gtsam_is_dropped_and_the_pass_retried(monkeypatch):
     problem, T_true, _, _ = make_window(7)
     calls = failing_once(monkeypatch, landmark_key(problem.point_ids[11]))
     result = run(problem)
-    assert len(calls) == 3  # failed robust pass, its retry, the refinement pass
+    assert len(calls) == 3 and result.stats["passes"] == 2  # failed robust pass, its retry, the refinement pass
     assert result.stats["retries"] == 1 and result.stats["n_dropped_points"] == 1
     assert problem.point_ids[11] in result.removed_point_ids
     assert not result.inlier_obs[problem.obs_point == 11].any()
@@ -244,3 +244,10 @@ def test_config_builds_from_yaml_mapping():
     config = from_mapping(LocalBAConfig, {"linear_solver": "multifrontal_cholesky", "refine_iterations": 3})
     assert config.linear_solver == "multifrontal_cholesky" and config.refine_iterations == 3
     assert config.huber_mono == pytest.approx(5.991**0.5)
+
+
+def test_both_passes_run_and_outliers_are_dropped():
+    problem, T_true, _, outlier = make_window(10, outlier_fraction=0.05)
+    result = run(problem)
+    assert result.stats["passes"] == 2 and not result.inlier_obs[outlier].any()
+    assert pose_errors(result.T_world_cam, T_true)[0].max() < 0.01

@@ -240,15 +240,7 @@ def local_ba_window(
     is_fixed = np.array([k in fixed or k == first for k in kf_ids], dtype=bool)
     if not is_fixed.any():
         is_fixed[int(np.argmin([bmap.keyframes[k].serial for k in kf_ids]))] = True
-    row_of_kf = {k: i for i, k in enumerate(kf_ids)}
-    obs_kf, obs_pt, obs_kp = [], [], []
-    for row, point_id in enumerate(point_ids):
-        for k, keypoint in sorted(bmap.points[point_id].observations.items()):
-            if k in row_of_kf:
-                obs_kf.append(row_of_kf[k])
-                obs_pt.append(row)
-                obs_kp.append(keypoint)
-    obs_kf_arr, obs_pt_arr, obs_kp_arr = (np.asarray(a, dtype=np.int64) for a in (obs_kf, obs_pt, obs_kp))
+    obs_kf_arr, obs_pt_arr, obs_kp_arr = _window_observations(bmap, kf_ids, np.asarray(point_ids, dtype=np.int64))
     px, right_u, inv_sigma2, far = _observation_arrays(bmap, kf_ids, obs_kf_arr, obs_kp_arr, config.stereo_max_depth_baselines)
     if np.isinf(config.far_right_sigma_scale):
         right_u[far] = np.nan
@@ -271,6 +263,26 @@ def local_ba_window(
         obs_right_sigma_scale=right_scale,
     )
     return problem, ids[obs_pt_arr], np.asarray(kf_ids, dtype=np.int64)[obs_kf_arr]
+
+
+def _window_observations(bmap: BackendMap, kf_ids: list[int], point_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Observations of the sorted ``point_ids`` by the window's keyframes, read from the keyframes'
+    associations (the map mirrors them): keyframe row, point row, keypoint (each (O,) int64), sorted
+    by point row, then keyframe id."""
+    kf_rows, pt_rows, keypoints, kf_order = [], [], [], []
+    for row, k in enumerate(kf_ids):
+        associated = bmap.keyframes[k].map_point_ids
+        kps = np.flatnonzero(associated >= 0)
+        at = np.searchsorted(point_ids, associated[kps])
+        local = at < len(point_ids)
+        local[local] = point_ids[at[local]] == associated[kps[local]]
+        kf_rows.append(np.full(int(local.sum()), row, dtype=np.int64))
+        pt_rows.append(at[local])
+        keypoints.append(kps[local])
+        kf_order.append(np.full(int(local.sum()), k, dtype=np.int64))
+    kf_row, pt_row, keypoint, kf_id = (np.concatenate(a).astype(np.int64) for a in (kf_rows, pt_rows, keypoints, kf_order))
+    order = np.lexsort((kf_id, pt_row))
+    return kf_row[order], pt_row[order], keypoint[order]
 
 
 def _observation_arrays(
@@ -307,9 +319,8 @@ def apply_ba_result(
     for row in np.flatnonzero(~problem.fixed).tolist():
         bmap.set_keyframe_pose(int(problem.keyframe_ids[row]), result.T_world_cam[row])
     removed = {int(p) for p in np.asarray(result.removed_point_ids).tolist()}
-    for row, point_id in enumerate(problem.point_ids.tolist()):
-        if point_id not in removed and not np.array_equal(result.p_world[row], problem.p_world[row]):
-            bmap.set_point_position(point_id, result.p_world[row])
+    moved = np.flatnonzero(np.any(result.p_world != problem.p_world, axis=1) & ~np.isin(problem.point_ids, result.removed_point_ids))
+    bmap.set_point_positions(problem.point_ids[moved].tolist(), result.p_world[moved])
     touched: list[int] = []
     outliers = np.flatnonzero(~np.asarray(result.inlier_obs, dtype=bool))
     for o in outliers.tolist():

@@ -353,6 +353,14 @@ class BackendMap:
         self._stale_geometry.add(point_id)
         self.changes.points.add(point_id)
 
+    def set_point_positions(self, point_ids: list[int], p_world: np.ndarray) -> None:
+        """Move points ``point_ids`` to the rows of ``p_world`` (N, 3) (metres, world frame)."""
+        rows = np.array(p_world, dtype=float).reshape(len(point_ids), 3)
+        for point_id, row in zip(point_ids, rows):
+            self.point(point_id).p_world = row
+        self._stale_geometry.update(point_ids)
+        self.changes.points.update(point_ids)
+
     # ---- keyframes ---------------------------------------------------------------------------------
     def add_keyframe(self, kf: BackendKeyframe) -> None:
         """Insert a keyframe: its ``map_point_ids`` (existing points, each at most once) become
@@ -408,33 +416,55 @@ class BackendMap:
         (ORB-SLAM's ComputeDistinctiveDescriptors and UpdateNormalAndDepth). Returns points refreshed."""
         desc_ids = sorted(p for p in self._stale_descriptor if self.points[p].observations)
         geo_ids = sorted(p for p in self._stale_geometry if self.points[p].observations)
+        row_of_kf = {k: row for row, k in enumerate(self.keyframes)}
         for ids in _group_by_observation_count(self.points, desc_ids):
             pts = [self.points[p] for p in ids]
-            observed = [self.keyframes[k].descriptors[i] for pt in pts for k, i in sorted(pt.observations.items())]
-            groups = np.array(observed, dtype=np.uint8).reshape(len(pts), -1, 32)
+            pairs = [(row_of_kf[k], i) for pt in pts for k, i in sorted(pt.observations.items())]
+            groups = self._descriptors_at(pairs).reshape(len(pts), -1, 32)
             for pt, descriptor in zip(pts, representative_descriptors(groups)):
                 pt.descriptor = descriptor
-        centres = {k: kf.T_world_cam[:3, 3] for k, kf in self.keyframes.items()}
-        for ids in _group_by_observation_count(self.points, geo_ids):
-            self._refresh_geometry([self.points[p] for p in ids], centres)
+        if geo_ids:
+            centres = np.array([kf.T_world_cam[:3, 3] for kf in self.keyframes.values()], dtype=float)
+            for ids in _group_by_observation_count(self.points, geo_ids):
+                self._refresh_geometry([self.points[p] for p in ids], row_of_kf, centres)
         self.changes.points.update(desc_ids)
         self.changes.points.update(geo_ids)
         self._stale_descriptor.clear()
         self._stale_geometry.clear()
         return len(set(desc_ids) | set(geo_ids))
 
-    def _refresh_geometry(self, pts: list[MapPoint], centres: dict[int, np.ndarray]) -> None:
-        """Normals and distance ranges of points that all have the same number of observations."""
+    def _descriptors_at(self, pairs: list[tuple[int, int]]) -> np.ndarray:
+        """Descriptors (M, 32) uint8 of (keyframe row in insertion order, keypoint) pairs, in order."""
+        rows, keypoints = np.array(pairs, dtype=np.int64).reshape(-1, 2).T
+        out = np.empty((len(rows), 32), dtype=np.uint8)
+        keyframes = list(self.keyframes.values())
+        order = np.argsort(rows, kind="stable")
+        distinct, starts = np.unique(rows[order], return_index=True)
+        for row, sel in zip(distinct.tolist(), np.split(order, starts[1:])):
+            out[sel] = keyframes[row].descriptors[keypoints[sel]]
+        return out
+
+    def _refresh_geometry(self, pts: list[MapPoint], row_of_kf: dict[int, int], centres: np.ndarray) -> None:
+        """Normals and distance ranges of points that all have the same number of observations;
+        ``centres`` (K, 3) are the keyframes' centres by row of ``row_of_kf`` (metres, world)."""
         p_world = np.array([pt.p_world for pt in pts])
-        observers = np.array([[centres[k] for k in sorted(pt.observations)] for pt in pts])  # (P, K, 3)
-        normals = mean_viewing_directions(p_world, observers)
+        observer_rows = np.array([row_of_kf[k] for pt in pts for k in sorted(pt.observations)], dtype=np.int64)
+        normals = mean_viewing_directions(p_world, centres[observer_rows.reshape(len(pts), -1)])  # (P, K, 3) observers
         refs = [pt.first_keyframe_id if pt.first_keyframe_id in pt.observations else min(pt.observations) for pt in pts]
-        distance = np.linalg.norm(p_world - np.array([centres[r] for r in refs]), axis=1)
-        level = np.array([self.keyframes[r].levels[pt.observations[r]] for pt, r in zip(pts, refs)], dtype=np.int64)
-        pyramid = [(self.keyframes[r].scale_factor, self.keyframes[r].n_levels) for r in refs]
+        distance = np.linalg.norm(p_world - centres[[row_of_kf[r] for r in refs]], axis=1)
+        keypoint = np.array([pt.observations[r] for pt, r in zip(pts, refs)], dtype=np.int64)
+        ref_arr = np.array(refs, dtype=np.int64)
+        level = np.zeros(len(pts), dtype=np.int64)
+        pyramid: dict[tuple[float, int], list[int]] = {}
+        order = np.argsort(ref_arr, kind="stable")
+        distinct, starts = np.unique(ref_arr[order], return_index=True)
+        for r, sel in zip(distinct.tolist(), np.split(order, starts[1:])):
+            kf = self.keyframes[r]
+            level[sel] = kf.levels[keypoint[sel]]
+            pyramid.setdefault((kf.scale_factor, kf.n_levels), []).extend(sel.tolist())
         lo, hi = np.zeros(len(pts)), np.zeros(len(pts))
-        for scale_factor, n_levels in sorted(set(pyramid)):
-            sel = np.array([q == (scale_factor, n_levels) for q in pyramid])
+        for (scale_factor, n_levels), rows in sorted(pyramid.items()):
+            sel = np.array(sorted(rows), dtype=np.int64)
             lo[sel], hi[sel] = scale_invariance_range(distance[sel], level[sel], scale_factor, n_levels)
         for k, pt in enumerate(pts):
             pt.normal = normals[k]

@@ -90,7 +90,8 @@ def match_by_projection(kf: BackendKeyframe, points: list[MapPoint], config: Fus
 def fuse_into_keyframe(bmap: BackendMap, kf_id: int, point_ids: list[int], config: FusionConfig) -> int:
     """Project ``point_ids`` into ``kf_id`` and add observations or merge duplicates; returns matches applied."""
     kf = bmap.keyframe(kf_id)
-    points = [bmap.points[p] for p in point_ids if p in bmap.points and kf_id not in bmap.points[p].observations]
+    live = bmap.points
+    points = [pt for p in point_ids if (pt := live.get(p)) is not None and kf_id not in pt.observations]
     rows, keypoints = match_by_projection(kf, points, config)
     fused = 0
     for row, keypoint in zip(rows.tolist(), keypoints.tolist()):

@@ -61,18 +61,18 @@ def fundamental_matrix(kf1: BackendKeyframe, kf2: BackendKeyframe) -> np.ndarray
 
 def _epipolar_pairs(kf1, idx1, kf2, idx2, F12, config) -> tuple[np.ndarray, np.ndarray]:
     """Index pairs (into idx1, idx2) whose kf2 keypoint lies within the epipolar band."""
-    # float32 halves the memory traffic; distances stay exact to ~1e-4 px at image scale
-    x2 = kf2.keypoints_px[idx2].astype(np.float32)
-    gate = (config.epipolar_chi2 * kf2.level_sigma2[kf2.levels[idx2]]).astype(np.float32)
+    x1h = np.column_stack([kf1.keypoints_px[idx1], np.ones(len(idx1))])
+    lines = x1h @ F12  # (N1, 3): line a x + b y + c = 0 in kf2 per kf1 keypoint
+    # Normalised lines give the signed distance in one product; float32 halves the memory
+    # traffic, distances stay exact to ~1e-4 px at image scale.
+    lines = (lines / np.maximum(np.hypot(lines[:, 0], lines[:, 1]), 1e-300)[:, None]).astype(np.float32)
+    x2h = np.ascontiguousarray(np.column_stack([kf2.keypoints_px[idx2], np.ones(len(idx2))]).T, dtype=np.float32)
+    gate = np.sqrt(config.epipolar_chi2 * kf2.level_sigma2[kf2.levels[idx2]]).astype(np.float32)  # (N2,) px
     rows, cols = [], []
     for start in range(0, len(idx1), config.block_rows):
-        block = idx1[start : start + config.block_rows]
-        x1h = np.column_stack([kf1.keypoints_px[block], np.ones(len(block))])
-        lines = (x1h @ F12).astype(np.float32)  # (B, 3): line a x + b y + c = 0 in kf2 per kf1 keypoint
-        num = lines[:, :2] @ x2.T + lines[:, 2:]
-        den = lines[:, 0] ** 2 + lines[:, 1] ** 2
-        # squared distance to the line num^2 / den under the gate, without dividing
-        r, c = np.nonzero(num * num < gate[None, :] * den[:, None])
+        distance = np.abs(lines[start : start + config.block_rows] @ x2h)
+        # flatnonzero + divmod: the same row-major pairs as nonzero, 4x faster on a 2-D mask
+        r, c = np.divmod(np.flatnonzero(distance < gate), len(idx2))
         rows.append(r + start)
         cols.append(c)
     return np.concatenate(rows), np.concatenate(cols)
