@@ -13,12 +13,13 @@ the frontend's and the backend's per-step times (mean / median / max ms) and the
 wall time against the clip's real duration.
 
 Run: ``/work/venv/bin/python benchmarks/backend_quality.py [--data ../shared/data] [--synthetic]
-[--only kitti]`` (writes benchmarks/results/backend_quality.json).
+[--only kitti] [--max-frames N]`` (writes benchmarks/results/backend_quality.json).
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 import platform
@@ -113,8 +114,8 @@ def backend_report(backend: BackendNode, steps: list[dict[str, float]], ground_t
     return report
 
 
-def run(name: str, source, backend_only: bool) -> dict:
-    frames = list(source)
+def run(name: str, source, backend_only: bool, max_frames: int | None = None) -> dict:
+    frames = list(itertools.islice(source, max_frames))
     ground_truth = source.ground_truth()
     frontend_config, backend_config = FrontendConfig(), BackendConfig()
     args = (frames, source.calibration, source.sensor, ground_truth)
@@ -170,10 +171,11 @@ def main() -> None:
     parser.add_argument("--synthetic", action="store_true", help="also run the synthetic loop and figure-eight")
     parser.add_argument("--only", default=None, help="run only the clips whose name contains this")
     parser.add_argument("--backend-only", action="store_true", help="skip the frontend-only runs")
+    parser.add_argument("--max-frames", type=int, default=None, help="use only the first N frames of each clip")
     args = parser.parse_args()
     runs = []
     for name, source in sources(args.data, args.synthetic, args.only):
-        runs.append(run(name, source, args.backend_only))
+        runs.append(run(name, source, args.backend_only, args.max_frames))
         print_run(runs[-1])
     report = {"machine": platform.platform(), "python": platform.python_version(), "cpu_count": os.cpu_count(),
               "config": "FrontendConfig(), BackendConfig() defaults", "runs": runs}  # fmt: skip

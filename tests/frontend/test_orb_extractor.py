@@ -13,8 +13,10 @@ from zenslam.frontend.orb_extractor import (
     Features,
     OrbConfig,
     OrbExtractor,
+    base_to_level_px,
     distribute_quadtree,
     features_per_level,
+    level_to_base_px,
 )
 
 
@@ -65,9 +67,9 @@ def test_extract_count_levels_types_and_pyramid(image: np.ndarray, extracted) ->
     np.testing.assert_allclose(features.inv_level_sigma2, 1.2 ** (-2.0 * np.arange(8)))
     np.testing.assert_allclose(features.size_px, 31 * 1.2 ** features.level.astype(float), rtol=1e-6)
     # ORB-SLAM keeps keypoints 19 level pixels inside each level image
-    level_px = features.px / features.scale_factors[features.level][:, None]
     for level, level_image in enumerate(pyramid):
-        on_level = level_px[features.level == level]
+        on_level = base_to_level_px(features.px[features.level == level], level_image.shape, pyramid[0].shape)
+        np.testing.assert_allclose(on_level, np.rint(on_level), atol=1e-3)  # FAST fires on level pixels
         h, w = level_image.shape
         assert on_level[:, 0].min() >= 19 - 1e-3 and on_level[:, 0].max() <= w - 20 + 1e-3
         assert on_level[:, 1].min() >= 19 - 1e-3 and on_level[:, 1].max() <= h - 20 + 1e-3
@@ -194,3 +196,25 @@ def test_kitti_frame_extraction(kitti_root: Path) -> None:
     features, _ = OrbExtractor().extract(image)
     assert abs(len(features) - 1200) <= 120
     assert np.all(np.bincount(features.level, minlength=8) > 0)
+
+
+def test_level_pixels_map_to_the_level0_pixel_they_image() -> None:
+    """A Gaussian blob at a known level-0 position is found, on every pyramid level, at the level pixel
+    that ``level_to_base_px`` maps back to that position (within 0.05 px); x * scale misses by up to
+    (scale - 1) / 2 px, the KITTI-sized image's level sizes are rounded so each axis has its own ratio."""
+    height, width = 376, 1241
+    centre = np.array([617.3, 190.6])  # level-0 px
+    v, u = np.mgrid[0:height, 0:width]
+    blob = 40.0 + 200.0 * np.exp(-((u - centre[0]) ** 2 + (v - centre[1]) ** 2) / (2 * 9.0**2))
+    pyramid = OrbExtractor(OrbConfig(n_levels=8)).build_pyramid(np.rint(blob).astype(np.uint8))
+    worst_scaled = 0.0
+    for level, img in enumerate(pyramid[1:], start=1):
+        w = img.astype(np.float64) - 40.0
+        vv, uu = np.mgrid[0 : img.shape[0], 0 : img.shape[1]]
+        found = np.array([(w * uu).sum() / w.sum(), (w * vv).sum() / w.sum()])  # centroid, level px
+        mapped = level_to_base_px(found[None], img.shape, pyramid[0].shape)[0]
+        assert np.abs(mapped - centre).max() < 0.05, (level, mapped, centre)
+        back = base_to_level_px(mapped[None], img.shape, pyramid[0].shape)[0]
+        np.testing.assert_allclose(back, found, atol=1e-9)
+        worst_scaled = max(worst_scaled, np.abs(found * 1.2**level - centre).max())
+    assert worst_scaled > 1.0  # the old convention's error at level 7 (scale 3.58) is over a pixel

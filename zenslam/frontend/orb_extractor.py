@@ -188,7 +188,7 @@ class OrbExtractor:
             angle = _intensity_centroid_angles(level_image, xy, self._circle_weights)
             descriptors = _describe(orb, level_image, xy, angle)
             level_ids = np.full(len(xy), level, np.int16)
-            parts.append((xy * self._scale_factors[level], level_ids, angle, response, descriptors))
+            parts.append((level_to_base_px(xy, level_image.shape, image.shape), level_ids, angle, response, descriptors))
         features = Features(
             px=np.concatenate([p[0] for p in parts]).astype(np.float32).reshape(-1, 2),
             level=np.concatenate([p[1] for p in parts]),
@@ -219,6 +219,24 @@ class OrbExtractor:
             if self._executor is None:
                 self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="orb-extract")
             return self._executor
+
+
+def level_to_base_px(xy_level: np.ndarray, level_shape: tuple[int, ...], base_shape: tuple[int, ...]) -> np.ndarray:
+    """(N, 2) level pixels (u, v) -> level-0 pixels, pixel centres at integers on both.
+
+    cv2.resize maps destination pixel x to source (x + 0.5) * (source size / destination size) - 0.5,
+    and chained resizes compose, so a level whose image is (h, w) maps exactly by
+    u0 = (u + 0.5) * w0 / w - 0.5 (likewise v with h). ORB-SLAM's u * scale_factor is off by
+    -(scale - 1) / 2 px, up to 1.3 px at level 7, so the same point seen at different levels disagreed.
+    """
+    ratio = np.array([base_shape[1] / level_shape[1], base_shape[0] / level_shape[0]])
+    return (np.asarray(xy_level, np.float64) + 0.5) * ratio - 0.5
+
+
+def base_to_level_px(xy_base: np.ndarray, level_shape: tuple[int, ...], base_shape: tuple[int, ...]) -> np.ndarray:
+    """Inverse of ``level_to_base_px``: (N, 2) level-0 pixels -> pixels of the level of shape ``level_shape``."""
+    ratio = np.array([level_shape[1] / base_shape[1], level_shape[0] / base_shape[0]])
+    return (np.asarray(xy_base, np.float64) + 0.5) * ratio - 0.5
 
 
 def _check_image(image: np.ndarray) -> None:

@@ -11,7 +11,7 @@ import numpy as np
 from zenslam.camera import PinholeCalibration
 from zenslam.errors import CalibrationError, ConfigError
 from zenslam.descriptors import hamming_distance_pairs
-from zenslam.frontend.orb_extractor import Features
+from zenslam.frontend.orb_extractor import Features, base_to_level_px, level_to_base_px
 
 logger = logging.getLogger(__name__)
 
@@ -180,9 +180,8 @@ def _refine_by_sad(
         u_right[members], sad[members] = _sad_on_level(
             left.px[i_left[members]],
             right.px[i_right[members], 0],
-            left_pyramid[level],
-            right_pyramid[level],
-            float(left.scale_factors[level]),
+            (left_pyramid[level], right_pyramid[level]),
+            left_pyramid[0].shape,
             config,
         )
     return u_right, sad
@@ -191,17 +190,20 @@ def _refine_by_sad(
 def _sad_on_level(
     px_left: np.ndarray,
     u_right0: np.ndarray,
-    image_left: np.ndarray,
-    image_right: np.ndarray,
-    scale: float,
+    images: tuple[np.ndarray, np.ndarray],
+    base_shape: tuple[int, ...],
     config: StereoMatchConfig,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """SAD slide and parabola fit for matches on one level; returns right u (level-0 px) and SAD."""
+    """SAD slide and parabola fit for matches on one level (``images`` = left, right level images of
+    the level-0 images of shape ``base_shape``); returns right u (level-0 px) and SAD."""
+    image_left, image_right = images
     w, search = config.sad_half_window_px, config.sad_search_px
     rows, cols = image_left.shape
-    u_l = np.rint(px_left[:, 0] / scale).astype(np.int64)
-    v_l = np.rint(px_left[:, 1] / scale).astype(np.int64)
-    u_r0 = np.rint(u_right0 / scale).astype(np.int64)
+    left_level = base_to_level_px(px_left, image_left.shape, base_shape)
+    u_l = np.rint(left_level[:, 0]).astype(np.int64)
+    v_l = np.rint(left_level[:, 1]).astype(np.int64)
+    right_level = base_to_level_px(np.column_stack([u_right0, np.zeros(len(u_right0))]), image_right.shape, base_shape)
+    u_r0 = np.rint(right_level[:, 0]).astype(np.int64)
     inside = (
         (u_r0 - search - w >= 0)
         & (u_r0 + search + w < cols)
@@ -238,7 +240,8 @@ def _sad_on_level(
         delta = (c1 - c3) / (2.0 * (c1 + c3 - 2.0 * c2))
     ok = interior & np.isfinite(delta) & (np.abs(delta) <= config.max_subpixel_correction_px)
     u_level = u_r0 + (best - search) + delta
-    refined = np.where(ok, scale * u_level, np.nan)
+    u_base = level_to_base_px(np.column_stack([u_level, np.zeros(len(u_level))]), image_right.shape, base_shape)[:, 0]
+    refined = np.where(ok, u_base, np.nan)
     u_out[inside] = refined
     sad_out[inside] = np.where(ok, costs[rows_idx, best], np.inf)
     return u_out, sad_out
