@@ -43,7 +43,10 @@ STAGE = "frontend"
 class Pipeline(Protocol):
     """What the node needs of the tracker (FrontendPipeline satisfies it)."""
 
-    def step(self, index: int, stamp_ns: int, left: np.ndarray, right: np.ndarray | None = None, depth_m: np.ndarray | None = None) -> Any: ...
+    def step(
+        self, index: int, stamp_ns: int, left: np.ndarray, right: np.ndarray | None = None,
+        depth_m: np.ndarray | None = None, keyframes_in_flight: int = 0,
+    ) -> Any: ...
 
     def apply_map_update(self, update: MapUpdate) -> None: ...
 
@@ -97,6 +100,7 @@ class FrontendNode:
         self.keyframes = 0  # keyframes sent
         self.skipped = 0  # frames never seen (gaps in the indices: dropped in live mode)
         self.updates_applied = 0  # backend map updates applied to the pipeline's map
+        self.tracks_backend = False  # set by ``serve`` when the backend's map updates are applied
         self._last_index: int | None = None
 
     def handle(self, message: codec.FrameMessage) -> FrontendMessages:
@@ -115,7 +119,10 @@ class FrontendNode:
             self.skipped += frame.index - self._last_index - 1
         self._last_index = frame.index
         started = time.perf_counter()
-        out = self._pipeline.step(frame.index, frame.stamp_ns, frame.left, right=frame.right, depth_m=frame.depth_m)
+        out = self._pipeline.step(
+            frame.index, frame.stamp_ns, frame.left, right=frame.right, depth_m=frame.depth_m,
+            keyframes_in_flight=self.keyframes_in_flight,
+        )
         step_ms = (time.perf_counter() - started) * 1e3
         self.frames += 1
         if self.rerun is not None:
@@ -140,6 +147,12 @@ class FrontendNode:
             keyframe_id=keyframe_id,
         )
         return FrontendMessages(keyframe_bytes, pose_bytes, codec.encode_tracking_state(state), step_ms, keyframe_id)
+
+    @property
+    def keyframes_in_flight(self) -> int:
+        """Keyframes sent whose map update has not been applied (each keyframe gets one update);
+        without a backend's updates (``serve`` without ``backend``) this is 0: nothing to wait for."""
+        return self.keyframes - self.updates_applied if self.tracks_backend else 0
 
     def log_last_frame(self) -> None:
         """Log the last handled frame to rerun: called after its messages are sent, so the ~1 ms of
@@ -243,6 +256,7 @@ def serve(
     """
     outputs = _Outputs(session, session_name)
     updates = _MapUpdates(session, session_name, backend) if backend is not None else None
+    node.tracks_backend = updates is not None
     if lockstep:
         # Lockstep: every frame, in order; the source waits for our state before sending more.
         frames = bus.subscribe(session, keys.sensor_frame(session_name), codec.decode_sensor_frame, "lossless", bus_config.lossless_queue)
