@@ -1,19 +1,25 @@
 """Benchmark whole runs (source, frontend and backend processes over zenoh) against real time, live and lockstep.
 
 For the KITTI 06 clip (51 frames, 10 Hz) and the EuRoC V1_01 micro clip (95 frames, 20 Hz), runs
-``zenslam run <clip> --lockstep`` and ``--live`` as a user would and records:
+``zenslam run <clip> --lockstep`` and ``--live --rate R`` (for each of ``--rates``) as a user
+would and records:
 - the command's wall time (process start-up included) and the streaming span, from the frontend's
   first frame to the backend's end of stream (from the stage logs' timestamps), against the
-  clip's real duration;
+  clip's real duration (divided by the rate for live runs);
 - frames tracked and skipped, keyframes sent by the frontend and processed by the backend;
+- CPU seconds per process (each stage logs its own at exit; the hub is the command's total less
+  the stages');
 - the backend's time per keyframe for each local-mapping step (insertion, point culling,
   triangulation, fusion, local BA, keyframe culling, total: mean / median / max ms), the most
   keyframes waiting in its inbox, and the frontend's total per frame;
 - ATE of the per-frame trajectory (and of keyframes.tum, the backend's final keyframe poses).
 Wall times on a shared 2-core machine: the load average before each run is recorded with it.
 
-Run: ``/work/venv/bin/python benchmarks/pipeline.py [--data ../shared/data] [--modes lockstep live]``
-(writes benchmarks/results/pipeline.json).
+It ends with the verdict on "the full pipeline runs at >= 2x real time": the rate-2 live KITTI run
+tracked every frame and its stream span is at most half the clip's real time.
+
+Run: ``/work/venv/bin/python benchmarks/pipeline.py [--data ../shared/data] [--modes lockstep live]
+[--rates 1 2] [--clips kitti_06_clip euroc_v1_01_micro]`` (writes benchmarks/results/pipeline.json).
 """
 
 from __future__ import annotations
@@ -23,6 +29,8 @@ import json
 import os
 import platform
 import re
+import resource
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -40,6 +48,7 @@ from zenslam.service.sources import open_source
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results" / "pipeline.json"
 _STAMP = re.compile(r"^(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3}) ")
+_CPU = re.compile(r"cpu user ([0-9.]+) s system ([0-9.]+) s")
 
 
 def real_time_s(spec: str) -> float:
@@ -64,15 +73,34 @@ def log_time(path: Path, pattern: str) -> float | None:
     return None
 
 
-def run(name: str, spec: str, mode: str, output: Path) -> dict:
-    """One ``zenslam run`` of ``spec`` in ``mode`` (lockstep or live); its figures."""
-    run_id = f"{name}-{mode}"
+def stage_cpu_s(run_dir: Path) -> dict[str, float]:
+    """CPU seconds (user + system) per stage process, from the line each logs at exit."""
+    cpu = {}
+    for path in sorted((run_dir / "logs").glob("*.log")):
+        for line in path.read_text(errors="replace").splitlines():
+            if match := _CPU.search(line):
+                cpu[path.stem] = float(match.group(1)) + float(match.group(2))
+    return cpu
+
+
+def _children_cpu_s() -> float:
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def run(name: str, spec: str, mode: str, output: Path, rate: float = 1.0) -> dict:
+    """One ``zenslam run`` of ``spec`` in ``mode`` (lockstep, or live at ``rate`` x the recorded rate); its figures."""
+    run_id = f"{name}-{mode}" if mode == "lockstep" else f"{name}-live-x{rate:g}"
     command = [sys.executable, "-m", "zenslam.service.cli", "run", spec, f"--{mode}", "--output", str(output),
                "--run-id", run_id, "--no-progress"]  # fmt: skip
+    if mode == "live":
+        command += ["--rate", f"{rate:g}"]
     load = os.getloadavg()
+    cpu_before = _children_cpu_s()
     start = time.perf_counter()
     result = subprocess.run(command, capture_output=True, text=True, timeout=1800)
     wall_s = time.perf_counter() - start
+    total_cpu_s = _children_cpu_s() - cpu_before
     if result.returncode != 0:
         raise SystemExit(f"{' '.join(command)} failed:\n{result.stdout[-2000:]}\n{result.stderr[-3000:]}")
     run_dir = output / run_id
@@ -84,14 +112,20 @@ def run(name: str, spec: str, mode: str, output: Path) -> dict:
     except TrajectoryError:  # e.g. one keyframe on a still clip: nothing to align
         keyframes_ate = None
     real_s = real_time_s(spec)
+    cpu = stage_cpu_s(run_dir)
+    cpu["run (hub)"] = total_cpu_s - sum(cpu.values())
+    frames_in_clip = len(open_source(spec))
     return {
         "name": name,
         "mode": mode,
+        "rate": rate if mode == "live" else None,
         "real_time_s": real_s,
         "command_wall_s": wall_s,
         "stream_span_s": span_s,
         "stream_span_over_real_time": span_s / real_s if span_s is not None else None,
-        "frames_in_clip": len(open_source(spec)),
+        "frames_in_clip": frames_in_clip,
+        "frames_skipped": frames_in_clip - metrics["frames"],
+        "cpu_s": cpu,
         "frames_tracked": metrics["frames"],
         "frames_ok": metrics["tracked_ok"],
         "keyframes": metrics["keyframes"],
@@ -110,9 +144,10 @@ def _m(value: float | None) -> str:
 
 def print_run(r: dict) -> None:
     span = f"{r['stream_span_s']:.2f} s ({r['stream_span_over_real_time']:.2f}x real time)" if r["stream_span_s"] else "n/a"
+    mode = r["mode"] if r["rate"] is None else f"live x{r['rate']:g}"
     print(
-        f"{r['name']} {r['mode']}: real time {r['real_time_s']:.2f} s, command {r['command_wall_s']:.2f} s, stream {span}; "
-        f"frames {r['frames_tracked']}/{r['frames_in_clip']} ({r['frames_ok']} ok), keyframes sent {r['keyframes']['sent']} "
+        f"{r['name']} {mode}: real time {r['real_time_s']:.2f} s, command {r['command_wall_s']:.2f} s, stream {span}; "
+        f"frames {r['frames_tracked']}/{r['frames_in_clip']} ({r['frames_ok']} ok, {r['frames_skipped']} skipped), keyframes sent {r['keyframes']['sent']} "
         f"processed {r['keyframes']['processed']} (at most {r['backend_queue_depth_max']} queued); ATE {r['ate_rmse_m']:.4f} m (keyframes {_m(r['keyframes_ate_rmse_m'])}); "
         f"load {r['load_average_1_5_15_before'][0]:.1f}"
     )
@@ -121,12 +156,35 @@ def print_run(r: dict) -> None:
     t = r["frontend_total_ms"]
     if t:
         print(f"    frontend total            mean {t['mean_ms']:7.1f}  median {t['median_ms']:7.1f}  max {t['max_ms']:7.1f} ms")
+    print("    cpu " + ", ".join(f"{stage} {seconds:.2f} s" for stage, seconds in r["cpu_s"].items()))
+
+
+def twice_real_time(runs: list[dict]) -> str:
+    """The verdict on ">= 2x real time" from the rate-2 live KITTI run(s)."""
+    live2 = [r for r in runs if r["name"] == "kitti_06_clip" and r["rate"] == 2]
+    if not live2:
+        return ">= 2x real time: not measured (needs --modes live --rates 2 on kitti_06_clip)"
+    lines = []
+    for r in live2:
+        span, budget = r["stream_span_s"], r["real_time_s"] / 2
+        every_frame = r["frames_skipped"] == 0
+        every_keyframe = r["keyframes"]["processed"] == r["keyframes"]["sent"]
+        holds = every_frame and every_keyframe and span is not None and span <= budget
+        lines.append(
+            f">= 2x real time: {'HOLDS' if holds else 'does not hold'} (kitti live x2: {r['frames_skipped']} frames skipped, "
+            f"keyframes {r['keyframes']['processed']}/{r['keyframes']['sent']} processed, stream span "
+            f"{span if span is None else round(span, 2)} s vs {budget:.2f} s budget)"
+        )
+    return "\n".join(lines)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, default=REPO.parent / "shared" / "data", help="benchmark clips root")
     parser.add_argument("--modes", nargs="+", choices=("lockstep", "live"), default=["lockstep", "live"])
+    parser.add_argument("--rates", nargs="+", type=float, default=[1.0, 2.0], help="live playback rates (x recorded)")
+    parser.add_argument("--clips", nargs="+", choices=("kitti_06_clip", "euroc_v1_01_micro"), default=None)
+    parser.add_argument("--repeat", type=int, default=1, help="runs of each configuration (wall times are noisy)")
     args = parser.parse_args()
     clips = {
         "kitti_06_clip": f"kitti:{args.data / 'kitti_odometry' / 'sequences' / '06'}",
@@ -135,14 +193,21 @@ def main() -> None:
     runs = []
     with tempfile.TemporaryDirectory() as tmp:
         for name, spec in clips.items():
+            if args.clips and name not in args.clips:
+                continue
             for mode in args.modes:
-                runs.append(run(name, spec, mode, Path(tmp)))
-                print_run(runs[-1])
+                for rate in args.rates if mode == "live" else [1.0]:
+                    for _ in range(args.repeat):
+                        shutil.rmtree(Path(tmp) / (f"{name}-{mode}" if mode == "lockstep" else f"{name}-live-x{rate:g}"), ignore_errors=True)
+                        runs.append(run(name, spec, mode, Path(tmp), rate))
+                        print_run(runs[-1])
+    print(twice_real_time(runs))
     report = {
         "machine": platform.platform(),
         "python": platform.python_version(),
         "cpu_count": os.cpu_count(),
-        "config": "RunConfig() defaults; live runs at the recorded rate (source.rate 1)",
+        "config": f"RunConfig() defaults; live runs at rates {args.rates} x the recorded rate",
+        "twice_real_time": twice_real_time(runs),
         "runs": runs,
     }
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
