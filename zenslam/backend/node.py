@@ -2,8 +2,10 @@
 
 ``BackendNode.step`` runs local mapping on one decoded keyframe and returns the ``MapUpdate`` to
 publish; it is testable without the bus. ``serve`` is the loop: it takes keyframes from a lossless,
-bounded inbox (a full inbox blocks the frontend's send, nothing is dropped), publishes one map
-update per keyframe and a backend/status with the step time, the per-step timings and the queue
+bounded inbox (a full inbox blocks the frontend's send, nothing is dropped), tells local mapping
+how many keyframes wait behind the current one (ORB-SLAM's CheckNewKeyFrames: a backlog defers
+fusion, local BA and keyframe culling to the last queued keyframe; the end-of-stream marker does
+not count, so the last keyframe always gets them), publishes one map update per keyframe and a backend/status with the step time, the per-step timings and the queue
 depth, and answers the queryables between steps, on the same thread, so a reply always shows the
 map between two keyframes. After the frontend's end of stream it forwards the end of stream on
 backend/map_update and keeps answering queries for ``BackendConfig.linger_s`` seconds or until
@@ -54,9 +56,12 @@ class BackendNode:
         """The node with the real local mapper and gtsam local bundle adjuster."""
         return cls(LocalMapper(config.local_mapping, LocalBundleAdjuster(config.local_ba)))
 
-    def step(self, keyframe: codec.KeyframeMessage) -> MapUpdate:
-        """Insert one keyframe and run local mapping on it; the update lists everything that changed."""
-        update = self.mapper.process(keyframe)
+    def step(self, keyframe: codec.KeyframeMessage, queued: int = 0) -> MapUpdate:
+        """Insert one keyframe and run local mapping on it; the update lists everything that changed.
+
+        ``queued``: keyframes waiting behind this one (0 in lockstep); see ``LocalMapper.process``.
+        """
+        update = self.mapper.process(keyframe, queued=queued)
         self.processed += 1
         if self.rerun is not None:
             self.rerun.log_keyframe(keyframe, self.mapper)
@@ -177,8 +182,9 @@ def _process(outputs: _Outputs, inbox: bus.Inbox, queryables: _Queryables, node:
             logger.info("end of stream: %d keyframes processed", node.processed)
             return True
         started = time.perf_counter()
+        queued = inbox.count_waiting(_is_keyframe)  # the end of stream is no keyframe to wait for
         try:
-            update = node.step(message)
+            update = node.step(message, queued)
         except Exception as exc:
             outputs.send_status(codec.StageStatusMessage(STAGE, "failed", node.processed, detail=f"{type(exc).__name__}: {exc}"))
             raise
@@ -191,6 +197,10 @@ def _process(outputs: _Outputs, inbox: bus.Inbox, queryables: _Queryables, node:
         outputs.send_status(codec.StageStatusMessage(STAGE, "running", node.processed, step_ms, depth, timings_ms=timings))
         logger.debug("keyframe %d: %.1f ms (local BA %.1f ms), queue %d", message.id, step_ms, timings.get("local_ba", 0.0), depth)
     return False
+
+
+def _is_keyframe(message: codec.KeyframeMessage | codec.EndOfStream) -> bool:
+    return not isinstance(message, codec.EndOfStream)
 
 
 def _end_stream(outputs: _Outputs, node: BackendNode) -> None:
