@@ -31,7 +31,7 @@ from zenslam.schemas import codec, keys
 from zenslam.schemas.map_update import MapUpdate
 from zenslam.service import bus
 from zenslam.service.run_config import BackendConfig, load_run_config
-from zenslam.service.supervisor import StopFlag, add_process_arguments, bus_config_with, setup_process_logging
+from zenslam.service.supervisor import StopFlag, add_process_arguments, bus_config_with, log_cpu_times, setup_process_logging
 
 if TYPE_CHECKING:
     from zenslam.service.rerun_log import BackendLog
@@ -181,6 +181,8 @@ def _process(outputs: _Outputs, inbox: bus.Inbox, queryables: _Queryables, node:
                 logger.warning("the frontend sent %d keyframes but %d were processed", message.count, node.processed)
             logger.info("end of stream: %d keyframes processed", node.processed)
             return True
+        if node.processed == 0:
+            log_cpu_times("at stream start")
         started = time.perf_counter()
         queued = inbox.count_waiting(_is_keyframe)  # the end of stream is no keyframe to wait for
         try:

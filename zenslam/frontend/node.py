@@ -30,7 +30,7 @@ from zenslam.schemas import codec, keys
 from zenslam.schemas.map_update import MapUpdate
 from zenslam.service import bus
 from zenslam.service.run_config import BackendConfig, load_run_config
-from zenslam.service.supervisor import StopFlag, add_process_arguments, bus_config_with, setup_process_logging
+from zenslam.service.supervisor import StopFlag, add_process_arguments, bus_config_with, log_cpu_times, setup_process_logging
 
 if TYPE_CHECKING:
     from zenslam.service.rerun_log import FrontendLog
@@ -108,6 +108,7 @@ class FrontendNode:
         camera = (message.calibration, message.sensor)
         if self._pipeline is None:
             logger.info("first frame: %s camera, %s", message.sensor, message.calibration.summary())
+            log_cpu_times("at stream start")
             self._pipeline, self._camera = self._make_pipeline(*camera), camera
         elif camera != self._camera:
             raise CalibrationError(

@@ -23,7 +23,7 @@ from zenslam.schemas import codec, keys
 from zenslam.service import bus
 from zenslam.service.run_config import SourceConfig, load_run_config
 from zenslam.service.sources import SensorFrame, open_source
-from zenslam.service.supervisor import StopFlag, add_process_arguments, bus_config_with, setup_process_logging
+from zenslam.service.supervisor import StopFlag, add_process_arguments, bus_config_with, log_cpu_times, setup_process_logging
 
 if TYPE_CHECKING:
     from zenslam.service.rerun_log import SourceLog
@@ -101,6 +101,7 @@ def play(
         if not should_stop():
             raise bus.BusError(f"no subscriber to {key} within {config.start_timeout_s:.0f} s; is the frontend running?")
     pacer = _Pacer(0.0 if config.lockstep else config.rate, should_stop)
+    log_cpu_times("at stream start")
     sent = 0
     try:
         for frame in frames:

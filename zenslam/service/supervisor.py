@@ -250,7 +250,8 @@ def setup_process_logging(verbose: bool, stage: str) -> None:
     atexit.register(log_cpu_times)  # runs before logging's own atexit shutdown (registered earlier)
 
 
-def log_cpu_times() -> None:
-    """Log the process's CPU time (all its threads, zenoh's included) as ``cpu user U s system S s``."""
+def log_cpu_times(when: str = "at exit") -> None:
+    """Log the process's CPU time so far (all its threads, zenoh's included) as
+    ``cpu <when>: user U s system S s``; stages log it when their stream starts and at exit."""
     times = os.times()
-    logger.info("cpu user %.3f s system %.3f s", times.user, times.system)
+    logger.info("cpu %s: user %.3f s system %.3f s", when, times.user, times.system)
