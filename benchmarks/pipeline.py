@@ -48,7 +48,7 @@ from zenslam.service.sources import open_source
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results" / "pipeline.json"
 _STAMP = re.compile(r"^(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3}) ")
-_CPU = re.compile(r"cpu (at stream start|at exit): user ([0-9.]+) s system ([0-9.]+) s")
+_CPU = re.compile(r"cpu (at stream start|at stream end|at exit): user ([0-9.]+) s system ([0-9.]+) s")
 
 
 def real_time_s(spec: str) -> float:
@@ -78,14 +78,20 @@ def stage_cpu_s(run_dir: Path) -> tuple[dict[str, float], dict[str, float]]:
     (start-up imports excluded), from the lines each stage logs."""
     total, streaming = {}, {}
     for path in sorted((run_dir / "logs").glob("*.log")):
-        marks = {}
-        for line in path.read_text(errors="replace").splitlines():
-            if match := _CPU.search(line):
-                marks.setdefault(match.group(1), float(match.group(2)) + float(match.group(3)))
+        marks = _cpu_marks(path.read_text(errors="replace"))
         if "at exit" in marks:
             total[path.stem] = marks["at exit"]
             streaming[path.stem] = marks["at exit"] - marks.get("at stream start", 0.0)
     return total, streaming
+
+
+def _cpu_marks(log: str) -> dict[str, float]:
+    """CPU seconds (user + system) at each ``cpu <when>:`` line of a process's log, first of each."""
+    marks: dict[str, float] = {}
+    for line in log.splitlines():
+        if match := _CPU.search(line):
+            marks.setdefault(match.group(1), float(match.group(2)) + float(match.group(3)))
+    return marks
 
 
 def _children_cpu_s() -> float:
@@ -93,13 +99,15 @@ def _children_cpu_s() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
-def run(name: str, spec: str, mode: str, output: Path, rate: float = 1.0) -> dict:
+def run(name: str, spec: str, mode: str, output: Path, rate: float = 1.0, config: Path | None = None) -> dict:
     """One ``zenslam run`` of ``spec`` in ``mode`` (lockstep, or live at ``rate`` x the recorded rate); its figures."""
     run_id = f"{name}-{mode}" if mode == "lockstep" else f"{name}-live-x{rate:g}"
     command = [sys.executable, "-m", "zenslam.service.cli", "run", spec, f"--{mode}", "--output", str(output),
                "--run-id", run_id, "--no-progress"]  # fmt: skip
     if mode == "live":
         command += ["--rate", f"{rate:g}"]
+    if config is not None:
+        command += ["--config", str(config)]
     load = os.getloadavg()
     cpu_before = _children_cpu_s()
     start = time.perf_counter()
@@ -119,6 +127,9 @@ def run(name: str, spec: str, mode: str, output: Path, rate: float = 1.0) -> dic
     real_s = real_time_s(spec)
     cpu, cpu_streaming = stage_cpu_s(run_dir)
     cpu["run (hub)"] = total_cpu_s - sum(cpu.values())
+    hub = _cpu_marks(result.stdout + result.stderr)
+    if "at stream end" in hub:
+        cpu_streaming["run (hub)"] = hub["at stream end"] - hub.get("at stream start", 0.0)
     frames_in_clip = len(open_source(spec))
     return {
         "name": name,
@@ -191,6 +202,7 @@ def main() -> None:
     parser.add_argument("--modes", nargs="+", choices=("lockstep", "live"), default=["lockstep", "live"])
     parser.add_argument("--rates", nargs="+", type=float, default=[1.0, 2.0], help="live playback rates (x recorded)")
     parser.add_argument("--clips", nargs="+", choices=("kitti_06_clip", "euroc_v1_01_micro"), default=None)
+    parser.add_argument("--config", type=Path, default=None, help="run configuration YAML for every run (default: defaults)")
     parser.add_argument("--repeat", type=int, default=1, help="runs of each configuration (wall times are noisy)")
     args = parser.parse_args()
     clips = {
@@ -206,14 +218,14 @@ def main() -> None:
                 for rate in args.rates if mode == "live" else [1.0]:
                     for _ in range(args.repeat):
                         shutil.rmtree(Path(tmp) / (f"{name}-{mode}" if mode == "lockstep" else f"{name}-live-x{rate:g}"), ignore_errors=True)
-                        runs.append(run(name, spec, mode, Path(tmp), rate))
+                        runs.append(run(name, spec, mode, Path(tmp), rate, args.config))
                         print_run(runs[-1])
     print(twice_real_time(runs))
     report = {
         "machine": platform.platform(),
         "python": platform.python_version(),
         "cpu_count": os.cpu_count(),
-        "config": f"RunConfig() defaults; live runs at rates {args.rates} x the recorded rate",
+        "config": f"{args.config or 'RunConfig() defaults'}; live runs at rates {args.rates} x the recorded rate",
         "twice_real_time": twice_real_time(runs),
         "runs": runs,
     }

@@ -10,6 +10,7 @@ from zenslam.camera import PinholeCalibration
 from zenslam.errors import CalibrationError, ConfigError
 from zenslam.service.bus import BusConfig
 from zenslam.service.run_config import (
+    BackendConfig,
     RunConfig,
     SourceConfig,
     apply_orbslam_settings,
@@ -178,3 +179,11 @@ def test_yaml_is_readable_by_people():
     text = run_config_to_yaml(RunConfig())
     assert text.index("bus:") < text.index("source:") < text.index("frontend:")
     assert textwrap.dedent(text) == text
+
+
+def test_backend_nice_is_a_niceness_increment():
+    assert BackendConfig().nice == 0
+    assert BackendConfig(nice=19).nice == 19
+    for bad in (-1, 20):
+        with pytest.raises(ConfigError, match=f"backend.nice={bad}"):
+            BackendConfig(nice=bad)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 import time
 from collections.abc import Callable
@@ -251,6 +252,8 @@ def main(argv: list[str] | None = None) -> int:
     stop = StopFlag(args.parent_pid).install()
     try:
         config = load_run_config(args.config)
+        if config.backend.nice:
+            os.nice(config.backend.nice)
         node = BackendNode.from_config(config.backend)
         from zenslam.service import rerun_log
 

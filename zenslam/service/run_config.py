@@ -87,8 +87,16 @@ class BackendConfig:
     # After its input's end of stream the backend keeps answering backend/map and backend/trajectory
     # for this long (or until stopped: ``zenslam run`` stops it once it has the final trajectory).
     linger_s: float = 60.0  # seconds
+    # Added to the backend process's nice value (0-19, POSIX niceness): best-effort mapping yields
+    # the CPU to tracking, as ORB-SLAM's tracking is its real-time thread. Scheduling only: the
+    # numerics, and lockstep outputs, are the same at any value. On the loaded 2-core machine,
+    # nice 10 made live KITTI x2 runs worse (5-9 keyframes against 6-19 in 3 paired runs): mapping
+    # fell behind, the keyframe throttle held keyframes back and tracking ran out of points.
+    nice: int = 0  # niceness increment
 
     def __post_init__(self) -> None:
+        if not 0 <= self.nice <= 19:
+            raise ConfigError(f"backend.nice={self.nice} must be within 0..19 (a niceness increment; 0 leaves it as is)")
         for name in ("keyframe_queue", "map_update_queue"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"backend.{name}={getattr(self, name)} must be at least 1 message")

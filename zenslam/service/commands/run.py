@@ -36,7 +36,7 @@ from zenslam.service.run_output import (
     write_outputs,
 )
 from zenslam.service.sources import Source, open_source
-from zenslam.service.supervisor import ProcessError, ProcessSpec, StopFlag, Supervisor
+from zenslam.service.supervisor import ProcessError, ProcessSpec, StopFlag, Supervisor, log_cpu_times
 
 logger = logging.getLogger(__name__)
 
@@ -223,7 +223,9 @@ def track(config: RunConfig, run_id: str, run_dir: Path, config_path: Path, sour
                 supervisor.start(ProcessSpec("frontend", "zenslam.frontend.node", frontend_args))
                 supervisor.wait_until_alive(session, ["frontend"], timeout_s, stop.keep_going)
                 supervisor.start(ProcessSpec("source", "zenslam.service.source_node", ("--wait-for", "frontend", *heard)))
+                log_cpu_times("at stream start")
                 completed = _follow(follower, supervisor, stop) and _follow_backend(follower, supervisor, stop)
+                log_cpu_times("at stream end")
                 if completed:
                     follower.log.backend_keyframes = query_trajectory(session, run_id, _QUERY_TIMEOUT_S)
                     if follower.log.backend_keyframes is None:
