@@ -7,9 +7,9 @@ how many keyframes wait behind the current one (ORB-SLAM's CheckNewKeyFrames: a 
 fusion, local BA and keyframe culling to the last queued keyframe; the end-of-stream marker does
 not count, so the last keyframe always gets them), publishes one map update per keyframe and a
 backend/status with the step time, the per-step timings and the queue depth, and answers the
-queryables between steps, on the same thread, so a reply always shows the map between two keyframes. After the frontend's end of stream it forwards the end of stream on
-backend/map_update and keeps answering queries for ``BackendConfig.linger_s`` seconds or until
-stopped.
+queryables between steps, on the same thread, so a reply always shows the map between two
+keyframes. After the frontend's end of stream it forwards the end of stream on backend/map_update
+and keeps answering queries for ``BackendConfig.linger_s`` seconds or until stopped.
 """
 
 from __future__ import annotations
