@@ -8,7 +8,8 @@ and sensor kind that every sensor/frame message carries.
 With a backend (``serve(..., backend=...)``), the backend's backend/map_update messages are applied
 to the pipeline's map: in live mode every update that has arrived is applied before the next
 frame is tracked; in lockstep, after publishing a keyframe the frontend waits for the backend's
-update of that keyframe before it tracks another frame, so the run is deterministic.
+update of that keyframe before it tracks another frame, so the run is deterministic. Pipelined
+(lockstep frames, ``backend.wait_for_map_updates`` false) applies updates as live mode does.
 """
 
 from __future__ import annotations
@@ -258,6 +259,8 @@ def serve(
     outputs = _Outputs(session, session_name)
     updates = _MapUpdates(session, session_name, backend) if backend is not None else None
     node.tracks_backend = updates is not None
+    # Lockstep waits for each keyframe's update; live and pipelined apply the updates that have arrived.
+    wait_for_updates = updates is not None and lockstep and backend.wait_for_map_updates
     if lockstep:
         # Lockstep: every frame, in order; the source waits for our state before sending more.
         frames = bus.subscribe(session, keys.sensor_frame(session_name), codec.decode_sensor_frame, "lossless", bus_config.lossless_queue)
@@ -270,7 +273,7 @@ def serve(
         with bus.declare_alive(session, session_name, STAGE):
             while not should_stop():
                 message = frames.get(timeout_s=0.1)
-                if updates is not None and not lockstep:
+                if updates is not None and not wait_for_updates:
                     updates.apply_pending(node)
                 if message is None:
                     continue
@@ -285,7 +288,7 @@ def serve(
                     raise
                 outputs.send(sent)
                 node.log_last_frame()
-                if updates is not None and lockstep and sent.keyframe_id >= 0:
+                if wait_for_updates and sent.keyframe_id >= 0:
                     updates.wait_for(node, sent.keyframe_id, should_stop)
                 status = codec.StageStatusMessage(STAGE, "running", node.frames, sent.step_ms, frames.depth, node.skipped)
                 outputs.send_status(status)

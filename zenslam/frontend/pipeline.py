@@ -105,7 +105,8 @@ class FrontendPipeline:
         """Track one capture: ``left`` grey uint8 (H, W), with ``right`` (stereo) or ``depth_m`` (RGB-D, metres).
 
         ``keyframes_in_flight``: keyframes sent to the backend whose map update is not applied yet
-        (0 = local mapping idle; always 0 in lockstep); it throttles the keyframe decision.
+        (0 = local mapping idle; always 0 in lockstep, which waits for every update); it throttles the
+        keyframe decision.
         """
         start = time.perf_counter()
         self._update_camera_rate(stamp_ns)

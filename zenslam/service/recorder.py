@@ -271,7 +271,7 @@ def record(
     At the end it keeps taking messages until none has arrived for ``config.quiet_s`` seconds, or
     for at most ``max_drain_s`` seconds while publishers are still sending.
     """
-    writer = mcap_io.RecordingWriter(path, chunk_size=config.chunk_size)
+    writer = mcap_io.RecordingWriter(path, chunk_size=config.chunk_size, compression=config.chunk_compression)
     worker = _Worker(Recorder(writer, config, session_name), config.queue)
     followed = _Followed(session, session_name, follow)
     try:
