@@ -134,9 +134,61 @@ class SlowNode(BackendNode):
         super().__init__(LocalMapper(LocalMappingConfig(), IdentityAdjuster()))
         self.delay_s = delay_s
 
-    def step(self, keyframe):
+    def step(self, keyframe, queued=0):
         time.sleep(self.delay_s)
-        return super().step(keyframe)
+        return super().step(keyframe, queued)
+
+
+class GatedNode(BackendNode):
+    """A backend that holds its first keyframe until ``gate`` opens, and notes each step's backlog."""
+
+    def __init__(self):
+        super().__init__(LocalMapper(LocalMappingConfig(), IdentityAdjuster()))
+        self.gate = threading.Event()
+        self.queued: list[int] = []
+        self.deferred: list[int] = []
+
+    def step(self, keyframe, queued=0):
+        assert self.gate.wait(timeout=20.0)
+        self.queued.append(queued)
+        update = super().step(keyframe, queued)
+        self.deferred.append(self.mapper.last_stats.deferred)
+        return update
+
+
+def test_a_backlog_defers_local_mapping_but_the_last_keyframe_gets_it_before_the_end():
+    """Keyframes queued behind the current one defer fusion, local BA and keyframe culling; the end
+    of stream waiting behind the last keyframe is no backlog: it gets full local mapping, and every
+    keyframe still gets its own update, before the end of stream."""
+    n, session_name = 6, "backend-backlog-test"
+    hub_endpoint = bus.free_tcp_endpoint()
+    with bus.open_session(bus.BusConfig(listen=(hub_endpoint,))) as hub, bus.open_session(bus.BusConfig(connect=(hub_endpoint,))) as peer:
+        updates = bus.subscribe(hub, keys.backend_map_update(session_name), codec.decode_map_update, "lossless", 64)
+        publisher = bus.declare_publisher(hub, keys.frontend_keyframe(session_name), codec.KEYFRAME, "lossless")
+        node, stop, result, world = GatedNode(), threading.Event(), {}, World()
+        config = BackendConfig(keyframe_queue=16, linger_s=0.0)
+        worker = threading.Thread(target=lambda: result.setdefault("ended", serve(peer, session_name, node, config, stop.is_set)))
+        worker.start()
+        try:
+            assert bus.wait_for_alive(hub, session_name, ["backend"], timeout_s=10.0) == set()
+            assert bus.wait_for_subscribers(publisher, timeout_s=10.0)
+            for k in range(n):
+                publisher.put(codec.encode_keyframe(world.keyframe(k)))
+            publisher.put(codec.encode_end_of_stream(codec.KEYFRAME, n))
+            time.sleep(0.5)  # all of it reaches the inbox while the first keyframe is held
+            node.gate.set()
+            received = [updates.get(timeout_s=10.0) for _ in range(n + 1)]
+            worker.join(timeout=10.0)
+        finally:
+            stop.set()
+            worker.join(timeout=10.0)
+        assert result["ended"] is True
+        # The first keyframe's backlog was counted as it arrived; from the second on, all were waiting.
+        assert node.queued[1:] == list(range(n - 2, -1, -1))
+        assert node.deferred[1:] == [1] * (n - 2) + [0]
+        assert [u.keyframe_id for u in received[:n]] == list(range(n))
+        assert received[n] == codec.EndOfStream(n)
+        updates.close()
 
 
 def test_serve_maps_every_keyframe_answers_queries_and_forwards_the_end():

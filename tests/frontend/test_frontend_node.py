@@ -35,11 +35,12 @@ class StubPipeline:
     """Tracks every frame: a keyframe on even frames, lost on every frame whose index ends in 7."""
 
     def __init__(self, calibration: PinholeCalibration, sensor: str):
-        self.calibration, self.sensor, self.seen = calibration, sensor, []
+        self.calibration, self.sensor, self.seen, self.in_flight = calibration, sensor, [], []
 
-    def step(self, index, stamp_ns, left, right=None, depth_m=None):
+    def step(self, index, stamp_ns, left, right=None, depth_m=None, keyframes_in_flight=0):
         assert left.shape == (24, 32) and right is not None and depth_m is None
         self.seen.append(index)
+        self.in_flight.append(keyframes_in_flight)
         lost = index % 10 == 7
         return SimpleNamespace(
             index=index, stamp_ns=stamp_ns, state="lost" if lost else "ok", lost_reason="stub says lost" if lost else None,
@@ -80,6 +81,26 @@ def test_handle_encodes_pose_state_and_keyframe():
     assert (lost.index, lost.state, lost.lost_reason, lost.has_pose) == (7, "lost", "stub says lost", False)
     assert out.pose is None and out.keyframe is None
     assert len(pipelines) == 1 and node.frames == 8 and node.keyframes == 4
+
+
+def test_keyframes_in_flight_reach_the_pipeline():
+    """Sent keyframes count as in flight until their map update is applied (the keyframe decision's
+    view of local mapping); without the backend's updates nothing is ever in flight."""
+    pipelines = []
+    node = FrontendNode(lambda cal, sensor: pipelines.append(StubPipeline(cal, sensor)) or pipelines[-1])
+    node.tracks_backend = True
+    frames = _frames(5)
+    for frame in frames[:3]:  # keyframes at frames 0 and 2
+        node.handle(_message(frame))
+    assert pipelines[0].in_flight == [0, 1, 1] and node.keyframes_in_flight == 2
+    pipelines[0].apply_map_update = lambda update: None
+    node.apply_map_update(SimpleNamespace(keyframe_id=0))
+    node.handle(_message(frames[3]))
+    assert pipelines[0].in_flight[-1] == 1
+    alone = FrontendNode(lambda cal, sensor: StubPipeline(cal, sensor))
+    for frame in frames:
+        alone.handle(_message(frame))
+    assert alone.keyframes == 3 and alone.keyframes_in_flight == 0
 
 
 def test_gaps_in_frame_indices_count_as_skipped():

@@ -67,13 +67,13 @@ def test_too_few_inliers_never_makes_a_keyframe() -> None:
 
 
 def test_frame_count_conditions_when_mapping_is_busy() -> None:
-    busy = dict(local_mapping_idle=False, n_inliers=330)  # c2 holds (330 < 337.5), c1c does not
+    busy = dict(keyframes_in_flight=1, n_inliers=330)  # c2 holds (330 < 337.5), c1c does not
     assert not decide(**busy, frames_since_last_keyframe=9)
     assert decide(**busy, frames_since_last_keyframe=10)  # max_frames = fps = 10
     config = KeyframeDecisionConfig(max_frames=4)
     assert need_new_keyframe(dataclasses.replace(STEADY, **busy, frames_since_last_keyframe=4), config)
     # Weak tracking (c1c) inserts even when busy and early.
-    assert decide(local_mapping_idle=False, frames_since_last_keyframe=1, n_inliers=100)
+    assert decide(keyframes_in_flight=1, frames_since_last_keyframe=1, n_inliers=100)
     # min_frames with an idle mapper (c1b).
     config = KeyframeDecisionConfig(min_frames=3)
     assert not need_new_keyframe(dataclasses.replace(STEADY, n_inliers=330, frames_since_last_keyframe=2), config)
@@ -86,3 +86,24 @@ def test_close_point_counts() -> None:
     th = close_depth_threshold_m(0.5, CONFIG)
     assert th == pytest.approx(17.5)
     assert close_point_counts(depth, tracked, th) == (2, 1)
+
+
+def test_busy_mapping_throttles_keyframes_by_queue_length() -> None:
+    """ORB-SLAM's rule: busy local mapping takes a due stereo/RGB-D keyframe only while < 3 are queued."""
+    due = dict(frames_since_last_keyframe=1, n_inliers=100)  # weak tracking: c1c and c2 hold
+    assert decide(**due, keyframes_in_flight=0)  # idle
+    # In flight = queued + the one being mapped: 1..3 in flight leave 0..2 queued.
+    for in_flight in (1, 2, 3):
+        assert decide(**due, keyframes_in_flight=in_flight), in_flight
+    assert not decide(**due, keyframes_in_flight=4)  # 3 queued
+    assert not decide(**due, keyframes_in_flight=9)
+    assert decide(**due, sensor="rgbd", keyframes_in_flight=3)
+    config = KeyframeDecisionConfig(max_queued_keyframes=1)
+    assert need_new_keyframe(dataclasses.replace(STEADY, **due, keyframes_in_flight=1), config)
+    assert not need_new_keyframe(dataclasses.replace(STEADY, **due, keyframes_in_flight=2), config)
+
+
+def test_busy_mapping_never_takes_a_mono_keyframe() -> None:
+    due = dict(sensor="mono", frames_since_last_keyframe=10, n_inliers=100)  # c1a and c2 hold
+    assert decide(**due, keyframes_in_flight=0)
+    assert not decide(**due, keyframes_in_flight=1)

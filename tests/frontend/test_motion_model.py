@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from zenslam.frontend.motion_model import ConstantVelocityModel
+from zenslam.frontend.motion_model import ConstantVelocityModel, se3_power
 from zenslam.geometry import invert_T, make_T, so3_exp
 
 
@@ -23,3 +23,43 @@ def test_constant_velocity_prediction_repeats_the_last_motion() -> None:
     assert np.allclose(model.velocity, invert_T(step), atol=1e-12)
     model.reset()
     assert not model.has_velocity and model.predict(np.eye(4)) is None
+
+
+def test_se3_power_matches_repeated_products_and_roots() -> None:
+    step = make_T(so3_exp(np.array([0.02, -0.3, 0.05])), np.array([0.4, -0.1, 1.2]))
+    assert np.allclose(se3_power(step, 3.0), step @ step @ step, atol=1e-12)
+    root = se3_power(step, 0.5)
+    assert np.allclose(root @ root, step, atol=1e-12)
+    assert np.allclose(se3_power(step, 1.0), step, atol=1e-12)
+    tiny = make_T(so3_exp(np.array([1e-10, 0.0, 0.0])), np.array([0.0, 0.0, 0.1]))
+    assert np.allclose(se3_power(tiny, 4.0), tiny @ tiny @ tiny @ tiny, atol=1e-12)
+
+
+def test_skipped_frames_scale_the_prediction_and_the_velocity() -> None:
+    """A live run skips frames: k frame indices apart, the per-frame motion applies k times."""
+    step = make_T(so3_exp(np.array([0.01, -0.02, 0.03])), np.array([0.1, 0.0, 0.9]))  # T_world_cam k -> k+1
+    T_world_cam = [np.eye(4)]
+    for _ in range(8):
+        T_world_cam.append(T_world_cam[-1] @ step)
+    model = ConstantVelocityModel()
+    model.update(invert_T(T_world_cam[0]), invert_T(T_world_cam[1]))
+    # Frames 2 and 3 skipped: frame 4 is 3 indices after frame 1.
+    assert np.allclose(model.predict(invert_T(T_world_cam[1]), frames=3), invert_T(T_world_cam[4]), atol=1e-12)
+    # A velocity measured across a 3-frame gap (frame 4 -> 7) is per frame again.
+    model.update(invert_T(T_world_cam[4]), invert_T(T_world_cam[7]), frames=3)
+    assert np.allclose(model.velocity, invert_T(step), atol=1e-12)
+    assert np.allclose(model.predict(invert_T(T_world_cam[7])), invert_T(T_world_cam[8]), atol=1e-12)
+    # Without the gap the old model would be off by two frames of motion (1.8 m).
+    wrong = model.velocity @ invert_T(T_world_cam[1])
+    assert np.linalg.norm(invert_T(wrong)[:3, 3] - T_world_cam[4][:3, 3]) > 1.5
+
+
+def test_a_gap_of_one_is_the_plain_product() -> None:
+    """Lockstep (consecutive frames) keeps ORB-SLAM's formula bit for bit."""
+    rng = np.random.default_rng(3)
+    A = make_T(so3_exp(rng.normal(0, 0.2, 3)), rng.normal(0, 1, 3))
+    B = make_T(so3_exp(rng.normal(0, 0.2, 3)), rng.normal(0, 1, 3))
+    model = ConstantVelocityModel()
+    model.update(A, B)
+    assert np.array_equal(model.velocity, B @ invert_T(A))
+    assert np.array_equal(model.predict(B), (B @ invert_T(A)) @ B)

@@ -195,3 +195,21 @@ def test_map_update_moves_the_map_and_tracking_follows() -> None:
     assert result.state == "ok"
     t_err, r_err = pose_errors(result.T_world_cam, G @ invert_T(world.pose(0)) @ world.pose(6))
     assert t_err < 0.02 and r_err < 0.1
+
+
+def test_skipped_frames_are_tracked_by_the_scaled_motion_model(monkeypatch) -> None:
+    """Live mode skips frames: the motion model predicts across the gap (the reference-keyframe
+    fallback is disabled here, so only the prediction can track the frame)."""
+    world = PointWorld(seed=5)
+    tracker = Tracker(CAL, "stereo", TrackingConfig(), camera_fps=10.0)
+    for k in range(4):
+        assert tracker.track(world.frame(k)).state == "ok"
+    monkeypatch.setattr(tracker, "_track_reference_keyframe", lambda frame: None)
+    T0 = world.pose(0)
+    for k in (9, 10, 14):  # gaps of 6, 1 and 4 frames (1.2 m and 4 degrees of yaw for 6)
+        result = tracker.track(world.frame(k))
+        assert result.state == "ok", (k, result.lost_reason)
+        t_err, r_err = pose_errors(result.T_world_cam, invert_T(T0) @ world.pose(k))
+        assert t_err < 0.02 and r_err < 0.1, (k, t_err, r_err)
+    # The velocity stays per frame: about 0.2 m forward (the truth's step), not 0.8 m.
+    assert np.linalg.norm(tracker.motion.velocity[:3, 3]) == pytest.approx(0.2, abs=0.02)

@@ -88,3 +88,21 @@ def test_the_command_prints_the_ate_and_repeats_exactly(lockstep_run, tmp_path):
     assert metrics["frames"] == frames and metrics["ate"]["rmse_m"] < ATE_BOUND_M
     # Lockstep runs are deterministic: the first frames of both runs give the same bytes.
     assert _poses(tmp_path / "it-cli" / "trajectory.tum") == _poses(run_dir / "trajectory.tum")[:frames]
+
+
+def test_a_pipelined_run_tracks_every_frame_and_waits_for_every_keyframe(tmp_path):
+    """``--pipelined``: lockstep frames, map updates applied as they arrive; nothing dropped, nothing left unmapped."""
+    command = [sys.executable, "-m", "zenslam.service.cli", "run", "synthetic", "--pipelined", "--max-frames", str(FRAMES),
+               "--output", str(tmp_path), "--run-id", "it-pipelined", "--no-progress"]  # fmt: skip
+    result = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-3000:]
+    run_dir = tmp_path / "it-pipelined"
+    metrics = json.loads((run_dir / "metrics.json").read_text())
+    assert metrics["run"]["pacing"] == "pipelined" and metrics["run"]["completed"] is True
+    assert metrics["frames"] == FRAMES and metrics["lost_frames"] == 0
+    assert metrics["keyframes"]["sent"] >= 2 and metrics["keyframes"]["processed"] == metrics["keyframes"]["sent"]
+    assert len(_poses(run_dir / "trajectory.tum")) == FRAMES
+    assert len(_poses(run_dir / "keyframes.tum")) >= 2
+    # Which frames become keyframes depends on timing here, not the accuracy: same bound as lockstep.
+    assert metrics["ate"]["rmse_m"] < ATE_BOUND_M
+    assert "wait_for_map_updates: false" in (run_dir / "config.yaml").read_text()

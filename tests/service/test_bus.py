@@ -143,3 +143,19 @@ def test_no_subscriber_means_no_match(two_sessions):
     _, peer = two_sessions
     publisher = bus.declare_publisher(peer, keys.backend_loop("nomatch"), codec.KEYFRAME, "lossless")
     assert not bus.wait_for_subscribers(publisher, timeout_s=0.1)
+
+
+def test_count_waiting_counts_the_matching_messages_and_takes_none(two_sessions):
+    sender, receiver = two_sessions
+    inbox = bus.subscribe(receiver, "zenslam/t/count", bytes, "lossless", 8)
+    publisher = bus.declare_publisher(sender, "zenslam/t/count", "test.Bytes", "lossless")
+    assert bus.wait_for_subscribers(publisher, timeout_s=5.0)
+    for payload in (b"a", b"bb", b"c", b"end"):
+        publisher.put(payload)
+    deadline = time.monotonic() + 5.0
+    while inbox.depth < 4 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert inbox.count_waiting(lambda m: m != b"end") == 3
+    assert [inbox.get(timeout_s=1.0) for _ in range(4)] == [b"a", b"bb", b"c", b"end"]
+    assert inbox.count_waiting(lambda m: True) == 0
+    inbox.close()

@@ -74,8 +74,9 @@ def _by_topic(path) -> dict[str, list[mcap_io.RecordedMessage]]:
     return out
 
 
-def test_frames_are_recorded_raw_and_as_lossless_png_images(tmp_path):
-    path, _ = _record_all(tmp_path, [(keys.sensor_frame(SESSION), codec.SENSOR_FRAME, _frame(i)) for i in range(3)])
+def test_frames_are_recorded_raw_and_as_lossless_png_images_on_request(tmp_path):
+    config = RecorderConfig(image_format="png")
+    path, _ = _record_all(tmp_path, [(keys.sensor_frame(SESSION), codec.SENSOR_FRAME, _frame(i)) for i in range(3)], config)
     topics = _by_topic(path)
     assert [m.schema for m in topics["/camera/left"]] == ["foxglove.CompressedImage"] * 3
     assert [m.log_time_ns for m in topics["/sensor/frame"]] == [1_000_000, 2_000_000, 3_000_000]
@@ -87,11 +88,30 @@ def test_frames_are_recorded_raw_and_as_lossless_png_images(tmp_path):
         np.testing.assert_array_equal(decoded, expected)
 
 
-def test_jpeg_images_on_request(tmp_path):
-    config = RecorderConfig(image_format="jpeg", jpeg_quality=95)
-    path, _ = _record_all(tmp_path, [(keys.sensor_frame(SESSION), codec.SENSOR_FRAME, _frame(0))], config)
-    image = CompressedImage.FromString(_by_topic(path)["/camera/left"][0].data)
+def test_viewer_images_are_jpeg_by_default(tmp_path):
+    assert RecorderConfig().image_format == "jpeg"
+    smooth = np.add.outer(np.arange(48), 2 * np.arange(64)).astype(np.uint8)  # a ramp, like natural images' large areas
+    frame = codec.encode_sensor_frame(SensorFrame(0, 1_000_000, smooth, smooth), CAL, "stereo")
+    path, _ = _record_all(tmp_path, [(keys.sensor_frame(SESSION), codec.SENSOR_FRAME, frame)])
+    topics = _by_topic(path)
+    image = CompressedImage.FromString(topics["/camera/left"][0].data)
     assert image.format == "jpeg" and image.data[:2] == b"\xff\xd8"
+    decoded = cv2.imdecode(np.frombuffer(image.data, np.uint8), cv2.IMREAD_UNCHANGED)
+    raw = mcap_io.decode(topics["/sensor/frame"][0]).frame.left
+    # Lossy, but close: quality 90 on the test's smooth image stays within a few grey levels.
+    assert decoded.shape == raw.shape and np.abs(decoded.astype(int) - raw.astype(int)).mean() < 3.0
+
+
+@pytest.mark.parametrize("compression", ["zstd", "lz4", "none"])
+def test_every_chunk_compression_reads_back(tmp_path, compression):
+    config = RecorderConfig(chunk_compression=compression)
+    path, _ = _record_all(tmp_path, [(keys.sensor_frame(SESSION), codec.SENSOR_FRAME, _frame(i)) for i in range(3)], config)
+    recorded = [mcap_io.decode(m).frame for m in _by_topic(path)["/sensor/frame"]]
+    assert len(recorded) == 3
+    for i, frame in enumerate(recorded):
+        sent = codec.decode_sensor_frame(_frame(i)).frame
+        np.testing.assert_array_equal(frame.left, sent.left)
+        np.testing.assert_array_equal(frame.right, sent.right)
 
 
 def test_poses_get_a_frame_transform_and_unstamped_messages_the_last_stamp(tmp_path):

@@ -10,6 +10,7 @@ from zenslam.camera import PinholeCalibration
 from zenslam.errors import CalibrationError, ConfigError
 from zenslam.service.bus import BusConfig
 from zenslam.service.run_config import (
+    BackendConfig,
     RunConfig,
     SourceConfig,
     apply_orbslam_settings,
@@ -178,3 +179,39 @@ def test_yaml_is_readable_by_people():
     text = run_config_to_yaml(RunConfig())
     assert text.index("bus:") < text.index("source:") < text.index("frontend:")
     assert textwrap.dedent(text) == text
+
+
+def test_backend_nice_is_a_niceness_increment():
+    assert BackendConfig().nice == 0
+    assert BackendConfig(nice=19).nice == 19
+    for bad in (-1, 20):
+        with pytest.raises(ConfigError, match=f"backend.nice={bad}"):
+            BackendConfig(nice=bad)
+
+
+def test_pipelining_settings_are_checked(tmp_path):
+    assert SourceConfig().frames_in_flight == 2 and BackendConfig().wait_for_map_updates is True
+    with pytest.raises(ConfigError, match="frames_in_flight=0"):
+        SourceConfig(frames_in_flight=0)
+    path = tmp_path / "config.yaml"
+    path.write_text("backend:\n  wait_for_map_updates: 'no'\nrecorder:\n  chunk_compression: gzip\n")
+    with pytest.raises(ConfigError) as info:
+        load_run_config(path)
+    assert "wait_for_map_updates" in str(info.value) and "chunk_compression" in str(info.value)
+
+
+@pytest.mark.parametrize(
+    ("option", "lockstep", "waits"),
+    [(None, True, True), ("--lockstep", True, True), ("--pipelined", True, False), ("--live", False, True)],
+)
+def test_the_run_modes_from_the_command_line(option, lockstep, waits):
+    import argparse
+
+    from zenslam.service.commands import run as run_command
+
+    parser = argparse.ArgumentParser()
+    run_command.register(parser.add_subparsers())
+    args = parser.parse_args(["run", "synthetic", *([option] if option else [])])
+    config = run_command.resolve_config(args)
+    assert (config.source.lockstep, config.backend.wait_for_map_updates) == (lockstep, waits)
+    assert run_command.pacing(config) == (option or "--lockstep")[2:]

@@ -81,3 +81,54 @@ def test_a_stop_request_still_ends_the_stream(session):
 def test_no_subscriber_is_an_error_naming_the_key(session):
     with pytest.raises(bus.BusError, match="no subscriber to zenslam/lonely/sensor/frame"):
         play(session, "lonely", _frames(2, 1), CAL, "mono", SourceConfig(lockstep=False, start_timeout_s=0.2), lambda: False)
+
+
+class _LockstepFrontend:
+    """Answers lockstep frames with their frontend/state, holding each answer until ``lag`` more frames arrived
+    (or none came for 0.3 s): how far ahead the source sends is then visible in what arrives."""
+
+    def __init__(self, session, name: str, lag: int):
+        self.lag = lag
+        self.unanswered: list[int] = []
+        self.most_unanswered = 0
+        self.order: list[int] = []
+        self._state = bus.declare_publisher(session, keys.frontend_state(name), codec.TRACKING_STATE, "lossless")
+        self._frames = bus.subscribe(session, keys.sensor_frame(name), codec.decode_sensor_frame, "lossless", 64)
+
+    def run(self) -> None:
+        deadline = time.monotonic() + 10.0
+        while not isinstance(message := self._frames.get(timeout_s=0.3), codec.EndOfStream):
+            assert time.monotonic() < deadline, "the stream did not end"
+            if message is None:  # the source waits for answers: give them
+                for index in self.unanswered:
+                    self._answer(index)
+                self.unanswered.clear()
+                continue
+            self.order.append(message.frame.index)
+            self.unanswered.append(message.frame.index)
+            self.most_unanswered = max(self.most_unanswered, len(self.unanswered))
+            while len(self.unanswered) > self.lag:
+                self._answer(self.unanswered.pop(0))
+        for index in self.unanswered:
+            self._answer(index)
+        self._frames.close()
+
+    def _answer(self, index: int) -> None:
+        state = codec.TrackingStateMessage(index, 5_000 + index, "ok", None, 0, {}, False, -1)
+        self._state.put(codec.encode_tracking_state(state))
+
+
+@pytest.mark.parametrize("window", [1, 2, 3])
+def test_lockstep_keeps_at_most_frames_in_flight_unanswered_in_order(session, window):
+    import threading
+
+    name = f"window-{window}"
+    frontend = _LockstepFrontend(session, name, lag=window - 1)  # holds back all it may: a deadlock if the source sent fewer
+    thread = threading.Thread(target=frontend.run)
+    thread.start()
+    config = SourceConfig(lockstep=True, frames_in_flight=window, start_timeout_s=5.0, answer_timeout_s=5.0)
+    sent = play(session, name, _frames(8, 1), CAL, "mono", config, lambda: False, "test")
+    thread.join(timeout=10.0)
+    assert sent == 8 and not thread.is_alive()
+    assert frontend.order == list(range(8))
+    assert frontend.most_unanswered == window

@@ -2,18 +2,21 @@
 
 ``BackendNode.step`` runs local mapping on one decoded keyframe and returns the ``MapUpdate`` to
 publish; it is testable without the bus. ``serve`` is the loop: it takes keyframes from a lossless,
-bounded inbox (a full inbox blocks the frontend's send, nothing is dropped), publishes one map
-update per keyframe and a backend/status with the step time, the per-step timings and the queue
-depth, and answers the queryables between steps, on the same thread, so a reply always shows the
-map between two keyframes. After the frontend's end of stream it forwards the end of stream on
-backend/map_update and keeps answering queries for ``BackendConfig.linger_s`` seconds or until
-stopped.
+bounded inbox (a full inbox blocks the frontend's send, nothing is dropped), tells local mapping
+how many keyframes wait behind the current one (ORB-SLAM's CheckNewKeyFrames: a backlog defers
+fusion, local BA and keyframe culling to the last queued keyframe; the end-of-stream marker does
+not count, so the last keyframe always gets them), publishes one map update per keyframe and a
+backend/status with the step time, the per-step timings and the queue depth, and answers the
+queryables between steps, on the same thread, so a reply always shows the map between two
+keyframes. After the frontend's end of stream it forwards the end of stream on backend/map_update
+and keeps answering queries for ``BackendConfig.linger_s`` seconds or until stopped.
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 import time
 from collections.abc import Callable
@@ -29,7 +32,7 @@ from zenslam.schemas import codec, keys
 from zenslam.schemas.map_update import MapUpdate
 from zenslam.service import bus
 from zenslam.service.run_config import BackendConfig, load_run_config
-from zenslam.service.supervisor import StopFlag, add_process_arguments, bus_config_with, setup_process_logging
+from zenslam.service.supervisor import StopFlag, add_process_arguments, bus_config_with, log_cpu_times, setup_process_logging
 
 if TYPE_CHECKING:
     from zenslam.service.rerun_log import BackendLog
@@ -54,9 +57,12 @@ class BackendNode:
         """The node with the real local mapper and gtsam local bundle adjuster."""
         return cls(LocalMapper(config.local_mapping, LocalBundleAdjuster(config.local_ba)))
 
-    def step(self, keyframe: codec.KeyframeMessage) -> MapUpdate:
-        """Insert one keyframe and run local mapping on it; the update lists everything that changed."""
-        update = self.mapper.process(keyframe)
+    def step(self, keyframe: codec.KeyframeMessage, queued: int = 0) -> MapUpdate:
+        """Insert one keyframe and run local mapping on it; the update lists everything that changed.
+
+        ``queued``: keyframes waiting behind this one (0 in lockstep); see ``LocalMapper.process``.
+        """
+        update = self.mapper.process(keyframe, queued=queued)
         self.processed += 1
         if self.rerun is not None:
             self.rerun.log_keyframe(keyframe, self.mapper)
@@ -176,9 +182,12 @@ def _process(outputs: _Outputs, inbox: bus.Inbox, queryables: _Queryables, node:
                 logger.warning("the frontend sent %d keyframes but %d were processed", message.count, node.processed)
             logger.info("end of stream: %d keyframes processed", node.processed)
             return True
+        if node.processed == 0:
+            log_cpu_times("at stream start")
         started = time.perf_counter()
+        queued = inbox.count_waiting(_is_keyframe)  # the end of stream is no keyframe to wait for
         try:
-            update = node.step(message)
+            update = node.step(message, queued)
         except Exception as exc:
             outputs.send_status(codec.StageStatusMessage(STAGE, "failed", node.processed, detail=f"{type(exc).__name__}: {exc}"))
             raise
@@ -191,6 +200,10 @@ def _process(outputs: _Outputs, inbox: bus.Inbox, queryables: _Queryables, node:
         outputs.send_status(codec.StageStatusMessage(STAGE, "running", node.processed, step_ms, depth, timings_ms=timings))
         logger.debug("keyframe %d: %.1f ms (local BA %.1f ms), queue %d", message.id, step_ms, timings.get("local_ba", 0.0), depth)
     return False
+
+
+def _is_keyframe(message: codec.KeyframeMessage | codec.EndOfStream) -> bool:
+    return not isinstance(message, codec.EndOfStream)
 
 
 def _end_stream(outputs: _Outputs, node: BackendNode) -> None:
@@ -239,6 +252,8 @@ def main(argv: list[str] | None = None) -> int:
     stop = StopFlag(args.parent_pid).install()
     try:
         config = load_run_config(args.config)
+        if config.backend.nice:
+            os.nice(config.backend.nice)
         node = BackendNode.from_config(config.backend)
         from zenslam.service import rerun_log
 

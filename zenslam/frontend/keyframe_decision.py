@@ -23,6 +23,9 @@ class KeyframeDecisionConfig:
     tracked_close_max: int = 100  # fewer tracked close points than this ...
     untracked_close_min: int = 70  # ... and more untracked close points than this -> insert
     min_inliers: int = 15  # never make a keyframe from fewer inlier matches than this (exclusive)
+    # keyframes; while local mapping is busy, stereo/RGB-D still insert a due keyframe only while
+    # fewer than this many wait in its queue (ORB-SLAM's KeyframesInQueue() < 3); mono never does
+    max_queued_keyframes: int = 3
 
 
 @dataclass(frozen=True)
@@ -37,7 +40,19 @@ class KeyframeDecisionInputs:
     n_untracked_close: int  # close keypoints with depth but no map point
     camera_fps: float  # frames per second of the camera (for max_frames = 0)
     sensor: SensorKind = "stereo"
-    local_mapping_idle: bool = True  # no local-mapping thread yet: always idle
+    # keyframes sent to the backend whose map update has not been applied yet (0 in lockstep, where
+    # the frontend waits for each update): local mapping is idle when none is in flight
+    keyframes_in_flight: int = 0
+
+    @property
+    def local_mapping_idle(self) -> bool:
+        """No keyframe is waiting for, or in, local mapping."""
+        return self.keyframes_in_flight == 0
+
+    @property
+    def keyframes_queued(self) -> int:
+        """Keyframes waiting in local mapping's queue: those in flight but the one being mapped."""
+        return max(self.keyframes_in_flight - 1, 0)
 
 
 def close_point_counts(depth_m: np.ndarray, tracked: np.ndarray, th_depth_m: float) -> tuple[int, int]:
@@ -60,7 +75,10 @@ def need_new_keyframe(inputs: KeyframeDecisionInputs, config: KeyframeDecisionCo
     c1c (not mono): tracking is weak (inliers < 0.25 x reference) or close points are needed;
     c2: (inliers < ratio x reference, or close points are needed) and inliers > ``min_inliers``.
     Close points are needed when fewer than 100 close points are tracked and more than 70 could
-    be created. ORB-SLAM's relocalisation guard is absent: this frontend does not relocalise.
+    be created. When both hold and local mapping is busy, stereo/RGB-D insert only while fewer
+    than ``max_queued_keyframes`` keyframes are queued, mono never (ORB-SLAM2 also interrupts local
+    BA there; here the backend defers its BA on its own when keyframes are queued). ORB-SLAM's
+    relocalisation guard is absent: this frontend does not relocalise.
     """
     mono = inputs.sensor == "mono"
     max_frames = config.max_frames if config.max_frames > 0 else max(int(round(inputs.camera_fps)), 1)
@@ -79,4 +97,8 @@ def need_new_keyframe(inputs: KeyframeDecisionInputs, config: KeyframeDecisionCo
     c1b = inputs.frames_since_last_keyframe >= config.min_frames and inputs.local_mapping_idle
     c1c = not mono and (inputs.n_inliers < inputs.n_reference_tracked * config.weak_tracking_ratio or need_close)
     c2 = (inputs.n_inliers < inputs.n_reference_tracked * ratio or need_close) and inputs.n_inliers > config.min_inliers
-    return bool((c1a or c1b or c1c) and c2)
+    if not ((c1a or c1b or c1c) and c2):
+        return False
+    if inputs.local_mapping_idle:
+        return True
+    return not mono and inputs.keyframes_queued < config.max_queued_keyframes

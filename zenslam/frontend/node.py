@@ -8,7 +8,8 @@ and sensor kind that every sensor/frame message carries.
 With a backend (``serve(..., backend=...)``), the backend's backend/map_update messages are applied
 to the pipeline's map: in live mode every update that has arrived is applied before the next
 frame is tracked; in lockstep, after publishing a keyframe the frontend waits for the backend's
-update of that keyframe before it tracks another frame, so the run is deterministic.
+update of that keyframe before it tracks another frame, so the run is deterministic. Pipelined
+(lockstep frames, ``backend.wait_for_map_updates`` false) applies updates as live mode does.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ from zenslam.schemas import codec, keys
 from zenslam.schemas.map_update import MapUpdate
 from zenslam.service import bus
 from zenslam.service.run_config import BackendConfig, load_run_config
-from zenslam.service.supervisor import StopFlag, add_process_arguments, bus_config_with, setup_process_logging
+from zenslam.service.supervisor import StopFlag, add_process_arguments, bus_config_with, log_cpu_times, setup_process_logging
 
 if TYPE_CHECKING:
     from zenslam.service.rerun_log import FrontendLog
@@ -43,7 +44,10 @@ STAGE = "frontend"
 class Pipeline(Protocol):
     """What the node needs of the tracker (FrontendPipeline satisfies it)."""
 
-    def step(self, index: int, stamp_ns: int, left: np.ndarray, right: np.ndarray | None = None, depth_m: np.ndarray | None = None) -> Any: ...
+    def step(
+        self, index: int, stamp_ns: int, left: np.ndarray, right: np.ndarray | None = None,
+        depth_m: np.ndarray | None = None, keyframes_in_flight: int = 0,
+    ) -> Any: ...
 
     def apply_map_update(self, update: MapUpdate) -> None: ...
 
@@ -97,6 +101,7 @@ class FrontendNode:
         self.keyframes = 0  # keyframes sent
         self.skipped = 0  # frames never seen (gaps in the indices: dropped in live mode)
         self.updates_applied = 0  # backend map updates applied to the pipeline's map
+        self.tracks_backend = False  # set by ``serve`` when the backend's map updates are applied
         self._last_index: int | None = None
 
     def handle(self, message: codec.FrameMessage) -> FrontendMessages:
@@ -104,6 +109,7 @@ class FrontendNode:
         camera = (message.calibration, message.sensor)
         if self._pipeline is None:
             logger.info("first frame: %s camera, %s", message.sensor, message.calibration.summary())
+            log_cpu_times("at stream start")
             self._pipeline, self._camera = self._make_pipeline(*camera), camera
         elif camera != self._camera:
             raise CalibrationError(
@@ -115,7 +121,10 @@ class FrontendNode:
             self.skipped += frame.index - self._last_index - 1
         self._last_index = frame.index
         started = time.perf_counter()
-        out = self._pipeline.step(frame.index, frame.stamp_ns, frame.left, right=frame.right, depth_m=frame.depth_m)
+        out = self._pipeline.step(
+            frame.index, frame.stamp_ns, frame.left, right=frame.right, depth_m=frame.depth_m,
+            keyframes_in_flight=self.keyframes_in_flight,
+        )
         step_ms = (time.perf_counter() - started) * 1e3
         self.frames += 1
         if self.rerun is not None:
@@ -140,6 +149,12 @@ class FrontendNode:
             keyframe_id=keyframe_id,
         )
         return FrontendMessages(keyframe_bytes, pose_bytes, codec.encode_tracking_state(state), step_ms, keyframe_id)
+
+    @property
+    def keyframes_in_flight(self) -> int:
+        """Keyframes sent whose map update has not been applied (each keyframe gets one update);
+        without a backend's updates (``serve`` without ``backend``) this is 0: nothing to wait for."""
+        return self.keyframes - self.updates_applied if self.tracks_backend else 0
 
     def log_last_frame(self) -> None:
         """Log the last handled frame to rerun: called after its messages are sent, so the ~1 ms of
@@ -243,6 +258,9 @@ def serve(
     """
     outputs = _Outputs(session, session_name)
     updates = _MapUpdates(session, session_name, backend) if backend is not None else None
+    node.tracks_backend = updates is not None
+    # Lockstep waits for each keyframe's update; live and pipelined apply the updates that have arrived.
+    wait_for_updates = updates is not None and lockstep and backend.wait_for_map_updates
     if lockstep:
         # Lockstep: every frame, in order; the source waits for our state before sending more.
         frames = bus.subscribe(session, keys.sensor_frame(session_name), codec.decode_sensor_frame, "lossless", bus_config.lossless_queue)
@@ -255,7 +273,7 @@ def serve(
         with bus.declare_alive(session, session_name, STAGE):
             while not should_stop():
                 message = frames.get(timeout_s=0.1)
-                if updates is not None and not lockstep:
+                if updates is not None and not wait_for_updates:
                     updates.apply_pending(node)
                 if message is None:
                     continue
@@ -270,7 +288,7 @@ def serve(
                     raise
                 outputs.send(sent)
                 node.log_last_frame()
-                if updates is not None and lockstep and sent.keyframe_id >= 0:
+                if wait_for_updates and sent.keyframe_id >= 0:
                     updates.wait_for(node, sent.keyframe_id, should_stop)
                 status = codec.StageStatusMessage(STAGE, "running", node.frames, sent.step_ms, frames.depth, node.skipped)
                 outputs.send_status(status)

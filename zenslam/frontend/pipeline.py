@@ -100,13 +100,19 @@ class FrontendPipeline:
         left: np.ndarray,
         right: np.ndarray | None = None,
         depth_m: np.ndarray | None = None,
+        keyframes_in_flight: int = 0,
     ) -> TrackingOutput:
-        """Track one capture: ``left`` grey uint8 (H, W), with ``right`` (stereo) or ``depth_m`` (RGB-D, metres)."""
+        """Track one capture: ``left`` grey uint8 (H, W), with ``right`` (stereo) or ``depth_m`` (RGB-D, metres).
+
+        ``keyframes_in_flight``: keyframes sent to the backend whose map update is not applied yet
+        (0 = local mapping idle; always 0 in lockstep, which waits for every update); it throttles the
+        keyframe decision.
+        """
         start = time.perf_counter()
         self._update_camera_rate(stamp_ns)
         timings = {key: 0.0 for key in TIMING_KEYS}
         frame = self._make_frame(index, stamp_ns, left, right, depth_m, timings)
-        result = self.tracker.track(frame)
+        result = self.tracker.track(frame, keyframes_in_flight)
         timings.update(result.timings_ms)
         timings["total"] = (time.perf_counter() - start) * 1e3
         return TrackingOutput(

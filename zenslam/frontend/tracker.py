@@ -135,8 +135,12 @@ class Tracker:
         self._timers: dict[str, float] = {}
 
     # ---- the per-frame entry point ----------------------------------------------------------------
-    def track(self, frame: Frame) -> TrackResult:
-        """Track one frame: its pose in the world, the inlier count, and a keyframe when one is made."""
+    def track(self, frame: Frame, keyframes_in_flight: int = 0) -> TrackResult:
+        """Track one frame: its pose in the world, the inlier count, and a keyframe when one is made.
+
+        ``keyframes_in_flight`` counts keyframes sent to local mapping whose update has not been
+        applied (the keyframe decision's view of local mapping; 0 = idle).
+        """
         self._timers = dict.fromkeys(
             ("motion_model_tracking", "local_map_tracking", "pose_optimization", "keyframe_decision"), 0.0
         )
@@ -162,10 +166,10 @@ class Tracker:
             return self._lost(frame, f"local_map_inliers_below_{self.config.min_local_map_inliers}", n_inliers)
         start = time.perf_counter()
         keyframe = None
-        if self._need_keyframe(frame, rows, n_inliers):
+        if self._need_keyframe(frame, rows, n_inliers, keyframes_in_flight):
             keyframe = self._make_keyframe(frame, T_cam_world, rows)
         self._timers["keyframe_decision"] += (time.perf_counter() - start) * 1e3
-        self.motion.update(self._last.T_cam_world, T_cam_world)
+        self.motion.update(self._last.T_cam_world, T_cam_world, self._frame_gap(frame))
         self._last = _LastFrame(frame, rows, T_cam_world)
         self._lost_streak = 0
         return TrackResult("ok", None, invert_T(T_cam_world), n_inliers, keyframe, dict(self._timers))
@@ -240,7 +244,7 @@ class Tracker:
     def _track_last_frame_or_reference(self, frame: Frame):
         """(T_cam_world, rows, inliers) from the motion model or the reference keyframe, or None."""
         last = self._last
-        predicted = self.motion.predict(last.T_cam_world)
+        predicted = self.motion.predict(last.T_cam_world, self._frame_gap(frame))
         if predicted is not None:
             found = self._track_motion_model(frame, predicted)
             if found is not None:
@@ -249,6 +253,10 @@ class Tracker:
         if found is None and predicted is None:
             found = self._track_motion_model(frame, last.T_cam_world)
         return found
+
+    def _frame_gap(self, frame: Frame) -> int:
+        """Frame indices from the last tracked frame to ``frame`` (1 unless live mode skipped frames)."""
+        return max(frame.index - self._last.frame.index, 1)
 
     def _track_motion_model(self, frame: Frame, T_predicted: np.ndarray):
         """Project the last frame's points with the predicted pose and match them (ORB-SLAM2)."""
@@ -410,7 +418,7 @@ class Tracker:
         rows[match[hit].astype(np.int64)] = candidates[visible[hit]]
 
     # ---- keyframes ----------------------------------------------------------------------------------
-    def _need_keyframe(self, frame: Frame, rows: np.ndarray, n_inliers: int) -> bool:
+    def _need_keyframe(self, frame: Frame, rows: np.ndarray, n_inliers: int, keyframes_in_flight: int) -> bool:
         n_kfs = self.map.n_keyframes
         min_obs = 1 if n_kfs <= 2 else self.config.reference_min_observations
         n_ref = self.map.tracked_points(self._reference_slot, min_obs) if self._reference_slot >= 0 else 0
@@ -424,6 +432,7 @@ class Tracker:
             n_untracked_close=untracked_close,
             camera_fps=self.camera_fps,
             sensor=self.sensor,
+            keyframes_in_flight=keyframes_in_flight,
         )
         return need_new_keyframe(inputs, self.keyframe_config)
 

@@ -142,6 +142,12 @@ class Inbox(Generic[T]):
         self._pull()
         return len(self._pending)
 
+    def count_waiting(self, matches: Callable[[T], bool]) -> int:
+        """Waiting messages for which ``matches(decoded message)`` holds (a lower bound like ``depth``;
+        each is decoded to check, and decoded again when taken)."""
+        self._pull()
+        return sum(1 for sample in self._pending if matches(self._decode(sample.payload.to_bytes())))
+
     def get(self, timeout_s: float | None = None) -> T | None:
         """The next decoded message, or None if none arrives within ``timeout_s`` seconds (None: wait forever)."""
         deadline = None if timeout_s is None else time.monotonic() + timeout_s

@@ -15,7 +15,7 @@ import logging
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
@@ -35,6 +35,8 @@ from zenslam.schemas import codec, keys
 logger = logging.getLogger(__name__)
 
 MAGIC = b"\x89MCAP0\r\n"
+ChunkCompression = Literal["zstd", "lz4", "none"]
+_COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 COMPRESSED_IMAGE = "foxglove.CompressedImage"
 FRAME_TRANSFORM = "foxglove.FrameTransform"
 POINT_CLOUD = "foxglove.PointCloud"
@@ -117,17 +119,19 @@ class _UnbufferedFile:
 
 
 class RecordingWriter:
-    """Writes protobuf messages to an MCAP file with zstd chunks, registering schemas and channels on first use.
+    """Writes protobuf messages to an MCAP file with compressed chunks, registering schemas and channels on first use.
 
     The file is opened unbuffered so every finished chunk reaches the OS at once: a killed writer
     then loses only its open chunk (``zenslam recover`` restores the rest).
     """
 
-    def __init__(self, path: str | Path, chunk_size: int = 4 * 1024 * 1024, profile: str = "zenslam"):
+    def __init__(
+        self, path: str | Path, chunk_size: int = 4 * 1024 * 1024, profile: str = "zenslam", compression: ChunkCompression = "zstd",
+    ):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._stream = _UnbufferedFile(self.path)
-        self._writer = Writer(self._stream, chunk_size=chunk_size, compression=CompressionType.ZSTD)
+        self._writer = Writer(self._stream, chunk_size=chunk_size, compression=_COMPRESSION[compression])
         self._writer.start(profile=profile, library="zenslam")
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, tuple[int, str]] = {}  # topic -> (channel id, schema name)

@@ -45,6 +45,7 @@ from zenslam.service.supervisor import (
     Supervisor,
     add_process_arguments,
     bus_config_with,
+    log_cpu_times,
     setup_process_logging,
 )
 
@@ -114,7 +115,10 @@ def compressed_image(image: np.ndarray, stamp_ns: int, config: RecorderConfig, f
     if config.image_format == "jpeg":
         ok, data = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, config.jpeg_quality])
     else:
-        ok, data = cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, config.png_compression])
+        # Huffman-only deflate: on KITTI and EuRoC frames 25-35% less CPU and 10% smaller files than
+        # the default strategy at level 1 (natural images have few long repeats for LZ77 to find).
+        params = [cv2.IMWRITE_PNG_COMPRESSION, config.png_compression, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY]
+        ok, data = cv2.imencode(".png", image, params)
     if not ok:
         raise mcap_io.RecordingError(f"OpenCV could not encode a {image.dtype} {image.shape} image as {config.image_format}")
     msg = CompressedImage(frame_id=frame_id, data=data.tobytes(), format=config.image_format)
@@ -267,7 +271,7 @@ def record(
     At the end it keeps taking messages until none has arrived for ``config.quiet_s`` seconds, or
     for at most ``max_drain_s`` seconds while publishers are still sending.
     """
-    writer = mcap_io.RecordingWriter(path, chunk_size=config.chunk_size)
+    writer = mcap_io.RecordingWriter(path, chunk_size=config.chunk_size, compression=config.chunk_compression)
     worker = _Worker(Recorder(writer, config, session_name), config.queue)
     followed = _Followed(session, session_name, follow)
     try:
@@ -276,6 +280,7 @@ def record(
         try:
             with bus.declare_alive(session, session_name, STAGE):
                 logger.info("recording %s to %s", keys.everything(session_name), path)
+                log_cpu_times("at stream start")
                 while not should_stop() and not followed.done() and worker.error is None:
                     time.sleep(0.02)
                 drain_until = time.monotonic() + max_drain_s

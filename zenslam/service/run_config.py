@@ -25,6 +25,7 @@ from zenslam.errors import CalibrationError, ConfigError
 from zenslam.frontend.pipeline import FrontendConfig
 from zenslam.service.bus import BusConfig
 from zenslam.service.config import from_mapping, load_yaml, to_mapping
+from zenslam.service.mcap_io import ChunkCompression
 from zenslam.service.evaluation.metrics import EvaluationConfig
 
 logger = logging.getLogger(__name__)
@@ -44,11 +45,20 @@ class SourceConfig:
     depth_encoding: Literal["float32_m", "uint16_mm"] = "float32_m"  # how RGB-D depth travels on the bus
     start_timeout_s: float = 60.0  # seconds to wait for the frontend to come up before giving up
     answer_timeout_s: float = 120.0  # lockstep: seconds to wait for the frontend's answer to one frame
+    # Lockstep: frames sent whose frontend/state has not arrived. 2 reads and sends frame i+1 while
+    # frame i is tracked, taking the source's reading/decoding off the serial path; the frontend
+    # still takes every frame in order, so lockstep outputs are the same at any window. 1 = strict.
+    frames_in_flight: int = 2  # frames
     calibration: PinholeCalibration | None = None  # rectified intrinsics overriding the source's own (None: keep)
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.rate) and self.rate >= 0):
             raise ConfigError(f"source.rate={self.rate} must be >= 0 (1 = recorded rate, 0 = as fast as possible)")
+        if self.frames_in_flight < 1:
+            raise ConfigError(
+                f"source.frames_in_flight={self.frames_in_flight} must be at least 1 frame (1: send a frame only after "
+                "the previous one's state arrived)"
+            )
         if self.max_frames is not None and self.max_frames < 1:
             raise ConfigError(f"source.max_frames={self.max_frames} must be >= 1, or null for all frames")
         for name in ("start_timeout_s", "answer_timeout_s"):
@@ -84,11 +94,25 @@ class BackendConfig:
     # Map updates a subscriber's inbox (the frontend's, the run's) holds before the backend's send blocks.
     map_update_queue: int = 256  # map updates
     update_timeout_s: float = 300.0  # lockstep: seconds the frontend waits for the backend's update of one keyframe
+    # Lockstep source only. True: after each keyframe the frontend waits for its map update
+    # (deterministic, but tracking and mapping take turns). False ("pipelined", ``zenslam run
+    # --pipelined``): every frame is still tracked, in order, but updates are applied as they arrive,
+    # as in live mode, with mapping in parallel and the keyframe throttle seeing its real load (like
+    # ORB-SLAM's threads); outputs then depend on timing. The run still ends after every keyframe's update.
+    wait_for_map_updates: bool = True
     # After its input's end of stream the backend keeps answering backend/map and backend/trajectory
     # for this long (or until stopped: ``zenslam run`` stops it once it has the final trajectory).
     linger_s: float = 60.0  # seconds
+    # Added to the backend process's nice value (0-19, POSIX niceness): best-effort mapping yields
+    # the CPU to tracking, as ORB-SLAM's tracking is its real-time thread. Scheduling only: the
+    # numerics, and lockstep outputs, are the same at any value. On the loaded 2-core machine,
+    # nice 10 made live KITTI x2 runs worse (5-9 keyframes against 6-19 in 3 paired runs): mapping
+    # fell behind, the keyframe throttle held keyframes back and tracking ran out of points.
+    nice: int = 0  # niceness increment
 
     def __post_init__(self) -> None:
+        if not 0 <= self.nice <= 19:
+            raise ConfigError(f"backend.nice={self.nice} must be within 0..19 (a niceness increment; 0 leaves it as is)")
         for name in ("keyframe_queue", "map_update_queue"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"backend.{name}={getattr(self, name)} must be at least 1 message")
@@ -104,11 +128,17 @@ class RecorderConfig:
 
     enabled: bool = True  # start the recorder with ``zenslam run``
     # The /camera/* Foxglove images drawn by viewers; sensor/frame itself is always recorded losslessly.
-    image_format: Literal["png", "jpeg"] = "png"
+    # JPEG: on the KITTI clip's 102 images 0.09 s CPU and 12 MB against PNG's 0.71 s and 27 MB
+    # (benchmarks/recorder_compression.py); PNG if the viewer images must be lossless too.
+    image_format: Literal["png", "jpeg"] = "jpeg"
     jpeg_quality: int = 90  # JPEG quality 1-100 (image_format jpeg)
     png_compression: int = 1  # zlib level 0-9 (image_format png); 1 is fast and already halves natural images
-    # Uncompressed bytes per zstd chunk; a killed recorder loses the open chunk (``zenslam recover`` keeps the rest).
+    # Uncompressed bytes per chunk; a killed recorder loses the open chunk (``zenslam recover`` keeps the rest).
     chunk_size: int = 4 * 1024 * 1024  # bytes
+    # MCAP chunk compression: zstd, lz4 or none. On the KITTI clip's recording lz4 took half of zstd's
+    # CPU (0.24 s vs 0.50 s) for an 11% larger file (87 vs 78 MB; raw images barely compress):
+    # the recorder competes with tracking and mapping for the CPU, so lz4; zstd for smaller archives.
+    chunk_compression: ChunkCompression = "lz4"
     # Messages waiting for the writer thread; when full, publishers block (lossless: nothing is dropped).
     queue: int = 64  # messages
     quiet_s: float = 0.3  # seconds without a message that count as drained, at the end

@@ -1,9 +1,10 @@
 """The source process: plays a Source onto sensor/frame, paced at the recorded rate or in lockstep.
 
 Live mode sends frame i at its recorded time (scaled by ``source.rate``) whether or not anyone
-keeps up, with DROP congestion control, like a camera. Lockstep mode sends frame i+1 only after the
-frontend's frontend/state for frame i has arrived, with lossless delivery: every frame is tracked,
-in order, and the run is deterministic. Either way the stream ends with an end-of-stream message.
+keeps up, with DROP congestion control, like a camera. Lockstep mode keeps at most
+``source.frames_in_flight`` frames sent without the frontend's frontend/state (frame i+1 is read
+while frame i is tracked), with lossless delivery: every frame is tracked, in order, and the run is
+deterministic. Either way the stream ends with an end-of-stream message.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ import argparse
 import logging
 import sys
 import time
+from collections import deque
 from collections.abc import Callable, Iterable
 from typing import TYPE_CHECKING
 
@@ -23,7 +25,7 @@ from zenslam.schemas import codec, keys
 from zenslam.service import bus
 from zenslam.service.run_config import SourceConfig, load_run_config
 from zenslam.service.sources import SensorFrame, open_source
-from zenslam.service.supervisor import StopFlag, add_process_arguments, bus_config_with, setup_process_logging
+from zenslam.service.supervisor import StopFlag, add_process_arguments, bus_config_with, log_cpu_times, setup_process_logging
 
 if TYPE_CHECKING:
     from zenslam.service.rerun_log import SourceLog
@@ -101,7 +103,9 @@ def play(
         if not should_stop():
             raise bus.BusError(f"no subscriber to {key} within {config.start_timeout_s:.0f} s; is the frontend running?")
     pacer = _Pacer(0.0 if config.lockstep else config.rate, should_stop)
+    log_cpu_times("at stream start")
     sent = 0
+    in_flight: deque[int] = deque()  # lockstep: indices of the frames sent and not answered, oldest first
     try:
         for frame in frames:
             if should_stop() or (config.max_frames is not None and sent >= config.max_frames):
@@ -110,12 +114,16 @@ def play(
             started = time.perf_counter()
             frame_pub.put(codec.encode_sensor_frame(frame, calibration, sensor, source_name, config.depth_encoding))
             sent += 1
+            in_flight.append(frame.index)
             if rerun is not None:
                 rerun.log_frame(frame)  # while the frontend tracks it
-            if states is not None:
-                _wait_for_answer(states, frame.index, config.answer_timeout_s, should_stop)
+            # States come lossless and in frame order: the oldest frame in flight is answered first.
+            while states is not None and len(in_flight) >= config.frames_in_flight:
+                _wait_for_answer(states, in_flight.popleft(), config.answer_timeout_s, should_stop)
             status = codec.StageStatusMessage(STAGE, "running", sent, (time.perf_counter() - started) * 1e3)
             status_pub.put(codec.encode_stage_status(status))
+        while states is not None and in_flight and not should_stop():
+            _wait_for_answer(states, in_flight.popleft(), config.answer_timeout_s, should_stop)
     finally:
         end_pub.put(codec.encode_end_of_stream(codec.SENSOR_FRAME, sent))
         status_pub.put(codec.encode_stage_status(codec.StageStatusMessage(STAGE, "finished", sent)))

@@ -10,6 +10,7 @@ stops by itself, so no process outlives its run.
 from __future__ import annotations
 
 import argparse
+import atexit
 import dataclasses
 import logging
 import os
@@ -246,3 +247,11 @@ def setup_process_logging(verbose: bool, stage: str) -> None:
         level=logging.DEBUG if verbose else logging.INFO, format=f"%(asctime)s {stage} %(levelname)s %(name)s: %(message)s"
     )
     bus.quiet_zenoh_logs()
+    atexit.register(log_cpu_times)  # runs before logging's own atexit shutdown (registered earlier)
+
+
+def log_cpu_times(when: str = "at exit") -> None:
+    """Log the process's CPU time so far (all its threads, zenoh's included) as
+    ``cpu <when>: user U s system S s``; stages log it when their stream starts and at exit."""
+    times = os.times()
+    logger.info("cpu %s: user %.3f s system %.3f s", when, times.user, times.system)

@@ -36,7 +36,7 @@ from zenslam.service.run_output import (
     write_outputs,
 )
 from zenslam.service.sources import Source, open_source
-from zenslam.service.supervisor import ProcessError, ProcessSpec, StopFlag, Supervisor
+from zenslam.service.supervisor import ProcessError, ProcessSpec, StopFlag, Supervisor, log_cpu_times
 
 logger = logging.getLogger(__name__)
 
@@ -63,11 +63,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--orbslam-settings", type=Path, default=None, help="ORB-SLAM2/3 settings file: calibration and ORB values")
     pacing = parser.add_mutually_exclusive_group()
     pacing.add_argument(
-        "--lockstep", dest="lockstep", action="store_const", const=True, default=None,
-        help="deterministic, nothing dropped: each frame waits for the previous one's tracking (the default)",
+        "--lockstep", dest="pacing", action="store_const", const="lockstep", default=None,
+        help="deterministic, nothing dropped: frames wait for tracking, tracking for each keyframe's map update (the default)",
     )
     pacing.add_argument(
-        "--live", dest="lockstep", action="store_const", const=False,
+        "--pipelined", dest="pacing", action="store_const", const="pipelined",
+        help="nothing dropped, as fast as the machine allows: frames wait for tracking, but mapping runs in parallel "
+        "(map updates applied as they arrive; not deterministic)",
+    )
+    pacing.add_argument(
+        "--live", dest="pacing", action="store_const", const="live",
         help="play at the recorded rate (see --rate) like a camera; a slow stage skips frames",
     )
     parser.add_argument("--rate", type=float, default=None, help="live playback speed, multiple of the recorded rate (0: fastest)")
@@ -86,8 +91,10 @@ def resolve_config(args: argparse.Namespace) -> RunConfig:
     source = config.source
     if args.source is not None:
         source = dataclasses.replace(source, spec=args.source)
-    if args.lockstep is not None:
-        source = dataclasses.replace(source, lockstep=args.lockstep)
+    backend = config.backend
+    if args.pacing is not None:
+        source = dataclasses.replace(source, lockstep=args.pacing != "live")
+        backend = dataclasses.replace(backend, wait_for_map_updates=args.pacing != "pipelined")
     if args.rate is not None:
         source = dataclasses.replace(source, rate=args.rate)
     if args.max_frames is not None:
@@ -95,7 +102,14 @@ def resolve_config(args: argparse.Namespace) -> RunConfig:
     bus_config = config.bus
     if args.bus_config is not None:
         bus_config = dataclasses.replace(bus_config, zenoh_config_file=str(args.bus_config))
-    return dataclasses.replace(config, source=source, bus=bus_config)
+    return dataclasses.replace(config, source=source, backend=backend, bus=bus_config)
+
+
+def pacing(config: RunConfig) -> str:
+    """The run mode: "lockstep", "pipelined" (lockstep frames, map updates not waited for) or "live"."""
+    if not config.source.lockstep:
+        return "live"
+    return "lockstep" if config.backend.wait_for_map_updates else "pipelined"
 
 
 def _child_env(config: RunConfig) -> dict[str, str]:
@@ -223,7 +237,9 @@ def track(config: RunConfig, run_id: str, run_dir: Path, config_path: Path, sour
                 supervisor.start(ProcessSpec("frontend", "zenslam.frontend.node", frontend_args))
                 supervisor.wait_until_alive(session, ["frontend"], timeout_s, stop.keep_going)
                 supervisor.start(ProcessSpec("source", "zenslam.service.source_node", ("--wait-for", "frontend", *heard)))
+                log_cpu_times("at stream start")
                 completed = _follow(follower, supervisor, stop) and _follow_backend(follower, supervisor, stop)
+                log_cpu_times("at stream end")
                 if completed:
                     follower.log.backend_keyframes = query_trajectory(session, run_id, _QUERY_TIMEOUT_S)
                     if follower.log.backend_keyframes is None:
@@ -265,7 +281,10 @@ def run(args: argparse.Namespace) -> int:
     config_path = write_config(run_dir, config)
     logger.info("run %s: %s (%s, %d frames) -> %s", run_id, source.name, source.sensor, len(source), run_dir)
     log, completed = track(config, run_id, run_dir, config_path, source, progress=not args.no_progress)
-    extra = {"run": {"run_id": run_id, "source": config.source.spec, "lockstep": config.source.lockstep, "completed": completed}}
+    extra = {"run": {
+        "run_id": run_id, "source": config.source.spec, "lockstep": config.source.lockstep,
+        "pacing": pacing(config), "completed": completed,
+    }}
     evaluation_config = evaluation_config_for(config.evaluation, source.sensor)
     result = write_outputs(run_dir, log, source.ground_truth(), evaluation_config, extra)
     for line in _summary(result, log):
