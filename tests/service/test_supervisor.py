@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from zenslam.service import bus
-from zenslam.service.supervisor import ProcessError, ProcessSpec, StopFlag, Supervisor
+from zenslam.service.supervisor import MALLOC_TUNABLES, ProcessError, ProcessSpec, StopFlag, Supervisor
 
 # A stage-like child: parses the common arguments, joins the bus, announces itself, waits for a stop.
 STAGE_CHILD = """
@@ -53,12 +53,18 @@ while True:
 """
 
 
+ENV_CHILD = """
+import os
+print("GLIBC_TUNABLES=" + os.environ.get("GLIBC_TUNABLES", "<unset>"), flush=True)
+"""
+
+
 @pytest.fixture
 def modules(tmp_path: Path) -> dict[str, str]:
     """Child modules importable by ``python -m`` through PYTHONPATH."""
     pkg = tmp_path / "children"
     pkg.mkdir()
-    for name, text in {"stage_child": STAGE_CHILD, "crashing_child": CRASHING_CHILD, "stubborn_child": STUBBORN_CHILD}.items():
+    for name, text in {"stage_child": STAGE_CHILD, "crashing_child": CRASHING_CHILD, "stubborn_child": STUBBORN_CHILD, "env_child": ENV_CHILD}.items():
         (pkg / f"{name}.py").write_text(textwrap.dedent(text))
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([str(pkg), env.get("PYTHONPATH", "")])
@@ -148,3 +154,15 @@ def test_the_same_stage_cannot_start_twice(tmp_path, modules):
         supervisor.start(ProcessSpec("frontend", "crashing_child"))
         with pytest.raises(ProcessError, match="already running"):
             supervisor.start(ProcessSpec("frontend", "crashing_child"))
+
+
+@pytest.mark.parametrize("given", [None, "glibc.malloc.arena_max=2"])
+def test_children_get_the_malloc_tunables_unless_the_caller_set_their_own(tmp_path, modules, given):
+    env = dict(modules)
+    env.pop("GLIBC_TUNABLES", None)
+    if given is not None:
+        env["GLIBC_TUNABLES"] = given
+    with _supervisor(tmp_path, env) as supervisor:
+        supervisor.start(ProcessSpec("env", "env_child"))
+        supervisor.wait_exit(timeout_s=30.0)
+        assert f"GLIBC_TUNABLES={given or MALLOC_TUNABLES}" in supervisor.log_tail("env")

@@ -34,6 +34,15 @@ def test_colour_png_is_converted_to_grey_within_one_level_of_cvtcolor(tmp_path: 
     assert np.abs(back.astype(int) - reference).max() <= 1
 
 
+def test_sixteen_bit_grey_png_is_read_as_eight_bit_grey(tmp_path: Path):
+    # Only 8-bit grey PNGs are decoded as stored; any other PNG goes through OpenCV's grey conversion.
+    wide = _texture((10, 12), seed=3, dtype=np.uint16)
+    write_png(tmp_path / "g16.png", wide)
+    back = read_grey(tmp_path / "g16.png")
+    assert back.dtype == np.uint8 and back.shape == (10, 12)
+    np.testing.assert_array_equal(back, cv2.imread(str(tmp_path / "g16.png"), cv2.IMREAD_GRAYSCALE))
+
+
 def test_depth_png_keeps_16_bits(tmp_path: Path):
     depth = _texture((10, 12), seed=2, dtype=np.uint16)
     write_png(tmp_path / "d.png", depth)

@@ -10,14 +10,21 @@ import numpy as np
 from zenslam.errors import DatasetError, ImageReadError
 
 
-def _decode(path: Path, flags: int) -> np.ndarray:
-    """Decode the image file at ``path`` with OpenCV ``flags``; ImageReadError when that fails."""
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def _read(path: Path) -> np.ndarray:
+    """The bytes of the image file at ``path``; ImageReadError when it is missing or unreadable."""
     if not path.is_file():
         raise ImageReadError(f"image {path} does not exist; check the dataset folder is complete")
     try:
-        data = np.fromfile(path, dtype=np.uint8)
+        return np.fromfile(path, dtype=np.uint8)
     except OSError as exc:
         raise ImageReadError(f"image {path} cannot be read ({exc}); check its permissions") from exc
+
+
+def _decode(path: Path, data: np.ndarray, flags: int) -> np.ndarray:
+    """Decode the bytes ``data`` of the image file ``path`` with OpenCV ``flags``; ImageReadError when that fails."""
     image = cv2.imdecode(data, flags) if data.size else None
     if image is None:
         raise ImageReadError(
@@ -25,6 +32,11 @@ def _decode(path: Path, flags: int) -> np.ndarray:
             "re-download or replace it"
         )
     return image
+
+
+def _is_8bit_grey_png(data: np.ndarray) -> bool:
+    """Whether ``data`` is a PNG whose header (IHDR: bit depth at byte 24, colour type at 25) says 8-bit grey."""
+    return data.size > 25 and data[:8].tobytes() == _PNG_SIGNATURE and data[24] == 8 and data[25] == 0
 
 
 def _check_shape(path: Path, image: np.ndarray, expected_shape: tuple[int, int] | None) -> None:
@@ -43,7 +55,10 @@ def read_grey(path: Path, expected_shape: tuple[int, int] | None = None) -> np.n
     ``expected_shape`` is (height, width) in pixels; a different size raises ImageReadError.
     """
     path = Path(path)
-    image = _decode(path, cv2.IMREAD_GRAYSCALE)
+    data = _read(path)
+    # An 8-bit grey PNG (KITTI, EuRoC) decodes to the same pixels either way, but OpenCV's
+    # grey-conversion path took 4.6 ms per KITTI image against 2.9 ms as stored.
+    image = _decode(path, data, cv2.IMREAD_UNCHANGED if _is_8bit_grey_png(data) else cv2.IMREAD_GRAYSCALE)
     _check_shape(path, image, expected_shape)
     return image
 
@@ -51,7 +66,7 @@ def read_grey(path: Path, expected_shape: tuple[int, int] | None = None) -> np.n
 def read_depth_u16(path: Path, expected_shape: tuple[int, int] | None = None) -> np.ndarray:
     """Read a single-channel 16-bit depth PNG as stored (raw units, 0 = unknown), shape (H, W)."""
     path = Path(path)
-    image = _decode(path, cv2.IMREAD_UNCHANGED)
+    image = _decode(path, _read(path), cv2.IMREAD_UNCHANGED)
     if image.dtype != np.uint16 or image.ndim != 2:
         channels = 1 if image.ndim == 2 else image.shape[2]
         raise ImageReadError(
@@ -65,7 +80,7 @@ def read_depth_u16(path: Path, expected_shape: tuple[int, int] | None = None) ->
 def image_size(path: Path) -> tuple[int, int]:
     """(height, width) in pixels of the image at ``path`` (decodes it once)."""
     path = Path(path)
-    return _decode(path, cv2.IMREAD_GRAYSCALE).shape[:2]
+    return _decode(path, _read(path), cv2.IMREAD_GRAYSCALE).shape[:2]
 
 
 def write_png(path: Path, image: np.ndarray) -> None:
