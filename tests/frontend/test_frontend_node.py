@@ -36,9 +36,16 @@ class StubPipeline:
 
     def __init__(self, calibration: PinholeCalibration, sensor: str):
         self.calibration, self.sensor, self.seen, self.in_flight = calibration, sensor, [], []
+        self.prepared, self.used_prepared = [], []
 
-    def step(self, index, stamp_ns, left, right=None, depth_m=None, keyframes_in_flight=0):
+    def prepare(self, index, stamp_ns, left, right=None, depth_m=None):
+        self.prepared.append(index)
+        return SimpleNamespace(index=index)
+
+    def step(self, index, stamp_ns, left, right=None, depth_m=None, keyframes_in_flight=0, prepared=None):
         assert left.shape == (24, 32) and right is not None and depth_m is None
+        assert prepared is None or prepared.index == index
+        self.used_prepared.append(prepared is not None)
         self.seen.append(index)
         self.in_flight.append(keyframes_in_flight)
         lost = index % 10 == 7
@@ -101,6 +108,22 @@ def test_keyframes_in_flight_reach_the_pipeline():
     for frame in frames:
         alone.handle(_message(frame))
     assert alone.keyframes == 3 and alone.keyframes_in_flight == 0
+
+
+def test_a_frame_prepared_ahead_is_used_by_its_own_handle_only():
+    pipelines = []
+    node = FrontendNode(lambda cal, sensor: pipelines.append(StubPipeline(cal, sensor)) or pipelines[-1])
+    frames = _frames(4)
+    node.prepare_ahead(_message(frames[0]))  # no pipeline before the first frame: nothing to prepare with
+    node.handle(_message(frames[0]))
+    node.prepare_ahead(_message(frames[1]))
+    node.handle(_message(frames[1]))
+    node.prepare_ahead(_message(frames[3]))  # frame 2 comes first: the frame prepared for 3 is not used for it
+    node.handle(_message(frames[2]))
+    node.handle(_message(frames[3]))
+    node.close()
+    assert pipelines[0].prepared[0] == 1  # (whether 3's ran before it was dropped is up to the thread)
+    assert pipelines[0].used_prepared == [False, True, False, False]
 
 
 def test_gaps_in_frame_indices_count_as_skipped():

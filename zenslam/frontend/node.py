@@ -8,7 +8,9 @@ and sensor kind that every sensor/frame message carries.
 With a backend (``serve(..., backend=...)``), the backend's backend/map_update messages are applied
 to the pipeline's map: in live mode every update that has arrived is applied before the next
 frame is tracked; in lockstep, after publishing a keyframe the frontend waits for the backend's
-update of that keyframe before it tracks another frame, so the run is deterministic. Pipelined
+update of that keyframe before it tracks another frame, so the run is deterministic; meanwhile
+it builds the next frame (ORB, stereo or depth: images only, no map) if that frame has arrived,
+so the backend's mapping and the frontend's feature extraction share the two cores. Pipelined
 (lockstep frames, ``backend.wait_for_map_updates`` false) applies updates as live mode does.
 """
 
@@ -19,6 +21,7 @@ import logging
 import sys
 import time
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -44,9 +47,13 @@ STAGE = "frontend"
 class Pipeline(Protocol):
     """What the node needs of the tracker (FrontendPipeline satisfies it)."""
 
+    def prepare(
+        self, index: int, stamp_ns: int, left: np.ndarray, right: np.ndarray | None = None, depth_m: np.ndarray | None = None
+    ) -> Any: ...
+
     def step(
         self, index: int, stamp_ns: int, left: np.ndarray, right: np.ndarray | None = None,
-        depth_m: np.ndarray | None = None, keyframes_in_flight: int = 0,
+        depth_m: np.ndarray | None = None, keyframes_in_flight: int = 0, prepared: Any = None,
     ) -> Any: ...
 
     def apply_map_update(self, update: MapUpdate) -> None: ...
@@ -103,6 +110,34 @@ class FrontendNode:
         self.updates_applied = 0  # backend map updates applied to the pipeline's map
         self.tracks_backend = False  # set by ``serve`` when the backend's map updates are applied
         self._last_index: int | None = None
+        self._ahead: tuple[int, Future] | None = None  # (frame index, its frame being prepared)
+        self._ahead_worker: ThreadPoolExecutor | None = None
+
+    def prepare_ahead(self, message: codec.FrameMessage) -> None:
+        """Start building the frame of ``message`` on a worker thread; ``handle`` of that message
+        takes it (the same frame as built there: it depends on the images alone)."""
+        if self._pipeline is None or (message.calibration, message.sensor) != self._camera:
+            return  # the first frame builds the pipeline; a changed camera fails in handle
+        if self._ahead_worker is None:
+            self._ahead_worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="frame-ahead")
+        frame = message.frame
+        future = self._ahead_worker.submit(
+            self._pipeline.prepare, frame.index, frame.stamp_ns, frame.left, right=frame.right, depth_m=frame.depth_m
+        )
+        self._ahead = (frame.index, future)
+
+    def close(self) -> None:
+        """Stop the worker thread of ``prepare_ahead``, if it was started."""
+        if self._ahead_worker is not None:
+            self._ahead_worker.shutdown(wait=True, cancel_futures=True)
+            self._ahead_worker = None
+
+    def _take_ahead(self, index: int) -> Any:
+        """The frame prepared ahead for ``index`` (its errors raised here), or None."""
+        ahead, self._ahead = self._ahead, None
+        if ahead is None or ahead[0] != index:
+            return None
+        return ahead[1].result()
 
     def handle(self, message: codec.FrameMessage) -> FrontendMessages:
         """Track one frame; the pipeline is built on the first one, from its calibration and sensor."""
@@ -123,7 +158,7 @@ class FrontendNode:
         started = time.perf_counter()
         out = self._pipeline.step(
             frame.index, frame.stamp_ns, frame.left, right=frame.right, depth_m=frame.depth_m,
-            keyframes_in_flight=self.keyframes_in_flight,
+            keyframes_in_flight=self.keyframes_in_flight, prepared=self._take_ahead(frame.index),
         )
         step_ms = (time.perf_counter() - started) * 1e3
         self.frames += 1
@@ -271,8 +306,10 @@ def serve(
     ended = False
     try:
         with bus.declare_alive(session, session_name, STAGE):
+            held = None  # a frame taken from the inbox early, to prepare it while waiting for the backend
             while not should_stop():
-                message = frames.get(timeout_s=0.1)
+                message = held if held is not None else frames.get(timeout_s=0.1)
+                held = None
                 if updates is not None and not wait_for_updates:
                     updates.apply_pending(node)
                 if message is None:
@@ -289,11 +326,15 @@ def serve(
                 outputs.send(sent)
                 node.log_last_frame()
                 if wait_for_updates and sent.keyframe_id >= 0:
+                    held = frames.get(timeout_s=0)
+                    if isinstance(held, codec.FrameMessage):
+                        node.prepare_ahead(held)
                     updates.wait_for(node, sent.keyframe_id, should_stop)
                 status = codec.StageStatusMessage(STAGE, "running", node.frames, sent.step_ms, frames.depth, node.skipped)
                 outputs.send_status(status)
                 logger.debug("frame %d: %.1f ms, queue %d", message.frame.index, sent.step_ms, status.queue_depth)
     finally:
+        node.close()
         outputs.end_streams(node.frames, node.keyframes)
         outputs.send_status(codec.StageStatusMessage(STAGE, "finished", node.frames, dropped=node.skipped))
         frames.close()

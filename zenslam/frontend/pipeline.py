@@ -68,6 +68,15 @@ class TrackingOutput:
     timings_ms: dict[str, float]
 
 
+@dataclass(frozen=True)
+class PreparedFrame:
+    """A capture turned into a ``Frame`` (ORB features, stereo matches or depths), not yet tracked."""
+
+    frame: Frame
+    timings_ms: dict[str, float]  # the frame-building stages of TIMING_KEYS, milliseconds
+    elapsed_ms: float  # wall time spent building it, milliseconds
+
+
 class FrontendPipeline:
     """Builds a frame from the images (ORB, stereo or RGB-D depth) and tracks it.
 
@@ -93,6 +102,17 @@ class FrontendPipeline:
         self._first_stamp_ns: int | None = None
         self._rate_known = False
 
+    def prepare(
+        self, index: int, stamp_ns: int, left: np.ndarray, right: np.ndarray | None = None, depth_m: np.ndarray | None = None
+    ) -> PreparedFrame:
+        """Build the frame of one capture without tracking it. It depends on the images alone, not on
+        the map, so it may run ahead (while the previous frame waits for the backend) and give the
+        same frame as in ``step``."""
+        start = time.perf_counter()
+        timings = {key: 0.0 for key in TIMING_KEYS}
+        frame = self._make_frame(index, stamp_ns, left, right, depth_m, timings)
+        return PreparedFrame(frame, timings, (time.perf_counter() - start) * 1e3)
+
     def step(
         self,
         index: int,
@@ -101,20 +121,23 @@ class FrontendPipeline:
         right: np.ndarray | None = None,
         depth_m: np.ndarray | None = None,
         keyframes_in_flight: int = 0,
+        prepared: PreparedFrame | None = None,
     ) -> TrackingOutput:
         """Track one capture: ``left`` grey uint8 (H, W), with ``right`` (stereo) or ``depth_m`` (RGB-D, metres).
 
         ``keyframes_in_flight``: keyframes sent to the backend whose map update is not applied yet
         (0 = local mapping idle; always 0 in lockstep, which waits for every update); it throttles the
-        keyframe decision.
+        keyframe decision. ``prepared``: this capture's frame from ``prepare``, when built ahead; the
+        timings' total then adds the time it took to the tracking's.
         """
+        if prepared is None or prepared.frame.index != index:
+            prepared = self.prepare(index, stamp_ns, left, right, depth_m)
         start = time.perf_counter()
         self._update_camera_rate(stamp_ns)
-        timings = {key: 0.0 for key in TIMING_KEYS}
-        frame = self._make_frame(index, stamp_ns, left, right, depth_m, timings)
-        result = self.tracker.track(frame, keyframes_in_flight)
+        timings = dict(prepared.timings_ms)
+        result = self.tracker.track(prepared.frame, keyframes_in_flight)
         timings.update(result.timings_ms)
-        timings["total"] = (time.perf_counter() - start) * 1e3
+        timings["total"] = prepared.elapsed_ms + (time.perf_counter() - start) * 1e3
         return TrackingOutput(
             index=index,
             stamp_ns=stamp_ns,
