@@ -275,6 +275,30 @@ def test_map_update_replaces_keyframe_pose_and_associations() -> None:
         assert lm.tracked_points(1, 2) == 30
 
 
+def test_keyframes_the_backend_has_not_mapped_follow_their_parents_correction() -> None:
+    lm = LocalMap()
+    kf0 = add_keyframe(lm, [], 40)
+    kf1 = add_keyframe(lm, kf0.new_point_ids[:30], 20, centre=(0.0, 0.0, 1.0))
+    kf2 = add_keyframe(lm, kf1.new_point_ids[:15], 20, centre=(0.0, 0.0, 2.0))
+    assert (lm.parent(1), lm.parent(2)) == (0, 1)
+    old_p = {kf.id: lm.p_world[lm.rows_of_ids(kf.new_point_ids)].copy() for kf in (kf0, kf1, kf2)}
+    correction = make_T(np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]), np.array([0.1, 0.0, 0.0]))
+    # The backend has mapped kf0 only: it moves kf0 and five of its points.
+    update = _update(
+        lm, kf0.new_point_ids[:5], np.zeros((5, 3)), keyframe_id=kf0.id,
+        keyframes=(KeyframeCorrection(kf0.id, correction @ kf0.T_world_cam, kf0.map_point_ids),),
+    )
+    for _ in range(2):  # applying the update again moves nothing more
+        lm.apply_map_update(update)
+        for slot, kf in ((1, kf1), (2, kf2)):
+            np.testing.assert_allclose(lm.keyframe(slot).T_world_cam, correction @ kf.T_world_cam, atol=1e-12)
+            moved = old_p[kf.id] @ correction[:3, :3].T + correction[:3, 3]
+            np.testing.assert_allclose(lm.p_world[lm.rows_of_ids(kf.new_point_ids)], moved, atol=1e-12)
+        np.testing.assert_array_equal(lm.p_world[lm.rows_of_ids(kf0.new_point_ids[:5])], np.zeros((5, 3)))
+        # kf0's other points are the backend's business: not listed, not moved.
+        np.testing.assert_array_equal(lm.p_world[lm.rows_of_ids(kf0.new_point_ids[5:])], old_p[kf0.id][5:])
+
+
 def test_map_update_removes_keyframes() -> None:
     lm = LocalMap()
     kf0 = add_keyframe(lm, [], 40)

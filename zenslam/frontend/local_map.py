@@ -25,6 +25,7 @@ import numpy as np
 
 from zenslam.frontend.id_index import IdIndex
 from zenslam.frontend.keyframe import KeyFrame
+from zenslam.geometry import invert_T, transform_points
 from zenslam.map_point_rules import representative_descriptors, scale_invariance_range
 from zenslam.schemas.map_update import KeyframeCorrection, MapUpdate
 
@@ -457,11 +458,34 @@ class LocalMap:
         are skipped (it cannot rebuild their keypoints). Points listed by the backend are never
         culled by ``cull_recent_points``: the backend decides about them.
         """
+        moved = self._poses_of(update.keyframes)
         self._replace_points(update)
         self._replace_keyframes(update.keyframes)
+        self._carry_unmapped_keyframes(update, moved)
         self.remove_points(update.removed_point_ids)
         for keyframe_id in np.asarray(update.removed_keyframe_ids, dtype=np.int64).tolist():
             self._remove_keyframe(keyframe_id)
+
+    def _poses_of(self, corrections: list[KeyframeCorrection]) -> dict[int, np.ndarray]:
+        """Slot -> current T_world_cam of the known keyframes among ``corrections``."""
+        slots = (self.slot_of(c.id) for c in corrections)
+        return {s: self._keyframes[s].T_world_cam for s in slots if s >= 0 and self._keyframes[s] is not None}
+
+    def _carry_unmapped_keyframes(self, update: MapUpdate, before: dict[int, np.ndarray]) -> None:
+        """Move the keyframes made after ``update.keyframe_id`` (the backend has not mapped them
+        yet) and the points they created with their spanning-tree parent's correction, as ORB-SLAM
+        corrects the last frame through its reference keyframe: without it, tracking between an
+        update and the next would mix the corrected map with keyframes placed on the old one."""
+        correction = {s: self._keyframes[s].T_world_cam @ invert_T(T) for s, T in before.items()}
+        for slot, keyframe in enumerate(self._keyframes):
+            if keyframe is None or keyframe.id <= update.keyframe_id or slot in before or self._parent[slot] not in correction:
+                continue
+            C = correction[slot] = correction[self._parent[slot]]
+            self._keyframes[slot] = dataclasses.replace(keyframe, T_world_cam=C @ keyframe.T_world_cam)
+            self._kf_centres[slot] = self._keyframes[slot].centre_world
+            rows = self.rows_of_ids(keyframe.new_point_ids[~np.isin(keyframe.new_point_ids, update.point_ids)])
+            rows = rows[rows >= 0]
+            self._pts["p_world"][rows] = transform_points(C, self._pts["p_world"][rows])
 
     def _replace_points(self, update: MapUpdate) -> None:
         rows = self.rows_of_ids(update.point_ids)
