@@ -12,8 +12,8 @@ final keyframe poses, keyframes made / left after culling, map points per keyfra
 the frontend's and the backend's per-step times (mean / median / max ms) and the whole run's
 wall time against the clip's real duration.
 
-Run: ``/work/venv/bin/python benchmarks/backend_quality.py [--data ../shared/data] [--synthetic]
-[--only kitti] [--max-frames N]`` (writes benchmarks/results/backend_quality.json).
+Run: ``.venv/bin/python benchmarks/backend_quality.py [--data ../shared/data] [--synthetic]
+[--only kitti] [--max-frames N] [--update-lag N]`` (writes benchmarks/results/backend_quality.json).
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ import os
 import platform
 import statistics
 import time
+from collections import deque
 from pathlib import Path
 
 import numpy as np
@@ -60,14 +61,19 @@ def ate_of(stamps_ns: list[int], poses: list[np.ndarray], ground_truth: Trajecto
 
 
 def run_once(frames, calibration, sensor, ground_truth: Trajectory, with_backend: bool,
-             frontend_config: FrontendConfig, backend_config: BackendConfig) -> dict:  # fmt: skip
-    """Track every frame (images loaded beforehand), optionally with the backend in lockstep."""
+             frontend_config: FrontendConfig, backend_config: BackendConfig, update_lag: int = 0) -> dict:  # fmt: skip
+    """Track every frame (images loaded beforehand), optionally with the backend: in lockstep, or
+    with each keyframe's map update applied ``update_lag`` frames late (a deterministic model of
+    mapping that lags tracking, as in pipelined and live runs; every keyframe fully mapped)."""
     pipeline = FrontendPipeline(frontend_config, calibration, sensor)
     backend = BackendNode.from_config(backend_config) if with_backend else None
     stamps, poses, states, frontend_ms, backend_steps = [], [], [], [], []
+    late: deque[tuple[int, object]] = deque()  # (frame index before which it is applied, map update)
     n_keyframes = 0
     start = time.perf_counter()
     for frame in frames:
+        while late and late[0][0] <= frame.index:
+            pipeline.apply_map_update(late.popleft()[1])
         out = pipeline.step(frame.index, frame.stamp_ns, frame.left, right=frame.right, depth_m=frame.depth_m)
         frontend_ms.append(out.timings_ms["total"])
         states.append(out.state)
@@ -81,7 +87,7 @@ def run_once(frames, calibration, sensor, ground_truth: Trajectory, with_backend
             message = codec.decode_keyframe(codec.encode_keyframe(keyframe_message(out.keyframe, calibration, sensor)))
             update = backend.step(message)
             backend_steps.append(backend.last_timings_ms)
-            pipeline.apply_map_update(codec.decode_map_update(codec.encode_map_update(update)))
+            late.append((frame.index + 1 + update_lag, codec.decode_map_update(codec.encode_map_update(update))))
     wall_s = time.perf_counter() - start
     result = {
         "frames": len(frames),
@@ -114,17 +120,17 @@ def backend_report(backend: BackendNode, steps: list[dict[str, float]], ground_t
     return report
 
 
-def run(name: str, source, backend_only: bool, max_frames: int | None = None) -> dict:
+def run(name: str, source, backend_only: bool, max_frames: int | None = None, update_lag: int = 0) -> dict:
     frames = list(itertools.islice(source, max_frames))
     ground_truth = source.ground_truth()
     frontend_config, backend_config = FrontendConfig(), BackendConfig()
     args = (frames, source.calibration, source.sensor, ground_truth)
     stamps = np.array([f.stamp_ns for f in frames], np.int64)
     real_s = float((stamps[-1] - stamps[0] + np.median(np.diff(stamps))) * 1e-9)
-    result = {"name": name, "sensor": source.sensor, "real_time_s": real_s, "load_before": os.getloadavg()}
+    result = {"name": name, "sensor": source.sensor, "real_time_s": real_s, "update_lag": update_lag, "load_before": os.getloadavg()}
     if not backend_only:
         result["frontend_only"] = run_once(*args, False, frontend_config, backend_config)
-    result["with_backend"] = run_once(*args, True, frontend_config, backend_config)
+    result["with_backend"] = run_once(*args, True, frontend_config, backend_config, update_lag)
     return result
 
 
@@ -172,10 +178,11 @@ def main() -> None:
     parser.add_argument("--only", default=None, help="run only the clips whose name contains this")
     parser.add_argument("--backend-only", action="store_true", help="skip the frontend-only runs")
     parser.add_argument("--max-frames", type=int, default=None, help="use only the first N frames of each clip")
+    parser.add_argument("--update-lag", type=int, default=0, help="apply each map update this many frames late (0: lockstep)")
     args = parser.parse_args()
     runs = []
     for name, source in sources(args.data, args.synthetic, args.only):
-        runs.append(run(name, source, args.backend_only, args.max_frames))
+        runs.append(run(name, source, args.backend_only, args.max_frames, args.update_lag))
         print_run(runs[-1])
     report = {"machine": platform.platform(), "python": platform.python_version(), "cpu_count": os.cpu_count(),
               "config": "FrontendConfig(), BackendConfig() defaults", "runs": runs}  # fmt: skip

@@ -7,7 +7,7 @@ KITTI setting), each with 1 and 2 extraction threads. The machine's load average
 because the figures are wall times on a shared 2-core machine; the calling thread's CPU time is
 recorded too (with threads=1 it is the whole work, and does not depend on the load).
 
-Run: ``/work/venv/bin/python benchmarks/frontend_extraction.py [--data ../shared/data] [--repeats 2]
+Run: ``.venv/bin/python benchmarks/frontend_extraction.py [--data ../shared/data] [--repeats 2]
 [--cv-threads 1]`` (writes benchmarks/results/frontend_extraction[_cv_threads_N].json). ``--cv-threads 1`` turns off
 OpenCV's internal thread pool, which only adds synchronisation when the pair is already split
 over two threads.

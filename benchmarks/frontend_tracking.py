@@ -7,7 +7,7 @@ the mean / median / max milliseconds per frame are printed; ATE (evo, SE(3) alig
 the ground truth. The figures are wall times on a shared machine, so the load average before and
 after each run is recorded with them.
 
-Run: ``/work/venv/bin/python benchmarks/frontend_tracking.py [--data ../shared/data] [--synthetic]``
+Run: ``.venv/bin/python benchmarks/frontend_tracking.py [--data ../shared/data] [--synthetic]``
 (writes benchmarks/results/frontend_tracking.json).
 """
 

@@ -31,7 +31,7 @@ Variants:
   after the last one, and whether an update raised. ``isam2_incremental_oracle_inliers`` is the
   same without the true outliers (iSAM2 has no outlier pass; this is its best case).
 
-Run: ``/work/venv/bin/python benchmarks/local_ba.py`` (writes benchmarks/results/local_ba.json);
+Run: ``.venv/bin/python benchmarks/local_ba.py`` (writes benchmarks/results/local_ba.json);
 ``--quick`` runs one repeat of the smallest windows.
 """
 

@@ -19,7 +19,7 @@ It ends with the verdict on "the full pipeline runs at >= 2x real time" for the 
 run(s) (offline, lossless) and the rate-2 live one(s): every frame tracked, every keyframe
 processed, and the stream span at most half the clip's real time.
 
-Run: ``/work/venv/bin/python benchmarks/pipeline.py [--data ../shared/data] [--modes lockstep pipelined live]
+Run: ``.venv/bin/python benchmarks/pipeline.py [--data ../shared/data] [--modes lockstep pipelined live]
 [--rates 1 2] [--clips kitti_06_clip euroc_v1_01_micro]`` (writes benchmarks/results/pipeline.json).
 """
 

@@ -10,7 +10,7 @@ gross outliers, 1 px noise and an initial pose 10 cm / 5 degrees off. Variants:
 - ``gtsam_builtin``: C++ ``GenericProjectionFactorCal3_S2`` / ``GenericStereoFactor3D``, each map
   point a variable held by ``NonlinearEqualityPoint3`` (exactly fixed), LM with QR elimination.
 
-Run: ``/work/venv/bin/python benchmarks/pose_optimizer.py`` (writes benchmarks/results/pose_optimizer.json).
+Run: ``.venv/bin/python benchmarks/pose_optimizer.py`` (writes benchmarks/results/pose_optimizer.json).
 """
 
 from __future__ import annotations

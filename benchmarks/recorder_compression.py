@@ -9,7 +9,7 @@ Reads a run's ``run.mcap`` (e.g. a lockstep KITTI 06 clip run) and, ``--repeats`
 CPU time (``time.process_time``) of this single-threaded process, so the figures hold on a loaded
 machine better than wall times would.
 
-Run: ``/work/venv/bin/python benchmarks/recorder_compression.py RUN.mcap [--repeats 3]``
+Run: ``.venv/bin/python benchmarks/recorder_compression.py RUN.mcap [--repeats 3]``
 (writes benchmarks/results/recorder_compression.json).
 """
 

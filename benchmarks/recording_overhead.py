@@ -9,7 +9,7 @@ Runs ``zenslam run kitti:<data>/kitti_odometry/sequences/06 --lockstep`` alterna
 The ratio of the median spans (with / without) is printed; the issue's target is <= 1.10.
 Wall times on a shared 2-core machine: the load average before each run is recorded with it.
 
-Run: ``/work/venv/bin/python benchmarks/recording_overhead.py [--data ../shared/data] [--repeats 2]
+Run: ``.venv/bin/python benchmarks/recording_overhead.py [--data ../shared/data] [--repeats 2]
 [--image-format png|jpeg]`` (writes benchmarks/results/recording_overhead.json).
 """
 
