@@ -25,6 +25,7 @@ import numpy as np
 
 from zenslam.frontend.id_index import IdIndex
 from zenslam.frontend.keyframe import KeyFrame
+from zenslam.frontend.slot_graph import SlotGraph
 from zenslam.geometry import invert_T, transform_points
 from zenslam.map_point_rules import representative_descriptors, scale_invariance_range
 from zenslam.schemas.map_update import KeyframeCorrection, MapUpdate
@@ -126,11 +127,7 @@ class LocalMap:
         self._slot_of_id: dict[int, int] = {}
         self._kf_rows: list[np.ndarray] = []  # per slot: rows of the points the keyframe observes
         self._kf_centres = np.zeros((0, 3))
-        self._covisibility: list[dict[int, int]] = []
-        self._ordered_neighbours: list[list[int]] = []
-        self._unordered: set[int] = set()  # slots whose links changed since their neighbours were ordered
-        self._parent: list[int] = []
-        self._children: list[list[int]] = []
+        self._graph = SlotGraph(self.config.min_covisibility_weight)
 
     # ---- sizes and accessors -------------------------------------------------------------------
     @property
@@ -224,7 +221,7 @@ class LocalMap:
         self._kf_rows.append(observed)
         self._pts["n_observations"][observed] += 1
         self._refresh_points(observed)
-        self._connect(slot, observed)
+        self._graph.add(self._links(slot, observed))
         return new_rows
 
     def _append_new_points(self, keyframe: KeyFrame, slot: int) -> np.ndarray:
@@ -284,69 +281,31 @@ class LocalMap:
             index = starts[group][:, None] + np.arange(k)[None, :]
             self._pts["descriptors"][group] = representative_descriptors(desc[index])
 
-    def _connect(self, slot: int, rows: np.ndarray) -> None:
-        """Covisibility weights of the new keyframe (shared points) and its spanning-tree parent."""
-        self._covisibility.append({})
-        self._ordered_neighbours.append([])
-        self._children.append([])
-        self._set_links(slot, rows)
-        ordered = self._ordered(slot)
-        parent = ordered[0] if ordered else -1
-        self._parent.append(parent)
-        if parent >= 0:
-            self._children[parent].append(slot)
-
-    def _set_links(self, slot: int, rows: np.ndarray) -> None:
-        """Replace the covisibility links of ``slot``, whose observed points are ``rows``."""
+    def _links(self, slot: int, rows: np.ndarray) -> dict[int, int]:
+        """Covisibility links (other slot -> shared points) of ``slot`` observing the points ``rows``."""
         in_kf = np.zeros(self._n_points, dtype=bool)
         in_kf[rows] = True
         obs_rows = self._obs["row"][: self._n_obs]
         weights = np.bincount(self._obs["slot"][: self._n_obs][in_kf[obs_rows]], minlength=self.n_keyframes)
         weights[slot] = 0
-        links = {int(s): int(weights[s]) for s in np.flatnonzero(weights)}
-        for other in set(self._covisibility[slot]) | set(links):
-            if other in links:
-                self._covisibility[other][slot] = links[other]
-            else:
-                self._covisibility[other].pop(slot, None)
-            self._unordered.add(other)
-        self._covisibility[slot] = links
-        self._unordered.add(slot)
-
-    def _ordered(self, slot: int) -> list[int]:
-        """The ordered connections of ``slot``, re-ranked only when its links changed: a map update
-        relinks ~15 keyframes, each touching ~20 neighbours, and ranking each once saves ~90% of it."""
-        if slot in self._unordered:
-            self._unordered.discard(slot)
-            self._ordered_neighbours[slot] = self._order(slot)
-        return self._ordered_neighbours[slot]
-
-    def _order(self, slot: int) -> list[int]:
-        """ORB-SLAM's ordered connections: neighbours with weight >= threshold by decreasing weight,
-        or the single best one when none reaches it."""
-        links = self._covisibility[slot]
-        if not links:
-            return []
-        ranked = sorted(links, key=lambda s: (-links[s], s))
-        strong = [s for s in ranked if links[s] >= self.config.min_covisibility_weight]
-        return strong or ranked[:1]
+        return {int(s): int(weights[s]) for s in np.flatnonzero(weights)}
 
     # ---- covisibility queries --------------------------------------------------------------------
     def covisibility_weight(self, slot_a: int, slot_b: int) -> int:
         """Points observed by both keyframes."""
-        return self._covisibility[slot_a].get(slot_b, 0)
+        return self._graph.weight(slot_a, slot_b)
 
     def best_covisible(self, slot: int, n: int) -> list[int]:
         """Up to ``n`` connected keyframes (slots), strongest first."""
-        return self._ordered(slot)[:n]
+        return self._graph.ordered(slot)[:n]
 
     def parent(self, slot: int) -> int:
         """Spanning-tree parent (the best covisible keyframe at insertion), -1 for the first."""
-        return self._parent[slot]
+        return self._graph.parent(slot)
 
     def children(self, slot: int) -> list[int]:
         """Spanning-tree children, in insertion order."""
-        return list(self._children[slot])
+        return list(self._graph.children(slot))
 
     def local_window(self, frame_point_rows: np.ndarray) -> LocalWindow:
         """ORB-SLAM's ``UpdateLocalKeyFrames`` for a frame matched to ``frame_point_rows`` (-1 none).
@@ -377,8 +336,8 @@ class LocalMap:
                 break
             candidates = (
                 self.best_covisible(slot, self.config.best_covisible),
-                self._children[slot],
-                [self._parent[slot]] if self._parent[slot] >= 0 else [],
+                self._graph.children(slot),
+                [self.parent(slot)] if self.parent(slot) >= 0 else [],
             )
             for group in candidates:
                 for other in group:
@@ -478,9 +437,9 @@ class LocalMap:
         update and the next would mix the corrected map with keyframes placed on the old one."""
         correction = {s: self._keyframes[s].T_world_cam @ invert_T(T) for s, T in before.items()}
         for slot, keyframe in enumerate(self._keyframes):
-            if keyframe is None or keyframe.id <= update.keyframe_id or slot in before or self._parent[slot] not in correction:
+            if keyframe is None or keyframe.id <= update.keyframe_id or slot in before or self.parent(slot) not in correction:
                 continue
-            C = correction[slot] = correction[self._parent[slot]]
+            C = correction[slot] = correction[self.parent(slot)]
             self._keyframes[slot] = dataclasses.replace(keyframe, T_world_cam=C @ keyframe.T_world_cam)
             self._kf_centres[slot] = self._keyframes[slot].centre_world
             rows = self.rows_of_ids(keyframe.new_point_ids[~np.isin(keyframe.new_point_ids, update.point_ids)])
@@ -537,7 +496,7 @@ class LocalMap:
             self._pts["n_observations"][observed] += 1
             self._kf_rows[slot] = observed
         for slot in replaced:
-            self._set_links(slot, self._kf_rows[slot])
+            self._graph.set_links(slot, self._links(slot, self._kf_rows[slot]))
 
     def _drop_observations(self, slots: list[int]) -> None:
         """Delete every observation made by the keyframes in ``slots`` (compacting the arrays once)."""
@@ -561,14 +520,6 @@ class LocalMap:
         if slot < 0 or self._keyframes[slot] is None:
             return
         self._drop_observations([slot])
-        self._set_links(slot, np.zeros(0, dtype=np.int64))
-        parent = self._parent[slot]
-        for child in self._children[slot]:
-            self._parent[child] = parent
-            if parent >= 0:
-                self._children[parent].append(child)
-        if parent >= 0:
-            self._children[parent].remove(slot)
-        self._children[slot] = []
+        self._graph.remove(slot)
         self._keyframes[slot] = None
         del self._slot_of_id[int(keyframe_id)]
