@@ -54,6 +54,7 @@ class StubPipeline:
             T_world_cam=None if lost else make_T(np.eye(3), [index * 0.1, 0, 0]), n_tracked=0 if lost else 100 + index,
             keyframe=None if lost or index % 2 else _keyframe(index, stamp_ns),
             timings_ms={"extraction": 1.0, "total": 2.0 + index},
+            reference_keyframe_id=-1 if lost else index // 2, T_reference_cam=None if lost else make_T(np.eye(3), [0, 0, index]),
         )
 
 
@@ -77,6 +78,7 @@ def test_handle_encodes_pose_state_and_keyframe():
     assert pipelines[0].calibration == CAL and pipelines[0].sensor == "stereo"
     state = codec.decode_tracking_state(out0.state)
     assert (state.index, state.state, state.n_tracked, state.has_pose, state.keyframe_id) == (0, "ok", 100, True, 0)
+    assert state.reference_keyframe_id == 0 and np.allclose(state.T_reference_cam, np.eye(4))
     assert state.timings_ms == {"extraction": 1.0, "total": 2.0}
     kf = codec.decode_keyframe(out0.keyframe)
     assert (kf.id, kf.frame_index, len(kf.keypoints_px), len(kf.new_point_ids)) == (0, 0, 5, 2)
@@ -86,6 +88,7 @@ def test_handle_encodes_pose_state_and_keyframe():
         out = node.handle(_message(frame))
     lost = codec.decode_tracking_state(out.state)
     assert (lost.index, lost.state, lost.lost_reason, lost.has_pose) == (7, "lost", "stub says lost", False)
+    assert lost.reference_keyframe_id == -1 and lost.T_reference_cam is None
     assert out.pose is None and out.keyframe is None
     assert len(pipelines) == 1 and node.frames == 8 and node.keyframes == 4
 

@@ -114,6 +114,16 @@ def test_tracking_state_round_trip():
     assert codec.decode_tracking_state(codec.encode_tracking_state(ok)).lost_reason is None
 
 
+def test_tracking_state_carries_the_pose_relative_to_its_reference_keyframe():
+    T = make_T(so3_exp(np.array([0.02, -0.1, 0.05])), np.array([0.3, 0.0, 1.2]))
+    state = codec.TrackingStateMessage(0, 1, "ok", has_pose=True, reference_keyframe_id=0, T_reference_cam=T)
+    decoded = codec.decode_tracking_state(codec.encode_tracking_state(state))
+    assert decoded.reference_keyframe_id == 0  # keyframe 0 is a reference, not "unset"
+    np.testing.assert_allclose(decoded.T_reference_cam, T, atol=1e-12)
+    none = codec.decode_tracking_state(codec.encode_tracking_state(codec.TrackingStateMessage(1, 2, "lost")))
+    assert none.reference_keyframe_id == -1 and none.T_reference_cam is None
+
+
 def _keyframe(rng: np.random.Generator, n: int = 1000, m: int = 300) -> codec.KeyframeMessage:
     T = make_T(so3_exp(np.array([0.1, -0.4, 0.25])), np.array([1.0, -2.0, 0.5]))
     return codec.KeyframeMessage(

@@ -10,6 +10,7 @@ import pytest
 from zenslam.errors import ConfigError
 from zenslam.geometry import make_T, so3_exp
 from zenslam.schemas import codec
+from zenslam.schemas.map_update import KeyframeCorrection, MapUpdate
 from zenslam.service.evaluation.metrics import EvaluationConfig
 from zenslam.service.evaluation.trajectory_io import read_tum
 from zenslam.service.run_config import RunConfig, load_run_config
@@ -59,6 +60,25 @@ def test_trajectories_hold_ok_frames_and_keyframes():
     assert list(log.keyframe_trajectory().stamps_ns) == [truth.stamps_ns[i] for i in (0, 5, 9)]
 
 
+def test_final_trajectory_follows_the_reference_keyframes_final_poses():
+    """Frames 0-2 refer to keyframe 0 (in the backend's answer), 3 to keyframe 1 (culled: its last
+    correction), 4 to keyframe 2 (never corrected: kept as tracked)."""
+    log = RunLog()
+    tracked = [make_T(np.eye(3), [float(i), 0.0, 0.0]) for i in range(5)]
+    relative = [make_T(so3_exp(np.array([0.0, 0.1 * i, 0.0])), [0.0, 0.0, 0.5 * i]) for i in range(5)]
+    for i, reference in enumerate([0, 0, 0, 1, 2]):
+        log.add_state(codec.TrackingStateMessage(i, 10 * (i + 1), "ok", has_pose=True, reference_keyframe_id=reference,
+                                                 T_reference_cam=relative[i]))  # fmt: skip
+        log.add_pose(codec.StampedPose(10 * (i + 1), tracked[i]))
+    moved = {k: make_T(so3_exp(np.array([0.0, 0.0, 0.2 * k])), [1.0, 2.0, float(k)]) for k in (0, 1)}
+    log.add_map_update(MapUpdate(keyframe_id=1, stamp_ns=0, keyframes=(KeyframeCorrection(1, moved[1], np.zeros(0, np.int64)),)))
+    log.backend_keyframes = codec.KeyframeTrajectoryMessage(np.array([0]), np.array([10]), moved[0][None])
+    final = log.final_trajectory()
+    expected = [moved[0] @ relative[0], moved[0] @ relative[1], moved[0] @ relative[2], moved[1] @ relative[3], tracked[4]]
+    np.testing.assert_allclose(final.T_world_cam, np.stack(expected), atol=1e-12)
+    np.testing.assert_array_equal(final.stamps_ns, [10, 20, 30, 40, 50])
+
+
 def test_missing_poses_are_counted():
     log = RunLog()
     log.add_state(codec.TrackingStateMessage(0, 10, "ok", has_pose=True))
@@ -81,7 +101,11 @@ def test_outputs_with_ground_truth(tmp_path):
     truth = _truth(20)
     log = _log(truth, lost={7}, keyframes={0, 10}, rng=np.random.default_rng(2))
     result = write_outputs(tmp_path, log, truth, EvaluationConfig(), extra={"run": {"run_id": "x"}})
-    assert {p.name for p in result.files} == {"trajectory.tum", "keyframes.tum", "metrics.json", "trajectory_top.png"}
+    assert {p.name for p in result.files} == {
+        "trajectory.tum", "trajectory_final.tum", "keyframes.tum", "metrics.json", "trajectory_top.png"
+    }
+    # No reference keyframes in these states: the final trajectory is the tracked one.
+    assert json.loads((tmp_path / "metrics.json").read_text())["ate_final"]["rmse_m"] == pytest.approx(result.evaluation.ate.rmse_m)
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert metrics["ate"]["rmse_m"] < 0.003  # 1 mm noise per axis: about 1.7 mm
     assert metrics["ate"]["matched_poses"] == 19

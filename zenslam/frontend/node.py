@@ -182,6 +182,8 @@ class FrontendNode:
             timings_ms=dict(out.timings_ms),
             has_pose=pose_bytes is not None,
             keyframe_id=keyframe_id,
+            reference_keyframe_id=out.reference_keyframe_id if pose_bytes is not None else -1,
+            T_reference_cam=out.T_reference_cam if pose_bytes is not None else None,
         )
         return FrontendMessages(keyframe_bytes, pose_bytes, codec.encode_tracking_state(state), step_ms, keyframe_id)
 

@@ -66,6 +66,8 @@ class TrackingOutput:
     n_tracked: int
     keyframe: KeyFrame | None
     timings_ms: dict[str, float]
+    reference_keyframe_id: int = -1  # the keyframe the pose is kept relative to, -1 none
+    T_reference_cam: np.ndarray | None = None  # (4, 4) the camera in that keyframe's frame
 
 
 @dataclass(frozen=True)
@@ -147,6 +149,8 @@ class FrontendPipeline:
             n_tracked=result.n_tracked,
             keyframe=result.keyframe,
             timings_ms=timings,
+            reference_keyframe_id=result.reference_keyframe_id,
+            T_reference_cam=result.T_reference_cam,
         )
 
     def apply_map_update(self, update: MapUpdate) -> None:

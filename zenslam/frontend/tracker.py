@@ -96,6 +96,10 @@ class TrackResult:
     n_tracked: int  # inlier matches to map points
     keyframe: KeyFrame | None  # the keyframe made from this frame
     timings_ms: dict[str, float]  # motion_model_tracking, local_map_tracking, pose_optimization, keyframe_decision
+    # With a pose: ORB-SLAM's reference keyframe (the frame's own keyframe if it made one), -1 none,
+    # and the camera in that keyframe's frame (4, 4), so the pose can follow the keyframe's corrections.
+    reference_keyframe_id: int = -1
+    T_reference_cam: np.ndarray | None = None
 
 
 @dataclass
@@ -136,11 +140,21 @@ class Tracker:
 
     # ---- the per-frame entry point ----------------------------------------------------------------
     def track(self, frame: Frame, keyframes_in_flight: int = 0) -> TrackResult:
-        """Track one frame: its pose in the world, the inlier count, and a keyframe when one is made.
+        """Track one frame: its pose in the world, the inlier count, a keyframe when one is made, and
+        the pose relative to the frame's reference keyframe.
 
         ``keyframes_in_flight`` counts keyframes sent to local mapping whose update has not been
         applied (the keyframe decision's view of local mapping; 0 = idle).
         """
+        result = self._track(frame, keyframes_in_flight)
+        reference = self.map.keyframe(self._reference_slot) if self._reference_slot >= 0 else None
+        if result.T_world_cam is None or reference is None:
+            return result
+        return dataclasses.replace(
+            result, reference_keyframe_id=int(reference.id), T_reference_cam=reference.T_cam_world @ result.T_world_cam
+        )
+
+    def _track(self, frame: Frame, keyframes_in_flight: int) -> TrackResult:
         self._timers = dict.fromkeys(
             ("motion_model_tracking", "local_map_tracking", "pose_optimization", "keyframe_decision"), 0.0
         )

@@ -91,6 +91,9 @@ class TrackingStateMessage:
     timings_ms: dict[str, float] = field(default_factory=dict)  # per step, milliseconds
     has_pose: bool = False  # a frontend/pose message was sent for this frame
     keyframe_id: int = -1  # the keyframe made at this frame, -1 if none
+    # The keyframe the pose is kept relative to (-1 none) and the camera in its frame (4x4, as tracked).
+    reference_keyframe_id: int = -1
+    T_reference_cam: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -300,6 +303,9 @@ def encode_tracking_state(state: TrackingStateMessage) -> bytes:
     )
     for name, ms in state.timings_ms.items():
         msg.timings_ms[name] = float(ms)
+    if state.reference_keyframe_id >= 0 and state.T_reference_cam is not None:
+        msg.reference_keyframe_id = state.reference_keyframe_id
+        _transform_to_pb(state.T_reference_cam, msg.T_reference_cam)
     return msg.SerializeToString()
 
 
@@ -320,6 +326,9 @@ def decode_tracking_state(data: bytes) -> TrackingStateMessage | EndOfStream:
         timings_ms={k: msg.timings_ms[k] for k in sorted(msg.timings_ms)},
         has_pose=msg.has_pose,
         keyframe_id=msg.keyframe_id,
+        # Presence of the transform marks a reference: id 0 is a keyframe, not "unset".
+        reference_keyframe_id=msg.reference_keyframe_id if msg.HasField("T_reference_cam") else -1,
+        T_reference_cam=_transform_from_pb(msg.T_reference_cam) if msg.HasField("T_reference_cam") else None,
     )
 
 

@@ -118,7 +118,7 @@ class SensorFrame(_message.Message):
     def __init__(self, index: _Optional[int] = ..., stamp_ns: _Optional[int] = ..., width: _Optional[int] = ..., height: _Optional[int] = ..., sensor: _Optional[_Union[SensorKind, str]] = ..., calibration: _Optional[_Union[Calibration, _Mapping]] = ..., left: _Optional[bytes] = ..., right: _Optional[bytes] = ..., depth_encoding: _Optional[_Union[DepthEncoding, str]] = ..., depth: _Optional[bytes] = ..., source_name: _Optional[str] = ..., end_of_stream: _Optional[bool] = ..., count: _Optional[int] = ...) -> None: ...
 
 class TrackingState(_message.Message):
-    __slots__ = ("index", "stamp_ns", "state", "lost_reason", "n_tracked", "timings_ms", "has_pose", "keyframe_id", "end_of_stream", "count")
+    __slots__ = ("index", "stamp_ns", "state", "lost_reason", "n_tracked", "timings_ms", "has_pose", "keyframe_id", "end_of_stream", "count", "reference_keyframe_id", "T_reference_cam")
     class TimingsMsEntry(_message.Message):
         __slots__ = ("key", "value")
         KEY_FIELD_NUMBER: _ClassVar[int]
@@ -136,6 +136,8 @@ class TrackingState(_message.Message):
     KEYFRAME_ID_FIELD_NUMBER: _ClassVar[int]
     END_OF_STREAM_FIELD_NUMBER: _ClassVar[int]
     COUNT_FIELD_NUMBER: _ClassVar[int]
+    REFERENCE_KEYFRAME_ID_FIELD_NUMBER: _ClassVar[int]
+    T_REFERENCE_CAM_FIELD_NUMBER: _ClassVar[int]
     index: int
     stamp_ns: int
     state: TrackingStateKind
@@ -146,7 +148,9 @@ class TrackingState(_message.Message):
     keyframe_id: int
     end_of_stream: bool
     count: int
-    def __init__(self, index: _Optional[int] = ..., stamp_ns: _Optional[int] = ..., state: _Optional[_Union[TrackingStateKind, str]] = ..., lost_reason: _Optional[str] = ..., n_tracked: _Optional[int] = ..., timings_ms: _Optional[_Mapping[str, float]] = ..., has_pose: _Optional[bool] = ..., keyframe_id: _Optional[int] = ..., end_of_stream: _Optional[bool] = ..., count: _Optional[int] = ...) -> None: ...
+    reference_keyframe_id: int
+    T_reference_cam: RigidTransform
+    def __init__(self, index: _Optional[int] = ..., stamp_ns: _Optional[int] = ..., state: _Optional[_Union[TrackingStateKind, str]] = ..., lost_reason: _Optional[str] = ..., n_tracked: _Optional[int] = ..., timings_ms: _Optional[_Mapping[str, float]] = ..., has_pose: _Optional[bool] = ..., keyframe_id: _Optional[int] = ..., end_of_stream: _Optional[bool] = ..., count: _Optional[int] = ..., reference_keyframe_id: _Optional[int] = ..., T_reference_cam: _Optional[_Union[RigidTransform, _Mapping]] = ...) -> None: ...
 
 class Keyframe(_message.Message):
     __slots__ = ("id", "stamp_ns", "frame_index", "T_world_cam", "calibration", "sensor", "num_keypoints", "keypoints_px", "levels", "angles_deg", "right_u", "depth_m", "descriptors", "map_point_ids", "scale_factors", "num_new_points", "new_point_ids", "new_points_world", "end_of_stream", "count")

@@ -12,6 +12,7 @@ zenslam's own types with ``zenslam.schemas.codec``.
 from __future__ import annotations
 
 import logging
+import struct
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -270,7 +271,7 @@ def stream_records(path: str | Path, end: StreamEnd | None = None) -> Iterator[A
             except StopIteration:
                 end.complete = True
                 return
-            except (McapError, EOFError, ValueError) as exc:
+            except (McapError, EOFError, ValueError, struct.error) as exc:  # struct: a cut inside a length field
                 # A killed writer leaves a half-written chunk: everything before it is intact.
                 end.reason = f"{type(exc).__name__}: {exc}"
                 return

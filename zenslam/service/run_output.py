@@ -2,9 +2,13 @@
 
 ``RunLog`` collects what the run command receives: frontend/state and frontend/pose, the backend's
 map updates (counted) and status timings, and the backend's final keyframe poses. ``write_outputs``
-turns them into ``trajectory.tum`` (every frame tracked ok), ``keyframes.tum`` (the backend's final
-keyframe poses; the frontend's when no backend answered), ``metrics.json`` (ATE/RPE when there is
-ground truth, tracking and backend timing, frame and keyframe counts) and ``trajectory_top.png``.
+turns them into ``trajectory.tum`` (every frame tracked ok, as tracked: what a live consumer of
+frontend/pose got), ``trajectory_final.tum`` (ORB-SLAM's saved trajectory: each of those frames
+kept relative to its reference keyframe and composed with that keyframe's final pose, so mapping's
+later corrections reach every frame), ``keyframes.tum`` (the backend's final keyframe poses; the
+frontend's when no backend answered), ``metrics.json`` (ATE/RPE of the tracked trajectory, ATE of
+the final one as ``ate_final``, when there is ground truth; tracking and backend timing, frame and
+keyframe counts) and ``trajectory_top.png``.
 """
 
 from __future__ import annotations
@@ -33,6 +37,7 @@ logger = logging.getLogger(__name__)
 
 CONFIG_FILENAME = "config.yaml"
 TRAJECTORY_FILENAME = "trajectory.tum"
+FINAL_TRAJECTORY_FILENAME = "trajectory_final.tum"
 KEYFRAMES_FILENAME = "keyframes.tum"
 PLOT_FILENAME = "trajectory_top.png"
 
@@ -81,6 +86,7 @@ class RunLog:
         self.poses: dict[int, np.ndarray] = {}  # stamp_ns -> T_world_cam
         self.ended = False  # the frontend's end of stream arrived
         self.updated_keyframes: list[int] = []  # keyframe id of every backend map update received, in order
+        self.corrected_poses: dict[int, np.ndarray] = {}  # keyframe id -> its newest T_world_cam from a map update
         self.backend_ended = False  # the backend's end of stream arrived
         self.backend_timings: dict[int, dict[str, float]] = {}  # keyframes processed -> ms per step of that one
         self.backend_keyframes: codec.KeyframeTrajectoryMessage | None = None  # the backend's final keyframe poses
@@ -92,6 +98,8 @@ class RunLog:
             self.backend_ended = True
         else:
             self.updated_keyframes.append(int(update.keyframe_id))
+            for correction in update.keyframes:
+                self.corrected_poses[int(correction.id)] = np.asarray(correction.T_world_cam, dtype=float)
 
     def add_backend_status(self, status: codec.StageStatusMessage) -> None:
         """Keep the per-step timings of each keyframe the backend reports."""
@@ -133,6 +141,25 @@ class RunLog:
     def trajectory(self) -> Trajectory | None:
         """T_world_cam of every frame tracked ok, by stamp; None if there is none."""
         return self._trajectory(lambda s: s.state == "ok")
+
+    def final_trajectory(self) -> Trajectory | None:
+        """ORB-SLAM's saved trajectory: every frame tracked ok as its reference keyframe's final pose
+        times the camera in that keyframe's frame. A keyframe's final pose is the backend's answer,
+        else (culled keyframes) its last corrected pose; a frame whose keyframe was never corrected
+        keeps the pose it was tracked with (then nothing moved that keyframe)."""
+        final = dict(self.corrected_poses)
+        if self.backend_keyframes is not None:
+            final.update(zip(np.asarray(self.backend_keyframes.keyframe_ids).tolist(), self.backend_keyframes.T_world_cam))
+        live = self.trajectory()
+        if live is None:
+            return None
+        by_stamp = {s.stamp_ns: s for s in self.states.values()}
+        poses = []
+        for stamp, T in zip(live.stamps_ns.tolist(), live.T_world_cam):
+            state = by_stamp[stamp]
+            reference = final.get(state.reference_keyframe_id)
+            poses.append(T if reference is None or state.T_reference_cam is None else reference @ state.T_reference_cam)
+        return Trajectory(live.stamps_ns, np.stack(poses))
 
     def keyframe_trajectory(self) -> Trajectory | None:
         """The backend's final keyframe poses when it answered; else T_world_cam of the frames that made
@@ -184,20 +211,25 @@ def write_outputs(
     evaluation_config: EvaluationConfig,
     extra: dict[str, object] | None = None,
 ) -> RunResult:
-    """Write trajectory.tum, keyframes.tum, metrics.json and (with ground truth) trajectory_top.png."""
+    """Write trajectory.tum, trajectory_final.tum, keyframes.tum, metrics.json and (with ground truth)
+    trajectory_top.png."""
     run_dir = Path(run_dir)
     files: list[Path] = []
     estimate = log.trajectory()
+    final = log.final_trajectory()
     keyframes = log.keyframe_trajectory()
-    for name, trajectory in ((TRAJECTORY_FILENAME, estimate), (KEYFRAMES_FILENAME, keyframes)):
+    outputs = ((TRAJECTORY_FILENAME, estimate), (FINAL_TRAJECTORY_FILENAME, final), (KEYFRAMES_FILENAME, keyframes))
+    for name, trajectory in outputs:
         if trajectory is not None:
             files.append(write_tum(run_dir / name, trajectory))
         else:
             logger.warning("no pose to write to %s", run_dir / name)
     evaluation, error = None, None
+    final_ate = None
     if ground_truth is not None and estimate is not None:
         try:
             evaluation = evaluate(estimate, ground_truth, evaluation_config)
+            final_ate = evaluate(final, ground_truth, evaluation_config).to_json()["ate"]
         except TrajectoryError as exc:
             error = str(exc)
             logger.warning("no ATE for this run: %s", exc)
@@ -208,6 +240,8 @@ def write_outputs(
     sections["keyframes_from"] = "backend" if log.backend_keyframes is not None else "frontend"
     sections["backend_timing"] = log.backend_timing()
     sections["backend_queue_depth_max"] = log.backend_queue_max
+    if final_ate is not None:
+        sections["ate_final"] = final_ate
     sections.update(extra or {})
     if error is not None:
         sections["evaluation_error"] = error

@@ -53,6 +53,21 @@ def test_a_truncated_recording_is_recovered_to_an_indexed_prefix(tmp_path, capsy
     assert abs(states - n) <= 1
 
 
+def test_a_recording_cut_anywhere_is_recovered(tmp_path):
+    """A killed recorder may stop at any byte: inside a record's opcode, length field or body."""
+    original = tmp_path / "run.mcap"
+    _recording(original, n=60)
+    data = original.read_bytes()
+    kept = []
+    for cut in range(len(data) // 2, len(data) // 2 + 120):
+        broken, fixed = tmp_path / f"cut{cut}.mcap", tmp_path / f"cut{cut}.fixed.mcap"
+        broken.write_bytes(data[:cut])
+        report = mcap_io.recover(broken, fixed)
+        assert not report.complete and report.stop_reason
+        kept.append(report.messages.get("/frontend/pose", 0))
+    assert kept == sorted(kept) and kept[-1] > 0  # more bytes never recover fewer messages
+
+
 def test_a_complete_recording_is_copied_whole(tmp_path):
     original, fixed = tmp_path / "run.mcap", tmp_path / "copy.mcap"
     _recording(original, n=50)
