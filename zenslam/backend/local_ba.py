@@ -10,8 +10,9 @@ rows get cov(uL, uR) = sigma^2 and var(uR) = sigma^2 + disparity_sigma^2 (``obs_
 (ORB-SLAM's isotropic model gives a 4 m point's depth a sigma of ~50 cm at level 0 with a 10 cm
 virtual baseline, leaving it to the parallax between keyframes: on the synthetic figure-eight BA
 then enlarged the map by ~0.1% and the ATE rose 1.67 -> 1.83 cm; with the model, 0.94 cm.)
-Two passes as ORB-SLAM: a few robust iterations, then observations with chi2 above the 95% threshold (5.991 for 2 dof,
-7.815 for 3) or in front of no camera are dropped and the rest is refined without the kernel.
+Two passes as ORB-SLAM: a few robust iterations, then observations with chi2 above the 95%
+threshold (5.991 for 2 dof, 7.815 for 3) or in front of no camera are dropped and the rest is
+refined without the kernel.
 (Skipping the refinement when the robust pass converged and dropped nothing saved ~6% of the
 iterations on KITTI but cost 0.06-0.2 cm of ATE on the synthetic loop RGB-D and figure-eight.)
 Poses are gtsam ``Pose3`` = T_world_cam (the factors take the camera pose in the world). Fixed
