@@ -257,6 +257,24 @@ def test_ba_window_weakens_or_drops_far_disparities() -> None:
     np.testing.assert_array_equal(weak.obs_right_sigma_scale, np.where(stereo_all & (depth > limit * CAL.baseline_m), 5.0, 1.0))
 
 
+def test_ba_window_gives_rgbd_disparities_the_depth_sensors_sigma_and_no_far_rule() -> None:
+    frontend, mapper = SyntheticFrontend(sensor="rgbd", seed=4), LocalMapper(LocalMappingConfig(), StubAdjuster())
+    run(frontend, mapper, 4)
+    bmap, current = mapper.map, max(mapper.map.keyframes)
+    config = BAWindowConfig(stereo_max_depth_baselines=40.0)  # the scene's 2-8 m depths straddle 4 m
+    problem, _, _ = local_ba_window(bmap, current, config)
+    rgbd = np.isfinite(problem.obs_right_u)
+    assert rgbd.any()
+    np.testing.assert_allclose(problem.obs_disparity_sigma, np.where(rgbd, CAL.bf * config.rgbd_depth_sigma_at_1m, 0.0))
+    assert np.all(problem.obs_right_sigma_scale == 1.0)
+    orb_slam, _, _ = local_ba_window(bmap, current, BAWindowConfig(stereo_max_depth_baselines=40.0, rgbd_depth_sigma_at_1m=0.0))
+    assert np.all(orb_slam.obs_disparity_sigma == 0.0) and np.any(orb_slam.obs_right_sigma_scale > 1.0)
+    stereo_frontend, stereo_mapper = SyntheticFrontend(seed=4), LocalMapper(LocalMappingConfig(), StubAdjuster())
+    run(stereo_frontend, stereo_mapper, 4)
+    stereo, _, _ = local_ba_window(stereo_mapper.map, max(stereo_mapper.map.keyframes), config)
+    assert np.all(stereo.obs_disparity_sigma == 0.0)
+
+
 def test_ba_outliers_leave_both_sides_and_weak_points_go() -> None:
     frontend, mapper = SyntheticFrontend(seed=5), LocalMapper(LocalMappingConfig(), StubAdjuster())
     run(frontend, mapper, 4)

@@ -49,8 +49,15 @@ class BAWindowConfig:
     # bias (KITTI 06: ~0.1 px, levels 5-7 up to 0.3 px) that a window of stereo factors turns into
     # scale drift, while dropping them (monocular) lets the scale drift the other way where most
     # of the scene is far (synthetic rooms). See benchmarks/backend_quality.py.
-    stereo_max_depth_baselines: float = 20.0  # baselines (stereo or RGB-D virtual)
+    stereo_max_depth_baselines: float = 20.0  # baselines (stereo cameras; not RGB-D, see below)
     far_right_sigma_scale: float = 4.0  # unitless multiplier; inf = far observations monocular
+    # RGB-D depth noise sigma_z = rgbd_depth_sigma_at_1m * z^2 (the quadratic model of structured-light
+    # and ToF sensors; Kinect v1 ~1.5 mm at 1 m): the virtual right u = u - bf / depth then differs
+    # from u by a disparity of sigma bf * this (px) whatever the keypoint's level, and shares u's
+    # keypoint error. 0 = ORB-SLAM's model: right u an independent measurement with the keypoint's
+    # sigma, which leaves a far RGB-D point's depth to the parallax between keyframes (noisier than
+    # the sensor) and let BA enlarge the synthetic figure-eight's map by ~0.1%.
+    rgbd_depth_sigma_at_1m: float = 0.0015  # metres of depth noise at 1 m depth (m / m^2)
 
 
 @dataclass(frozen=True)
@@ -241,7 +248,7 @@ def local_ba_window(
     if not is_fixed.any():
         is_fixed[int(np.argmin([bmap.keyframes[k].serial for k in kf_ids]))] = True
     obs_kf_arr, obs_pt_arr, obs_kp_arr = _window_observations(bmap, kf_ids, np.asarray(point_ids, dtype=np.int64))
-    px, right_u, inv_sigma2, far = _observation_arrays(bmap, kf_ids, obs_kf_arr, obs_kp_arr, config.stereo_max_depth_baselines)
+    px, right_u, inv_sigma2, far, disparity_sigma = _observation_arrays(bmap, kf_ids, obs_kf_arr, obs_kp_arr, config)
     if np.isinf(config.far_right_sigma_scale):
         right_u[far] = np.nan
         right_scale = np.ones(len(obs_kf_arr))
@@ -261,6 +268,7 @@ def local_ba_window(
         obs_right_u=right_u,
         obs_inv_sigma2=inv_sigma2,
         obs_right_sigma_scale=right_scale,
+        obs_disparity_sigma=disparity_sigma,
     )
     return problem, ids[obs_pt_arr], np.asarray(kf_ids, dtype=np.int64)[obs_kf_arr]
 
@@ -285,13 +293,14 @@ def _window_observations(bmap: BackendMap, kf_ids: list[int], point_ids: np.ndar
     return kf_row[order], pt_row[order], keypoint[order]
 
 
-def _observation_arrays(
-    bmap: BackendMap, kf_ids: list[int], obs_kf: np.ndarray, obs_kp: np.ndarray, stereo_max_depth_baselines: float
-):
-    """Pixels (O, 2), right u (O,) (NaN mono), 1/sigma^2 (O,) of observations, gathered per keyframe,
-    and which stereo ones are deeper than ``stereo_max_depth_baselines`` (O,) bool (none when 0)."""
+def _observation_arrays(bmap: BackendMap, kf_ids: list[int], obs_kf: np.ndarray, obs_kp: np.ndarray, config: BAWindowConfig):
+    """Pixels (O, 2), right u (O,) (NaN mono), 1/sigma^2 (O,) of observations, gathered per keyframe;
+    which stereo-camera ones are deeper than ``stereo_max_depth_baselines`` (O,) bool (none when 0);
+    the disparity sigma (O,) px of RGB-D ones (0 elsewhere, or everywhere when ``rgbd_depth_sigma_at_1m`` is 0)."""
+    max_baselines = config.stereo_max_depth_baselines
     px = np.zeros((len(obs_kf), 2))
     far = np.zeros(len(obs_kf), dtype=bool)
+    disparity_sigma = np.zeros(len(obs_kf))
     right_u = np.full(len(obs_kf), np.nan)
     inv_sigma2 = np.zeros(len(obs_kf))
     for row, k in enumerate(kf_ids):
@@ -299,11 +308,14 @@ def _observation_arrays(
         kf, kps = bmap.keyframes[k], obs_kp[sel]
         px[sel] = kf.keypoints_px[kps]
         stereo = kf.right_u[kps] >= 0
-        if stereo_max_depth_baselines > 0 and kf.calibration.baseline_m:
-            far[sel] = stereo & (kf.depth_m[kps] > stereo_max_depth_baselines * kf.calibration.baseline_m)
+        if kf.sensor == "rgbd" and config.rgbd_depth_sigma_at_1m > 0:
+            # sigma_z = c z^2 is a constant sigma of bf / z: bf * c px.
+            disparity_sigma[sel] = np.where(stereo, kf.calibration.bf * config.rgbd_depth_sigma_at_1m, 0.0)
+        elif max_baselines > 0 and kf.calibration.baseline_m:
+            far[sel] = stereo & (kf.depth_m[kps] > max_baselines * kf.calibration.baseline_m)
         right_u[sel] = np.where(stereo, kf.right_u[kps], np.nan)
         inv_sigma2[sel] = 1.0 / kf.level_sigma2[kf.levels[kps]]
-    return px, right_u, inv_sigma2, far
+    return px, right_u, inv_sigma2, far, disparity_sigma
 
 
 def apply_ba_result(
