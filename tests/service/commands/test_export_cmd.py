@@ -49,6 +49,10 @@ def _write(path) -> None:
         T = np.eye(4)
         T[:3, 3] = (0.1 * i, 0.0, 0.0)
         messages.append((keys.frontend_pose(SESSION), codec.POSE_IN_FRAME, codec.encode_pose_in_frame(codec.StampedPose(100 * (i + 1), T))))
+        # Frames 0-2 are kept relative to keyframe 0 (at the origin when tracked), 3-4 to keyframe 1.
+        state = codec.TrackingStateMessage(i, 100 * (i + 1), "ok", has_pose=True, reference_keyframe_id=int(i >= 3),
+                                           T_reference_cam=T if i < 3 else np.eye(4))  # fmt: skip
+        messages.append((keys.frontend_state(SESSION), codec.TRACKING_STATE, codec.encode_tracking_state(state)))
     messages.insert(1, (keys.frontend_keyframe(SESSION), codec.KEYFRAME, codec.encode_keyframe(_keyframe(0, 100, [1, 2], [[0, 0, 1], [0, 0, 2]]))))
     messages.insert(2, (keys.backend_map_update(SESSION), codec.MAP_UPDATE, codec.encode_map_update(_update(0, [7], [[1, 2, 3]], removed=[1]))))
     messages.append((keys.frontend_keyframe(SESSION), codec.KEYFRAME, codec.encode_keyframe(_keyframe(1, 400, [8], [[4, 5, 6]]))))
@@ -69,6 +73,9 @@ def test_export_writes_trajectories_and_points(tmp_path):
     keyframes = read_tum(tmp_path / "out" / "keyframes.tum")
     assert keyframes.stamps_ns.tolist() == [100, 400]
     np.testing.assert_allclose(keyframes.T_world_cam[0, :3, 3], (0.0, 5.0, 0.0), atol=1e-9)  # the backend's correction
+    # Frames on keyframe 0 follow its correction (y = 5 m); keyframe 1 was never corrected: as tracked.
+    final = read_tum(tmp_path / "out" / "trajectory_final.tum")
+    np.testing.assert_allclose(final.T_world_cam[:, :3, 3], [[0, 5, 0], [0.1, 5, 0], [0.2, 5, 0], [0.3, 0, 0], [0.4, 0, 0]], atol=1e-9)
     lines = (tmp_path / "out" / "points.ply").read_text().splitlines()
     assert "element vertex 3" in lines
     points = np.array([[float(v) for v in line.split()] for line in lines[lines.index("end_header") + 1:]])
@@ -82,7 +89,7 @@ def test_the_command_defaults_to_an_export_folder_beside_the_recording(tmp_path,
     export.register(parser.add_subparsers())
     args = parser.parse_args(["export", str(recording)])
     assert args.handler(args) == 0
-    assert {p.name for p in (tmp_path / "export").iterdir()} == {"trajectory.tum", "keyframes.tum", "points.ply"}
+    assert {p.name for p in (tmp_path / "export").iterdir()} == {"trajectory.tum", "trajectory_final.tum", "keyframes.tum", "points.ply"}
     assert "5 poses, 2 keyframes, 3 map points" in capsys.readouterr().out
 
 

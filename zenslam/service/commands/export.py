@@ -1,8 +1,10 @@
 """``zenslam export run.mcap [--output DIR]``: trajectories and the final map from a recording, without running anything.
 
-Writes ``trajectory.tum`` (every pose on /frontend/pose), ``keyframes.tum`` (the keyframes still in
-the map, at their latest poses: keyframes as sent, then the backend's map updates applied in the
-order they were recorded) and ``points.ply`` (the final map points, world frame, metres).
+Writes ``trajectory.tum`` (every pose on /frontend/pose), ``trajectory_final.tum`` (ORB-SLAM's saved
+trajectory, as ``zenslam run`` writes it: each frame tracked ok at its reference keyframe's latest
+pose; recordings whose states carry reference keyframes), ``keyframes.tum`` (the keyframes still
+in the map, at their latest poses: keyframes as sent, then the backend's map updates applied in
+the order they were recorded) and ``points.ply`` (the final map points, world frame, metres).
 """
 
 from __future__ import annotations
@@ -19,11 +21,13 @@ from zenslam.schemas.map_update import MapUpdate
 from zenslam.service import mcap_io
 from zenslam.service.evaluation.trajectory_io import write_tum
 from zenslam.service.recorder import MapAccumulator
+from zenslam.service.run_output import FINAL_TRAJECTORY_FILENAME, RunLog
 from zenslam.trajectory import Trajectory
 
 logger = logging.getLogger(__name__)
 
 POSE_TOPIC = "/frontend/pose"
+STATE_TOPIC = "/frontend/state"
 KEYFRAME_TOPIC = "/frontend/keyframe"
 MAP_UPDATE_TOPIC = "/backend/map_update"
 
@@ -31,7 +35,7 @@ MAP_UPDATE_TOPIC = "/backend/map_update"
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "export",
-        help="write trajectory.tum, keyframes.tum and points.ply from a recording",
+        help="write trajectory.tum, trajectory_final.tum, keyframes.tum and points.ply from a recording",
         description=__doc__.splitlines()[0].split(": ", 1)[-1],
     )
     parser.add_argument("recording", type=Path, help="a run.mcap (a killed recorder's file is read up to its last chunk)")
@@ -58,6 +62,26 @@ def read_poses(recording: Path) -> Trajectory | None:
     return Trajectory(np.array([p.stamp_ns for p in poses], dtype=np.int64), np.stack([p.T_world_cam for p in poses]))
 
 
+def read_final_trajectory(recording: Path) -> Trajectory | None:
+    """``RunLog.final_trajectory`` of the recorded states, poses and map updates (arrival order);
+    None when no state names a reference keyframe (recordings made before states carried one)."""
+    log = RunLog()
+    topics = [STATE_TOPIC, POSE_TOPIC, MAP_UPDATE_TOPIC]
+    for message in mcap_io.iter_messages(recording, topics, log_time_order=False):
+        decoded = mcap_io.decode(message)
+        if isinstance(decoded, codec.EndOfStream):
+            continue
+        if message.topic == STATE_TOPIC:
+            log.add_state(decoded)
+        elif message.topic == POSE_TOPIC:
+            log.add_pose(decoded)
+        else:
+            log.add_map_update(decoded)
+    if not any(s.reference_keyframe_id >= 0 for s in log.states.values()):
+        return None
+    return log.final_trajectory()
+
+
 def read_map(recording: Path) -> MapAccumulator:
     """The map at the end of the recording: keyframes and map updates applied in recorded (arrival) order."""
     accumulator = MapAccumulator()
@@ -80,7 +104,7 @@ def write_ply(path: Path, p_world: np.ndarray) -> Path:
 
 
 def export_recording(recording: str | Path, output: str | Path) -> ExportResult:
-    """Write trajectory.tum, keyframes.tum and points.ply of ``recording`` into ``output``.
+    """Write trajectory.tum, trajectory_final.tum, keyframes.tum and points.ply of ``recording`` into ``output``.
 
     A trajectory with no pose is not written (logged), so an old file is never mistaken for it.
     """
@@ -93,6 +117,9 @@ def export_recording(recording: str | Path, output: str | Path) -> ExportResult:
     else:
         result.written["trajectory.tum"] = write_tum(output / "trajectory.tum", trajectory)
         result.poses = len(trajectory)
+    final = read_final_trajectory(recording)
+    if final is not None:
+        result.written[FINAL_TRAJECTORY_FILENAME] = write_tum(output / FINAL_TRAJECTORY_FILENAME, final)
     accumulator = read_map(recording)
     stamps_ns, poses = accumulator.keyframe_trajectory()
     if len(stamps_ns) == 0:
