@@ -217,6 +217,26 @@ def test_stale_and_repeated_associations_are_dropped() -> None:
         mapper.process(msg)
 
 
+def test_associations_far_from_the_backends_points_are_dropped_at_insertion() -> None:
+    """The frontend matched against positions that may lag the backend's: an association whose
+    point reprojects far off (or behind the camera) in the new keyframe is not inserted."""
+    frontend, mapper = SyntheticFrontend(seed=4), LocalMapper(LocalMappingConfig(), StubAdjuster())
+    run(frontend, mapper, 2)
+    msg = frontend.next_message()
+    known = np.flatnonzero((msg.map_point_ids >= 0) & ~np.isin(msg.map_point_ids, msg.new_point_ids))
+    moved, behind = int(msg.map_point_ids[known[0]]), int(msg.map_point_ids[known[1]])
+    mapper.map.points[moved].p_world = mapper.map.points[moved].p_world + [0.5, 0.0, 0.0]  # ~35+ px at 2-8 m
+    mapper.map.points[behind].p_world = np.array([msg.T_world_cam[0, 3], 0.0, -5.0])
+    slightly = int(msg.map_point_ids[known[2]])
+    mapper.map.points[slightly].p_world = mapper.map.points[slightly].p_world + [0.005, 0.0, 0.0]  # < 1 px: kept
+    update = mapper.process(msg)
+    assert mapper.last_stats.associations_dropped == 2
+    correction = next(c for c in update.keyframes if c.id == msg.id)
+    assert correction.map_point_ids[known[0]] == -1 and correction.map_point_ids[known[1]] == -1
+    assert correction.map_point_ids[known[2]] == slightly
+    assert mapper.map.check_consistency() == []
+
+
 def test_ba_window_fixes_the_gauge_and_the_outer_keyframes() -> None:
     frontend, mapper = SyntheticFrontend(seed=4), LocalMapper(LocalMappingConfig(), StubAdjuster())
     run(frontend, mapper, 6)

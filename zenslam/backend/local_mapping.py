@@ -70,6 +70,14 @@ class LocalMappingConfig:
     # ORB-SLAM's CheckNewKeyFrames: while more keyframes wait in the inbox, a keyframe is inserted,
     # culled and triangulated only; fusion, local BA and keyframe culling run on the last queued one.
     defer_when_queued: bool = True
+    # Associations sent with a keyframe whose point reprojects behind the camera or with a squared
+    # error above this (px^2 / level sigma^2 on u, v; 400 = 20 sigma) are dropped at insertion. The
+    # frontend matched them against positions that lag the backend's in pipelined and live runs:
+    # on the KITTI clip (pipelined) each deferred keyframe brought ~20 associations 50-1000 px off
+    # (points a BA had moved since), and the next BA started from ~10^5 instead of ~10^3 of error.
+    # None are dropped in lockstep; at 60 (7.7 sigma) the lag-4 model (backend_quality
+    # --update-lag 4) lost ATE (3.08 -> 3.24 cm) to dropped stale-but-right associations, at 400 none.
+    max_association_chi2: float = 400.0
     point_culling: PointCullingConfig = field(default_factory=PointCullingConfig)
     triangulation: TriangulationConfig = field(default_factory=TriangulationConfig)
     fusion: FusionConfig = field(default_factory=FusionConfig)
@@ -94,7 +102,7 @@ class BundleAdjuster(Protocol):
 class LocalMappingStats:
     """Counts of what one ``process`` call did."""
 
-    associations_dropped: int = 0  # keyframe associations naming removed points (or one point twice)
+    associations_dropped: int = 0  # keyframe associations naming removed points, one point twice, or far off
     points_received: int = 0  # new points created by the frontend at this keyframe
     points_created: int = 0  # triangulated here
     points_culled: int = 0  # recent points culled
@@ -184,6 +192,7 @@ class LocalMapper:
                 continue
             seen.add(live)
             kf.map_point_ids[keypoint] = live
+        dropped += self._drop_far_associations(kf)
         self.map.add_keyframe(kf)
         received = []
         for point_id, p_world in zip(np.asarray(msg.new_point_ids).tolist(), np.asarray(msg.new_points_world)):
@@ -198,6 +207,19 @@ class LocalMapper:
         count_visibility(self.map, kf.id, self.recent_points, self.config.point_culling)
         self.recent_points.extend(received)
         return {"associations_dropped": dropped, "points_received": len(received)}
+
+    def _drop_far_associations(self, kf: BackendKeyframe) -> int:
+        """Unset the associations of ``kf`` (not yet in the map) to known points that reproject behind
+        it or beyond ``max_association_chi2``; returns how many."""
+        keypoints = np.flatnonzero(kf.map_point_ids >= 0)
+        if len(keypoints) == 0:
+            return 0
+        p_world = np.array([self.map.points[int(p)].p_world for p in kf.map_point_ids[keypoints]])
+        px, _, z = kf.project(p_world)
+        chi2 = np.sum((px - kf.keypoints_px[keypoints]) ** 2, axis=1) / kf.level_sigma2[kf.levels[keypoints]]
+        far = (z <= 0) | ~(chi2 <= self.config.max_association_chi2)
+        kf.map_point_ids[keypoints[far]] = -1
+        return int(np.count_nonzero(far))
 
     def _local_ba(self, kf_id: int) -> dict[str, int]:
         """Build the BA window around ``kf_id``, optimise it and apply the result to the map."""
