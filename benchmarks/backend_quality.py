@@ -37,7 +37,7 @@ from zenslam.frontend.node import keyframe_message
 from zenslam.frontend.pipeline import FrontendConfig, FrontendPipeline
 from zenslam.schemas import codec
 from zenslam.service.evaluation.metrics import EvaluationConfig, evaluate
-from zenslam.service.run_config import BackendConfig
+from zenslam.backend.config import BackendConfig
 from zenslam.trajectory import Trajectory
 
 REPO = Path(__file__).resolve().parents[1]

@@ -55,10 +55,11 @@ def render_input(path: Path, frames: int, width: int, height: int) -> str:
 
 def golden_config(input_spec: str):
     """The golden run's configuration: lockstep, rerun off, JPEG viewer images."""
-    from zenslam.service.run_config import RecorderConfig, RerunConfig, RunConfig, SourceConfig
+    from zenslam.runtime.rerun_log import RerunConfig
+    from zenslam.service.run_config import RecorderConfig, RunConfig, SourceConfig
 
     return RunConfig(
-        source=SourceConfig(spec=input_spec, lockstep=True),
+        source=SourceConfig(spec=input_spec),
         rerun=RerunConfig(enabled=False),
         recorder=RecorderConfig(image_format="jpeg", jpeg_quality=30),
     )

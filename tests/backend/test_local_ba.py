@@ -13,7 +13,7 @@ from zenslam.camera import PinholeCalibration
 from zenslam.errors import ZenslamError
 from zenslam.geometry import invert_T, make_T, so3_exp, so3_log
 from zenslam.schemas.map_update import BACKEND_POINT_ID_BASE
-from zenslam.service.config import from_mapping
+from zenslam.config import from_mapping
 
 KITTI = PinholeCalibration(707.0912, 707.0912, 601.8873, 183.1104, 1226, 370, baseline_m=0.5372)
 

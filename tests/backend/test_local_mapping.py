@@ -10,6 +10,7 @@ from zenslam.backend.local_mapping import (
     TIMING_STEPS,
     BAWindowConfig,
     LocalMapper,
+    new_backend_map,
     LocalMappingConfig,
     apply_ba_result,
     local_ba_window,
@@ -20,7 +21,7 @@ from zenslam.errors import ConfigError
 from zenslam.geometry import invert_T, make_T, transform_points
 from zenslam.schemas.codec import KeyframeMessage, encode_map_update
 from zenslam.schemas.map_update import BACKEND_POINT_ID_BASE, MapUpdate
-from zenslam.service.config import from_mapping
+from zenslam.config import from_mapping
 
 CAL = PinholeCalibration(500.0, 500.0, 320.0, 240.0, 640, 480, 0.1)
 
@@ -140,7 +141,7 @@ def test_config_sections_and_threshold_range() -> None:
 
 
 def test_stereo_sequence_keeps_the_map_consistent_and_accurate() -> None:
-    frontend, mapper = SyntheticFrontend(), LocalMapper(LocalMappingConfig(), StubAdjuster())
+    frontend, mapper = SyntheticFrontend(), LocalMapper(new_backend_map(LocalMappingConfig()), LocalMappingConfig(), StubAdjuster())
     updates = run(frontend, mapper, 14)
     totals, bmap = mapper.totals, mapper.map
     assert totals["points_created"] > 0 and totals["points_fused"] > 0 and totals["keyframes_culled"] > 0
@@ -166,7 +167,7 @@ def test_stereo_sequence_keeps_the_map_consistent_and_accurate() -> None:
 
 
 def test_updates_describe_points_and_removals_consistently() -> None:
-    frontend, mapper = SyntheticFrontend(seed=1), LocalMapper(LocalMappingConfig(), StubAdjuster())
+    frontend, mapper = SyntheticFrontend(seed=1), LocalMapper(new_backend_map(LocalMappingConfig()), LocalMappingConfig(), StubAdjuster())
     known: set[int] = set()
     for _ in range(8):
         update = mapper.process(frontend.next_message())
@@ -187,7 +188,7 @@ def test_updates_describe_points_and_removals_consistently() -> None:
 
 def test_monocular_sequence_keeps_the_map_consistent() -> None:
     frontend = SyntheticFrontend(sensor="mono", clutter=0, seed=2)
-    mapper = LocalMapper(LocalMappingConfig(), StubAdjuster())
+    mapper = LocalMapper(new_backend_map(LocalMappingConfig()), LocalMappingConfig(), StubAdjuster())
     run(frontend, mapper, 10)
     assert mapper.totals["points_created"] > 0
 
@@ -195,13 +196,13 @@ def test_monocular_sequence_keeps_the_map_consistent() -> None:
 def test_same_keyframes_give_the_same_update_bytes() -> None:
     outputs = []
     for _ in range(2):
-        frontend, mapper = SyntheticFrontend(seed=7), LocalMapper(LocalMappingConfig(), StubAdjuster())
+        frontend, mapper = SyntheticFrontend(seed=7), LocalMapper(new_backend_map(LocalMappingConfig()), LocalMappingConfig(), StubAdjuster())
         outputs.append([encode_map_update(update) for update in run(frontend, mapper, 6)])
     assert outputs[0] == outputs[1]
 
 
 def test_stale_and_repeated_associations_are_dropped() -> None:
-    frontend, mapper = SyntheticFrontend(seed=3), LocalMapper(LocalMappingConfig(), StubAdjuster())
+    frontend, mapper = SyntheticFrontend(seed=3), LocalMapper(new_backend_map(LocalMappingConfig()), LocalMappingConfig(), StubAdjuster())
     run(frontend, mapper, 2)
     msg = frontend.next_message()
     ids = msg.map_point_ids.copy()
@@ -220,7 +221,7 @@ def test_stale_and_repeated_associations_are_dropped() -> None:
 def test_associations_far_from_the_backends_points_are_dropped_at_insertion() -> None:
     """The frontend matched against positions that may lag the backend's: an association whose
     point reprojects far off (or behind the camera) in the new keyframe is not inserted."""
-    frontend, mapper = SyntheticFrontend(seed=4), LocalMapper(LocalMappingConfig(), StubAdjuster())
+    frontend, mapper = SyntheticFrontend(seed=4), LocalMapper(new_backend_map(LocalMappingConfig()), LocalMappingConfig(), StubAdjuster())
     run(frontend, mapper, 2)
     msg = frontend.next_message()
     known = np.flatnonzero((msg.map_point_ids >= 0) & ~np.isin(msg.map_point_ids, msg.new_point_ids))
@@ -238,7 +239,7 @@ def test_associations_far_from_the_backends_points_are_dropped_at_insertion() ->
 
 
 def test_ba_window_fixes_the_gauge_and_the_outer_keyframes() -> None:
-    frontend, mapper = SyntheticFrontend(seed=4), LocalMapper(LocalMappingConfig(), StubAdjuster())
+    frontend, mapper = SyntheticFrontend(seed=4), LocalMapper(new_backend_map(LocalMappingConfig()), LocalMappingConfig(), StubAdjuster())
     run(frontend, mapper, 6)
     bmap, current = mapper.map, max(mapper.map.keyframes)
     problem, obs_points, obs_kfs = local_ba_window(bmap, current, BAWindowConfig(max_local_keyframes=3, max_fixed_keyframes=1))
@@ -259,7 +260,7 @@ def test_ba_window_fixes_the_gauge_and_the_outer_keyframes() -> None:
 
 
 def test_ba_window_weakens_or_drops_far_disparities() -> None:
-    frontend, mapper = SyntheticFrontend(seed=4), LocalMapper(LocalMappingConfig(), StubAdjuster())
+    frontend, mapper = SyntheticFrontend(seed=4), LocalMapper(new_backend_map(LocalMappingConfig()), LocalMappingConfig(), StubAdjuster())
     run(frontend, mapper, 4)
     bmap, current = mapper.map, max(mapper.map.keyframes)
     all_stereo, _, _ = local_ba_window(bmap, current, BAWindowConfig(stereo_max_depth_baselines=0.0))
@@ -278,7 +279,7 @@ def test_ba_window_weakens_or_drops_far_disparities() -> None:
 
 
 def test_ba_window_gives_rgbd_disparities_the_depth_sensors_sigma_and_no_far_rule() -> None:
-    frontend, mapper = SyntheticFrontend(sensor="rgbd", seed=4), LocalMapper(LocalMappingConfig(), StubAdjuster())
+    frontend, mapper = SyntheticFrontend(sensor="rgbd", seed=4), LocalMapper(new_backend_map(LocalMappingConfig()), LocalMappingConfig(), StubAdjuster())
     run(frontend, mapper, 4)
     bmap, current = mapper.map, max(mapper.map.keyframes)
     config = BAWindowConfig(stereo_max_depth_baselines=40.0)  # the scene's 2-8 m depths straddle 4 m
@@ -289,14 +290,14 @@ def test_ba_window_gives_rgbd_disparities_the_depth_sensors_sigma_and_no_far_rul
     assert np.all(problem.obs_right_sigma_scale == 1.0)
     orb_slam, _, _ = local_ba_window(bmap, current, BAWindowConfig(stereo_max_depth_baselines=40.0, rgbd_depth_sigma_at_1m=0.0))
     assert np.all(orb_slam.obs_disparity_sigma == 0.0) and np.any(orb_slam.obs_right_sigma_scale > 1.0)
-    stereo_frontend, stereo_mapper = SyntheticFrontend(seed=4), LocalMapper(LocalMappingConfig(), StubAdjuster())
+    stereo_frontend, stereo_mapper = SyntheticFrontend(seed=4), LocalMapper(new_backend_map(LocalMappingConfig()), LocalMappingConfig(), StubAdjuster())
     run(stereo_frontend, stereo_mapper, 4)
     stereo, _, _ = local_ba_window(stereo_mapper.map, max(stereo_mapper.map.keyframes), config)
     assert np.all(stereo.obs_disparity_sigma == 0.0)
 
 
 def test_ba_outliers_leave_both_sides_and_weak_points_go() -> None:
-    frontend, mapper = SyntheticFrontend(seed=5), LocalMapper(LocalMappingConfig(), StubAdjuster())
+    frontend, mapper = SyntheticFrontend(seed=5), LocalMapper(new_backend_map(LocalMappingConfig()), LocalMappingConfig(), StubAdjuster())
     run(frontend, mapper, 4)
     bmap = mapper.map
     problem, obs_points, obs_kfs = local_ba_window(bmap, 3, BAWindowConfig())
@@ -313,7 +314,7 @@ def test_ba_outliers_leave_both_sides_and_weak_points_go() -> None:
 
 def test_with_the_real_bundle_adjuster_poses_stay_on_the_truth() -> None:
     frontend = SyntheticFrontend(noise_px=0.5, n_points=200, seed=6)
-    mapper = LocalMapper(LocalMappingConfig(), LocalBundleAdjuster(LocalBAConfig()))
+    mapper = LocalMapper(new_backend_map(LocalMappingConfig()), LocalMappingConfig(), LocalBundleAdjuster(LocalBAConfig()))
     run(frontend, mapper, 6)
     assert mapper.last_ba_stats  # BA ran
     for kf_id, kf in mapper.map.keyframes.items():
@@ -322,7 +323,7 @@ def test_with_the_real_bundle_adjuster_poses_stay_on_the_truth() -> None:
 
 def test_a_backlog_defers_fusion_ba_and_keyframe_culling_to_the_last_queued_keyframe() -> None:
     frontend, adjuster = SyntheticFrontend(seed=6), StubAdjuster()
-    mapper = LocalMapper(LocalMappingConfig(), adjuster)
+    mapper = LocalMapper(new_backend_map(LocalMappingConfig()), LocalMappingConfig(), adjuster)
     run(frontend, mapper, 3)
     n_ba = len(adjuster.problems)
     message = frontend.next_message()

@@ -15,19 +15,19 @@ import numpy as np
 import pytest
 
 from zenslam.backend.local_ba import LocalBundleAdjuster
-from zenslam.backend.local_mapping import LocalMapper
+from zenslam.backend.local_mapping import LocalMapper, new_backend_map
 from zenslam.frontend.node import keyframe_message
 from zenslam.frontend.pipeline import FrontendConfig, FrontendPipeline
 from zenslam.schemas import codec
 from zenslam.service.evaluation.metrics import evaluate
-from zenslam.service.run_config import BackendConfig
+from zenslam.backend.config import BackendConfig
 from zenslam.trajectory import Trajectory
 
 
 def run_lockstep(source, with_backend: bool, max_frames: int | None = None) -> tuple[float, list[str], LocalMapper]:
     """(ATE rmse in metres of the per-frame poses, the frame states, the mapper) of one run."""
     config = BackendConfig()
-    mapper = LocalMapper(config.local_mapping, LocalBundleAdjuster(config.local_ba))
+    mapper = LocalMapper(new_backend_map(config.local_mapping), config.local_mapping, LocalBundleAdjuster(config.local_ba))
     pipeline = FrontendPipeline(FrontendConfig(), source.calibration, source.sensor)
     stamps, poses, states = [], [], []
     for frame in source:

@@ -8,15 +8,15 @@ import time
 import numpy as np
 import pytest
 
+from zenslam.backend.config import BackendConfig
 from zenslam.backend.local_ba import BAProblem, BAResult
-from zenslam.backend.local_mapping import TIMING_STEPS, LocalMapper, LocalMappingConfig
+from zenslam.backend.local_mapping import TIMING_STEPS, LocalMapper, LocalMappingConfig, new_backend_map
 from zenslam.backend.node import BackendNode, query_map, query_trajectory, serve
 from zenslam.camera import PinholeCalibration
 from zenslam.geometry import invert_T, make_T, transform_points
+from zenslam.runtime import bus
 from zenslam.schemas import codec, keys
 from zenslam.schemas.codec import KeyframeMessage, MessageError
-from zenslam.service import bus
-from zenslam.service.run_config import BackendConfig
 
 CAL = PinholeCalibration(500.0, 500.0, 320.0, 240.0, 640, 480, 0.1)
 STEP_M = 0.2  # camera motion between keyframes along +x, metres
@@ -65,7 +65,7 @@ class IdentityAdjuster:
 
 
 def _node() -> BackendNode:
-    return BackendNode(LocalMapper(LocalMappingConfig(), IdentityAdjuster()))
+    return BackendNode(LocalMapper(new_backend_map(LocalMappingConfig()), LocalMappingConfig(), IdentityAdjuster()))
 
 
 def test_step_returns_the_update_of_each_keyframe_and_its_timings():
@@ -131,7 +131,7 @@ class SlowNode(BackendNode):
     """A backend whose steps take ``delay_s`` seconds: the frontend outpaces it."""
 
     def __init__(self, delay_s: float):
-        super().__init__(LocalMapper(LocalMappingConfig(), IdentityAdjuster()))
+        super().__init__(LocalMapper(new_backend_map(LocalMappingConfig()), LocalMappingConfig(), IdentityAdjuster()))
         self.delay_s = delay_s
 
     def step(self, keyframe, queued=0):
@@ -143,7 +143,7 @@ class GatedNode(BackendNode):
     """A backend that holds its first keyframe until ``gate`` opens, and notes each step's backlog."""
 
     def __init__(self):
-        super().__init__(LocalMapper(LocalMappingConfig(), IdentityAdjuster()))
+        super().__init__(LocalMapper(new_backend_map(LocalMappingConfig()), LocalMappingConfig(), IdentityAdjuster()))
         self.gate = threading.Event()
         self.queued: list[int] = []
         self.deferred: list[int] = []

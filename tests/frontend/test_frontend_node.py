@@ -13,7 +13,7 @@ from zenslam.errors import CalibrationError
 from zenslam.frontend.node import FrontendNode, serve
 from zenslam.geometry import make_T
 from zenslam.schemas import codec, keys
-from zenslam.service import bus
+from zenslam.runtime import bus
 from zenslam.service.run_config import SourceConfig
 from zenslam.service.source_node import play
 from zenslam.service.sources.frame import SensorFrame
@@ -158,12 +158,12 @@ def test_lockstep_source_and_frontend_over_the_bus():
         node = FrontendNode(StubPipeline)
         stop = threading.Event()
         result = {}
-        frontend = threading.Thread(target=lambda: result.setdefault("ended", serve(peer, session_name, node, True, config, stop.is_set)))
+        frontend = threading.Thread(target=lambda: result.setdefault("ended", serve(peer, session_name, node, "lockstep", config, stop.is_set)))
         frontend.start()
         try:
             assert bus.wait_for_alive(hub, session_name, ["frontend"], timeout_s=10.0) == set()
-            source_config = SourceConfig(lockstep=True, start_timeout_s=10.0, answer_timeout_s=10.0)
-            sent = play(hub, session_name, _frames(n), CAL, "stereo", source_config, lambda: False, "stub")
+            source_config = SourceConfig(answer_timeout_s=10.0)
+            sent = play(hub, session_name, _frames(n), CAL, "stereo", source_config, lambda: False, "stub", start_timeout_s=10.0)
             frontend.join(timeout=10.0)
         finally:
             stop.set()

@@ -17,7 +17,7 @@ from zenslam.frontend.pipeline import FrontendConfig, FrontendPipeline
 from zenslam.schemas import codec
 from zenslam.schemas.map_update import BACKEND_POINT_ID_BASE
 from zenslam.service.evaluation.metrics import evaluate
-from zenslam.service.run_config import BackendConfig
+from zenslam.backend.config import BackendConfig
 from zenslam.service.sources import open_source
 from zenslam.trajectory import Trajectory
 

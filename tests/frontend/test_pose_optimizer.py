@@ -8,7 +8,7 @@ from zenslam.camera import PinholeCalibration
 from zenslam.errors import CalibrationError
 from zenslam.frontend.pose_optimizer import PoseOptimizerConfig, optimize_pose
 from zenslam.geometry import invert_T, make_T, so3_exp, so3_log
-from zenslam.service.config import from_mapping
+from zenslam.config import from_mapping
 
 STEREO = PinholeCalibration(707.0912, 707.0912, 601.8873, 183.1104, 1226, 370, baseline_m=0.5372)
 MONO = PinholeCalibration(458.654, 457.296, 367.215, 248.375, 752, 480)

@@ -15,11 +15,12 @@ import numpy as np
 import pytest
 
 from zenslam.backend.node import query_map, query_trajectory
+from zenslam.runtime import bus
+from zenslam.runtime.stage import RunMode
+from zenslam.runtime.supervisor import ProcessSpec, Supervisor
 from zenslam.schemas import codec, keys
-from zenslam.service import bus
 from zenslam.service.run_config import RunConfig, SourceConfig
 from zenslam.service.run_output import prepare_run_dir, write_config
-from zenslam.service.supervisor import ProcessSpec, Supervisor
 
 pytestmark = pytest.mark.integration
 
@@ -42,8 +43,8 @@ class FollowedRun:
     exit_codes: dict[str, int | None] = field(default_factory=dict)
 
 
-def _follow(tmp_path: Path, run_id: str, source: SourceConfig) -> FollowedRun:
-    config = RunConfig(source=source)
+def _follow(tmp_path: Path, run_id: str, source: SourceConfig, mode: RunMode = "lockstep") -> FollowedRun:
+    config = RunConfig(mode=mode, source=source)
     run_dir = prepare_run_dir(tmp_path, run_id)
     config_path = write_config(run_dir, config)
     hub = bus.free_tcp_endpoint()
@@ -88,7 +89,7 @@ def _follow(tmp_path: Path, run_id: str, source: SourceConfig) -> FollowedRun:
 
 @pytest.fixture(scope="module")
 def lockstep_run(tmp_path_factory) -> FollowedRun:
-    source = SourceConfig(spec="synthetic", lockstep=True, max_frames=LOCKSTEP_FRAMES)
+    source = SourceConfig(spec="synthetic", max_frames=LOCKSTEP_FRAMES)
     return _follow(tmp_path_factory.mktemp("recordings"), "it-backend-lockstep", source)
 
 
@@ -126,8 +127,8 @@ def test_the_final_trajectory_has_every_kept_keyframe(lockstep_run):
 
 
 def test_live_mode_processes_every_keyframe(tmp_path):
-    source = SourceConfig(spec="synthetic", lockstep=False, rate=1.0, max_frames=LIVE_FRAMES)
-    run = _follow(tmp_path, "it-backend-live", source)
+    source = SourceConfig(spec="synthetic", rate=1.0, max_frames=LIVE_FRAMES)
+    run = _follow(tmp_path, "it-backend-live", source, mode="live")
     sent = [s.keyframe_id for s in run.states if s.keyframe_id >= 0]
     assert len(run.states) >= LIVE_FRAMES // 2  # a slow frontend may skip frames, not keyframes' updates
     assert len(sent) >= 3

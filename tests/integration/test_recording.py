@@ -15,7 +15,8 @@ from mcap.reader import make_reader
 
 from zenslam.camera import PinholeCalibration
 from zenslam.schemas import codec, keys
-from zenslam.service import bus, mcap_io
+from zenslam.runtime import bus
+from zenslam.service import mcap_io
 from zenslam.service.commands.export import export_recording
 from zenslam.service.commands.run import track
 from zenslam.service.evaluation.trajectory_io import read_tum
@@ -41,7 +42,7 @@ VIEWER_SCHEMAS = {
 @pytest.fixture(scope="module")
 def recorded_run(tmp_path_factory):
     output = tmp_path_factory.mktemp("recordings")
-    config = RunConfig(source=SourceConfig(spec="synthetic", lockstep=True, max_frames=FRAMES))
+    config = RunConfig(source=SourceConfig(spec="synthetic", max_frames=FRAMES))
     run_dir = prepare_run_dir(output, "it-recording")
     config_path = write_config(run_dir, config)
     source = open_source(config.source.spec)

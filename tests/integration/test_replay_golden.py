@@ -14,8 +14,9 @@ from pathlib import Path
 
 import pytest
 
+from zenslam.runtime.rerun_log import RerunConfig
 from zenslam.service import replay
-from zenslam.service.run_config import RecorderConfig, RerunConfig, RunConfig, run_config_to_yaml
+from zenslam.service.run_config import RecorderConfig, RunConfig, run_config_to_yaml
 from zenslam.service.sources.mcap_source import McapSource
 
 pytestmark = pytest.mark.integration

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from zenslam.service.rerun_log import read_rrd, recording_ids
+from zenslam.runtime.rerun_log import read_rrd, recording_ids
 
 pytestmark = pytest.mark.integration
 

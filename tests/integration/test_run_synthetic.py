@@ -35,7 +35,7 @@ def _poses(path: Path) -> list[str]:
 @pytest.fixture(scope="module")
 def lockstep_run(tmp_path_factory) -> tuple[Path, object]:
     output = tmp_path_factory.mktemp("recordings")
-    config = RunConfig(source=SourceConfig(spec="synthetic", lockstep=True, max_frames=FRAMES))
+    config = RunConfig(source=SourceConfig(spec="synthetic", max_frames=FRAMES))
     run_dir = prepare_run_dir(output, "it-lockstep")
     config_path = write_config(run_dir, config)
     source = open_source(config.source.spec)
@@ -98,11 +98,11 @@ def test_a_pipelined_run_tracks_every_frame_and_waits_for_every_keyframe(tmp_pat
     assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-3000:]
     run_dir = tmp_path / "it-pipelined"
     metrics = json.loads((run_dir / "metrics.json").read_text())
-    assert metrics["run"]["pacing"] == "pipelined" and metrics["run"]["completed"] is True
+    assert metrics["run"]["mode"] == "pipelined" and metrics["run"]["completed"] is True
     assert metrics["frames"] == FRAMES and metrics["lost_frames"] == 0
     assert metrics["keyframes"]["sent"] >= 2 and metrics["keyframes"]["processed"] == metrics["keyframes"]["sent"]
     assert len(_poses(run_dir / "trajectory.tum")) == FRAMES
     assert len(_poses(run_dir / "keyframes.tum")) >= 2
     # Which frames become keyframes depends on timing here, not the accuracy: same bound as lockstep.
     assert metrics["ate"]["rmse_m"] < ATE_BOUND_M
-    assert "wait_for_map_updates: false" in (run_dir / "config.yaml").read_text()
+    assert "mode: pipelined" in (run_dir / "config.yaml").read_text()

@@ -16,7 +16,8 @@ from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 from zenslam.camera import PinholeCalibration
 from zenslam.schemas import codec, keys
 from zenslam.schemas.map_update import KeyframeCorrection, MapUpdate
-from zenslam.service import bus, mcap_io
+from zenslam.runtime import bus
+from zenslam.service import mcap_io
 from zenslam.service.recorder import MapAccumulator, Recorder, record
 from zenslam.service.run_config import RecorderConfig
 from zenslam.service.sources import SensorFrame

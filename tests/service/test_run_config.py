@@ -8,7 +8,7 @@ import pytest
 
 from zenslam.camera import PinholeCalibration
 from zenslam.errors import CalibrationError, ConfigError
-from zenslam.service.bus import BusConfig
+from zenslam.runtime.bus import BusConfig
 from zenslam.service.run_config import (
     BackendConfig,
     RunConfig,
@@ -102,7 +102,7 @@ def test_a_full_config_round_trips(tmp_path):
     calibration = PinholeCalibration(400.0, 401.0, 320.0, 240.0, 640, 480, 0.1)
     config = RunConfig(
         bus=BusConfig(listen=("tcp/127.0.0.1:7447",), connect=("tcp/127.0.0.1:7448",)),
-        source=SourceConfig(spec="synthetic:still/rgbd", lockstep=True, max_frames=5, calibration=calibration),
+        source=SourceConfig(spec="synthetic:still/rgbd", max_frames=5, calibration=calibration),
     )
     path = tmp_path / "config.yaml"
     path.write_text(run_config_to_yaml(config))
@@ -190,21 +190,33 @@ def test_backend_nice_is_a_niceness_increment():
 
 
 def test_pipelining_settings_are_checked(tmp_path):
-    assert SourceConfig().frames_in_flight == 2 and BackendConfig().wait_for_map_updates is True
+    assert SourceConfig().frames_in_flight == 2 and RunConfig().mode == "lockstep"
     with pytest.raises(ConfigError, match="frames_in_flight=0"):
         SourceConfig(frames_in_flight=0)
     path = tmp_path / "config.yaml"
-    path.write_text("backend:\n  wait_for_map_updates: 'no'\nrecorder:\n  chunk_compression: gzip\n")
+    path.write_text("mode: sometimes\nrecorder:\n  chunk_compression: gzip\n")
     with pytest.raises(ConfigError) as info:
         load_run_config(path)
-    assert "wait_for_map_updates" in str(info.value) and "chunk_compression" in str(info.value)
+    assert "mode" in str(info.value) and "sometimes" in str(info.value) and "chunk_compression" in str(info.value)
 
 
 @pytest.mark.parametrize(
-    ("option", "lockstep", "waits"),
-    [(None, True, True), ("--lockstep", True, True), ("--pipelined", True, False), ("--live", False, True)],
+    ("lockstep", "waits", "mode"),
+    [("true", "true", "lockstep"), ("true", "false", "pipelined"), ("false", "true", "live")],
 )
-def test_the_run_modes_from_the_command_line(option, lockstep, waits):
+def test_files_of_an_earlier_zenslam_are_read_with_their_run_mode(tmp_path, caplog, lockstep, waits, mode):
+    path = tmp_path / "config.yaml"
+    path.write_text(
+        f"source:\n  lockstep: {lockstep}\n  start_timeout_s: 5.0\n"
+        f"backend:\n  wait_for_map_updates: {waits}\n  map_update_queue: 7\n"
+    )
+    config = load_run_config(path)
+    assert (config.mode, config.bus.start_timeout_s, config.frontend.map_update_queue) == (mode, 5.0, 7)
+    assert "earlier zenslam" in caplog.text and "source.lockstep" in caplog.text
+
+
+@pytest.mark.parametrize(("option", "mode"), [(None, "lockstep"), ("--lockstep", "lockstep"), ("--pipelined", "pipelined"), ("--live", "live")])
+def test_the_run_modes_from_the_command_line(option, mode):
     import argparse
 
     from zenslam.service.commands import run as run_command
@@ -213,5 +225,4 @@ def test_the_run_modes_from_the_command_line(option, lockstep, waits):
     run_command.register(parser.add_subparsers())
     args = parser.parse_args(["run", "synthetic", *([option] if option else [])])
     config = run_command.resolve_config(args)
-    assert (config.source.lockstep, config.backend.wait_for_map_updates) == (lockstep, waits)
-    assert run_command.pacing(config) == (option or "--lockstep")[2:]
+    assert config.mode == mode

@@ -9,7 +9,7 @@ import pytest
 
 from zenslam.camera import PinholeCalibration
 from zenslam.schemas import codec, keys
-from zenslam.service import bus
+from zenslam.runtime import bus
 from zenslam.service.run_config import SourceConfig
 from zenslam.service.source_node import play
 from zenslam.service.sources.frame import SensorFrame
@@ -35,11 +35,11 @@ def _collect(inbox: bus.Inbox) -> list:
     return out + [message]
 
 
-def _play(session, name: str, frames, config: SourceConfig, should_stop=lambda: False):
+def _play(session, name: str, frames, config: SourceConfig, should_stop=lambda: False, mode="live"):
     # Lossless on the receiving side, so the test sees everything the source sent.
     inbox = bus.subscribe(session, keys.sensor_frame(name), codec.decode_sensor_frame, "lossless", 64)
     started = time.monotonic()
-    sent = play(session, name, frames, CAL, "mono", config, should_stop, "test")
+    sent = play(session, name, frames, CAL, "mono", config, should_stop, "test", mode=mode)
     elapsed = time.monotonic() - started
     received = _collect(inbox)
     inbox.close()
@@ -47,21 +47,21 @@ def _play(session, name: str, frames, config: SourceConfig, should_stop=lambda: 
 
 
 def test_live_playback_keeps_the_recorded_rate(session):
-    sent, received, elapsed = _play(session, "paced", _frames(6, 40_000_000), SourceConfig(lockstep=False, rate=1.0, start_timeout_s=5.0))
+    sent, received, elapsed = _play(session, "paced", _frames(6, 40_000_000), SourceConfig(rate=1.0))
     assert sent == 6 and received == [0, 1, 2, 3, 4, 5, codec.EndOfStream(6)]
     assert 0.19 <= elapsed < 1.0  # five 40 ms gaps
 
 
 def test_rate_scales_the_pace_and_zero_means_as_fast_as_possible(session):
     frames = _frames(6, 100_000_000)  # 0.5 s of recording
-    _, _, doubled = _play(session, "fast", frames, SourceConfig(lockstep=False, rate=2.0, start_timeout_s=5.0))
-    _, _, unpaced = _play(session, "fastest", frames, SourceConfig(lockstep=False, rate=0.0, start_timeout_s=5.0))
+    _, _, doubled = _play(session, "fast", frames, SourceConfig(rate=2.0))
+    _, _, unpaced = _play(session, "fastest", frames, SourceConfig(rate=0.0))
     assert 0.24 <= doubled < 0.5  # 0.25 s at twice the speed; 0.5 s would be the recorded rate
     assert unpaced < 0.24
 
 
 def test_max_frames_stops_early_and_still_ends_the_stream(session):
-    sent, received, _ = _play(session, "limited", _frames(10, 1), SourceConfig(lockstep=False, rate=0.0, max_frames=3, start_timeout_s=5.0))
+    sent, received, _ = _play(session, "limited", _frames(10, 1), SourceConfig(rate=0.0, max_frames=3))
     assert sent == 3 and received == [0, 1, 2, codec.EndOfStream(3)]
 
 
@@ -74,13 +74,13 @@ def test_a_stop_request_still_ends_the_stream(session):
                 stop["now"] = True  # as if SIGINT arrived while frame 2 was being read
             yield frame
 
-    sent, received, _ = _play(session, "stopped", frames(), SourceConfig(lockstep=False, rate=0.0, start_timeout_s=5.0), lambda: stop["now"])
+    sent, received, _ = _play(session, "stopped", frames(), SourceConfig(rate=0.0), lambda: stop["now"])
     assert sent == 2 and received == [0, 1, codec.EndOfStream(2)]
 
 
 def test_no_subscriber_is_an_error_naming_the_key(session):
     with pytest.raises(bus.BusError, match="no subscriber to zenslam/lonely/sensor/frame"):
-        play(session, "lonely", _frames(2, 1), CAL, "mono", SourceConfig(lockstep=False, start_timeout_s=0.2), lambda: False)
+        play(session, "lonely", _frames(2, 1), CAL, "mono", SourceConfig(), lambda: False, mode="live", start_timeout_s=0.2)
 
 
 class _LockstepFrontend:
@@ -126,8 +126,8 @@ def test_lockstep_keeps_at_most_frames_in_flight_unanswered_in_order(session, wi
     frontend = _LockstepFrontend(session, name, lag=window - 1)  # holds back all it may: a deadlock if the source sent fewer
     thread = threading.Thread(target=frontend.run)
     thread.start()
-    config = SourceConfig(lockstep=True, frames_in_flight=window, start_timeout_s=5.0, answer_timeout_s=5.0)
-    sent = play(session, name, _frames(8, 1), CAL, "mono", config, lambda: False, "test")
+    config = SourceConfig(frames_in_flight=window, answer_timeout_s=5.0)
+    sent = play(session, name, _frames(8, 1), CAL, "mono", config, lambda: False, "test", mode="lockstep", start_timeout_s=5.0)
     thread.join(timeout=10.0)
     assert sent == 8 and not thread.is_alive()
     assert frontend.order == list(range(8))

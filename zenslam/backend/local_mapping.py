@@ -114,13 +114,18 @@ class LocalMappingStats:
     deferred: int = 0  # 1 when fusion, local BA and keyframe culling waited for queued keyframes
 
 
+def new_backend_map(config: LocalMappingConfig) -> BackendMap:
+    """An empty map with the covisibility and essential-graph thresholds of ``config``."""
+    return BackendMap(config.min_covisibility_weight, config.essential_min_weight)
+
+
 class LocalMapper:
     """The backend's map and the local mapping steps run on it for each keyframe."""
 
-    def __init__(self, config: LocalMappingConfig, bundle_adjuster: BundleAdjuster) -> None:
+    def __init__(self, bmap: BackendMap, config: LocalMappingConfig, bundle_adjuster: BundleAdjuster) -> None:
+        self.map = bmap  # lent by its owner, the backend node; loop closing works on the same map
         self.config = config
         self.bundle_adjuster = bundle_adjuster
-        self.map = BackendMap(config.min_covisibility_weight, config.essential_min_weight)
         self.recent_points: list[int] = []  # ids on ORB-SLAM's recently-added list
         self.last_timings_ms: dict[str, float] = {}  # per step of the last call, milliseconds
         self.last_stats = LocalMappingStats()

@@ -25,17 +25,25 @@ from typing import TYPE_CHECKING
 import numpy as np
 import zenoh
 
+from zenslam.backend.config import BackendConfig
 from zenslam.backend.local_ba import LocalBundleAdjuster
-from zenslam.backend.local_mapping import LocalMapper
+from zenslam.backend.local_mapping import LocalMapper, new_backend_map
+from zenslam.backend.map import BackendMap
 from zenslam.errors import ZenslamError
+from zenslam.runtime import bus
+from zenslam.runtime.stage import (
+    StopFlag,
+    add_process_arguments,
+    bus_config_with,
+    load_section,
+    log_cpu_times,
+    setup_process_logging,
+)
 from zenslam.schemas import codec, keys
 from zenslam.schemas.map_update import MapUpdate
-from zenslam.service import bus
-from zenslam.service.run_config import BackendConfig, load_run_config
-from zenslam.service.supervisor import StopFlag, add_process_arguments, bus_config_with, log_cpu_times, setup_process_logging
 
 if TYPE_CHECKING:
-    from zenslam.service.rerun_log import BackendLog
+    from zenslam.runtime.rerun_log import BackendLog
 
 logger = logging.getLogger(__name__)
 
@@ -44,10 +52,12 @@ _POLL_S = 0.02  # seconds the loop waits for a keyframe before answering queries
 
 
 class BackendNode:
-    """Local mapping on decoded keyframes, and the map and trajectory replies; no transport in here."""
+    """The owner of the backend map: local mapping on decoded keyframes, and the map and trajectory
+    replies; no transport in here."""
 
     def __init__(self, mapper: LocalMapper, rerun: BackendLog | None = None) -> None:
         self.mapper = mapper
+        self.map: BackendMap = mapper.map  # the node's map, lent to local mapping (and loop closing)
         self.rerun = rerun  # logs the map, graphs and timings after each keyframe to the stage's .rrd
         self.processed = 0  # keyframes processed
         self.finished = False  # the input's end of stream has been processed
@@ -55,7 +65,8 @@ class BackendNode:
     @classmethod
     def from_config(cls, config: BackendConfig) -> BackendNode:
         """The node with the real local mapper and gtsam local bundle adjuster."""
-        return cls(LocalMapper(config.local_mapping, LocalBundleAdjuster(config.local_ba)))
+        bmap = new_backend_map(config.local_mapping)
+        return cls(LocalMapper(bmap, config.local_mapping, LocalBundleAdjuster(config.local_ba)))
 
     def step(self, keyframe: codec.KeyframeMessage, queued: int = 0) -> MapUpdate:
         """Insert one keyframe and run local mapping on it; the update lists everything that changed.
@@ -75,7 +86,7 @@ class BackendNode:
 
     def trajectory(self) -> codec.KeyframeTrajectoryMessage:
         """The poses (T_world_cam) of the keyframes in the map now, in insertion order."""
-        kfs = list(self.mapper.map.keyframes.values())
+        kfs = list(self.map.keyframes.values())
         return codec.KeyframeTrajectoryMessage(
             keyframe_ids=np.array([kf.id for kf in kfs], dtype=np.int64),
             stamps_ns=np.array([kf.stamp_ns for kf in kfs], dtype=np.int64),
@@ -86,7 +97,7 @@ class BackendNode:
 
     def snapshot(self) -> codec.MapSnapshotMessage:
         """The keyframe poses and the map points (ids ascending, positions in metres, world frame)."""
-        points = self.mapper.map.points
+        points = self.map.points
         ids = sorted(points)
         return codec.MapSnapshotMessage(
             keyframes=self.trajectory(),
@@ -251,19 +262,22 @@ def main(argv: list[str] | None = None) -> int:
     setup_process_logging(args.verbose, STAGE)
     stop = StopFlag(args.parent_pid).install()
     try:
-        config = load_run_config(args.config)
-        if config.backend.nice:
-            os.nice(config.backend.nice)
-        node = BackendNode.from_config(config.backend)
-        from zenslam.service import rerun_log
+        from zenslam.runtime import rerun_log
+
+        config = load_section(args.config, STAGE, BackendConfig)
+        bus_config = load_section(args.config, "bus", bus.BusConfig)
+        rerun_config = load_section(args.config, "rerun", rerun_log.RerunConfig)
+        if config.nice:
+            os.nice(config.nice)
+        node = BackendNode.from_config(config)
 
         with (
-            rerun_log.open_stage_recording(STAGE, args.session, args.config, config.rerun) as recording,
-            bus.open_session(bus_config_with(config.bus, args.connect)) as session,
+            rerun_log.open_stage_recording(STAGE, args.session, args.config, rerun_config) as recording,
+            bus.open_session(bus_config_with(bus_config, args.connect)) as session,
         ):
             node.rerun = rerun_log.BackendLog(recording) if recording is not None else None
-            bus.require_alive(session, args.session, args.wait_for, config.source.start_timeout_s, stop.keep_going)
-            serve(session, args.session, node, config.backend, stop)
+            bus.require_alive(session, args.session, args.wait_for, bus_config.start_timeout_s, stop.keep_going)
+            serve(session, args.session, node, config, stop)
     except ZenslamError as exc:
         logger.error("%s", exc)
         return 2

@@ -11,7 +11,7 @@ frame is tracked; in lockstep, after publishing a keyframe the frontend waits fo
 update of that keyframe before it tracks another frame, so the run is deterministic; meanwhile
 it builds the next frame (ORB, stereo or depth: images only, no map) if that frame has arrived,
 so the backend's mapping and the frontend's feature extraction share the two cores. Pipelined
-(lockstep frames, ``backend.wait_for_map_updates`` false) applies updates as live mode does.
+mode (every frame, in order, as in lockstep) applies updates as live mode does.
 """
 
 from __future__ import annotations
@@ -30,14 +30,23 @@ import zenoh
 
 from zenslam.camera import PinholeCalibration, SensorKind
 from zenslam.errors import CalibrationError, ZenslamError
+from zenslam.frontend.config import FrontendConfig
+from zenslam.runtime import bus
+from zenslam.runtime.stage import (
+    RunMode,
+    StopFlag,
+    add_process_arguments,
+    bus_config_with,
+    load_mode,
+    load_section,
+    log_cpu_times,
+    setup_process_logging,
+)
 from zenslam.schemas import codec, keys
 from zenslam.schemas.map_update import MapUpdate
-from zenslam.service import bus
-from zenslam.service.run_config import BackendConfig, load_run_config
-from zenslam.service.supervisor import StopFlag, add_process_arguments, bus_config_with, log_cpu_times, setup_process_logging
 
 if TYPE_CHECKING:
-    from zenslam.service.rerun_log import FrontendLog
+    from zenslam.runtime.rerun_log import FrontendLog
 
 logger = logging.getLogger(__name__)
 
@@ -201,7 +210,7 @@ class FrontendNode:
             self._unlogged = None
 
     def _log_to_rerun(self, message: codec.FrameMessage, out: Any) -> None:
-        from zenslam.service.rerun_log import tracked_keypoints
+        from zenslam.runtime.rerun_log import tracked_keypoints
 
         self.rerun.log_camera(message.calibration)
         self.rerun.log_frame(out, tracked_keypoints(self._pipeline, message.frame.index))
@@ -244,7 +253,7 @@ class _Outputs:
 class _MapUpdates:
     """The backend's map updates, applied to the node's pipeline as the run mode says."""
 
-    def __init__(self, session: zenoh.Session, session_name: str, config: BackendConfig):
+    def __init__(self, session: zenoh.Session, session_name: str, config: FrontendConfig):
         # Lossless: a missed update would leave the frontend's map behind the backend's for good.
         self.inbox = bus.subscribe(session, keys.backend_map_update(session_name), codec.decode_map_update, "lossless", config.map_update_queue)
         self.timeout_s = config.update_timeout_s
@@ -267,39 +276,39 @@ class _MapUpdates:
             if update is None and time.monotonic() > deadline:
                 raise bus.BusError(
                     f"lockstep: no map update for keyframe {keyframe_id} from the backend within {self.timeout_s:.0f} s "
-                    "(backend.update_timeout_s); check the backend's log"
+                    "(frontend.update_timeout_s); check the backend's log"
                 )
 
     def _apply(self, node: FrontendNode, update: MapUpdate | codec.EndOfStream) -> int:
-        """Apply one update; the keyframe id it answers (-1 for the end of stream)."""
+        """Apply one update; the keyframe id it answers (-1 for the end of stream or a correction)."""
         if isinstance(update, codec.EndOfStream):
             self.ended = True
             return -1
         node.apply_map_update(update)
-        return update.keyframe_id
+        return update.keyframe_id if update.answers_keyframe else -1
 
 
 def serve(
     session: zenoh.Session,
     session_name: str,
     node: FrontendNode,
-    lockstep: bool,
+    mode: RunMode,
     bus_config: bus.BusConfig,
     should_stop: Callable[[], bool],
-    backend: BackendConfig | None = None,
+    map_updates: FrontendConfig | None = None,
 ) -> bool:
     """Receive frames until end of stream (True) or ``should_stop()`` (False); the streams are ended either way.
 
-    With ``backend`` the backend's map updates are applied (see the module doc); without it the
-    frontend tracks on its own map.
+    With ``map_updates`` (the config of the map-update inbox) the backend's map updates are applied
+    (see the module doc); without it the frontend tracks on its own map.
     """
     outputs = _Outputs(session, session_name)
-    updates = _MapUpdates(session, session_name, backend) if backend is not None else None
+    updates = _MapUpdates(session, session_name, map_updates) if map_updates is not None else None
     node.tracks_backend = updates is not None
     # Lockstep waits for each keyframe's update; live and pipelined apply the updates that have arrived.
-    wait_for_updates = updates is not None and lockstep and backend.wait_for_map_updates
-    if lockstep:
-        # Lockstep: every frame, in order; the source waits for our state before sending more.
+    wait_for_updates = updates is not None and mode == "lockstep"
+    if mode != "live":
+        # Lockstep and pipelined: every frame, in order; the source waits for our state before sending more.
         frames = bus.subscribe(session, keys.sensor_frame(session_name), codec.decode_sensor_frame, "lossless", bus_config.lossless_queue)
     else:
         # Live: keep the newest frames and drop the oldest, as a tracker must keep up with its camera.
@@ -371,23 +380,25 @@ def main(argv: list[str] | None = None) -> int:
     setup_process_logging(args.verbose, STAGE)
     stop = StopFlag(args.parent_pid).install()
     try:
-        config = load_run_config(args.config)
+        from zenslam.runtime import rerun_log
+
+        config = load_section(args.config, STAGE, FrontendConfig)
+        bus_config = load_section(args.config, "bus", bus.BusConfig)
+        rerun_config = load_section(args.config, "rerun", rerun_log.RerunConfig)
         import cv2
 
         # OpenCV's pool slowed small calls 3x here; the extractor runs left/right on its own threads.
         cv2.setNumThreads(1)
-        node = FrontendNode(default_pipeline_factory(config.frontend))
-        from zenslam.service import rerun_log
+        node = FrontendNode(default_pipeline_factory(config))
 
         with (
-            rerun_log.open_stage_recording(STAGE, args.session, args.config, config.rerun) as recording,
-            bus.open_session(bus_config_with(config.bus, args.connect)) as session,
+            rerun_log.open_stage_recording(STAGE, args.session, args.config, rerun_config) as recording,
+            bus.open_session(bus_config_with(bus_config, args.connect)) as session,
         ):
             node.rerun = rerun_log.FrontendLog(recording) if recording is not None else None
-            timeout_s = config.source.start_timeout_s
-            bus.require_alive(session, args.session, args.wait_for, timeout_s, stop.keep_going)
-            backend = config.backend if args.map_updates else None
-            serve(session, args.session, node, config.source.lockstep, config.bus, stop, backend=backend)
+            bus.require_alive(session, args.session, args.wait_for, bus_config.start_timeout_s, stop.keep_going)
+            map_updates = config if args.map_updates else None
+            serve(session, args.session, node, load_mode(args.config), bus_config, stop, map_updates=map_updates)
     except ZenslamError as exc:
         logger.error("%s", exc)
         return 2

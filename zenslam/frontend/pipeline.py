@@ -11,13 +11,11 @@ import numpy as np
 
 from zenslam.camera import PinholeCalibration, SensorKind
 from zenslam.errors import ConfigError
+from zenslam.frontend.config import FrontendConfig
 from zenslam.frontend.frame import Frame, make_rgbd_frame, make_stereo_frame
 from zenslam.frontend.keyframe import KeyFrame
-from zenslam.frontend.keyframe_decision import KeyframeDecisionConfig
-from zenslam.frontend.orb_extractor import OrbConfig, OrbExtractor
-from zenslam.frontend.pose_optimizer import PoseOptimizerConfig
-from zenslam.frontend.stereo_matcher import StereoMatchConfig
-from zenslam.frontend.tracker import Tracker, TrackingConfig
+from zenslam.frontend.orb_extractor import OrbExtractor
+from zenslam.frontend.tracker import Tracker
 from zenslam.schemas.map_update import MapUpdate
 
 logger = logging.getLogger(__name__)
@@ -31,19 +29,6 @@ TIMING_KEYS = (
     "keyframe_decision",
     "total",
 )
-
-
-@dataclass(frozen=True)
-class FrontendConfig:
-    """The frontend's settings, one section per stage (YAML keys equal the field names)."""
-
-    orb: OrbConfig = field(default_factory=OrbConfig)
-    stereo: StereoMatchConfig = field(default_factory=StereoMatchConfig)
-    # A round of pose optimisation stops once a step is below 1e-5 (rad, m): on the KITTI clip
-    # this halves its time against the optimiser's own 1e-9 with an identical trajectory.
-    pose: PoseOptimizerConfig = field(default_factory=lambda: PoseOptimizerConfig(step_tolerance=1e-5))
-    tracking: TrackingConfig = field(default_factory=TrackingConfig)
-    keyframe: KeyframeDecisionConfig = field(default_factory=KeyframeDecisionConfig)
 
 
 @dataclass(frozen=True)

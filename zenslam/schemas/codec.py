@@ -387,9 +387,17 @@ def decode_keyframe(data: bytes) -> KeyframeMessage | EndOfStream:
     )
 
 
+_MAP_UPDATE_KIND_TO_PB = {"keyframe": pb.MAP_UPDATE_KIND_KEYFRAME, "correction": pb.MAP_UPDATE_KIND_CORRECTION}
+# Recordings made before update kinds existed carry none: each of their updates answered a keyframe.
+_MAP_UPDATE_KIND_FROM_PB = {pb.MAP_UPDATE_KIND_UNSPECIFIED: "keyframe", **{v: k for k, v in _MAP_UPDATE_KIND_TO_PB.items()}}
+
+
 def encode_map_update(update: MapUpdate) -> bytes:
     """Encode a backend/map_update message."""
-    msg = pb.MapUpdate(keyframe_id=update.keyframe_id, stamp_ns=update.stamp_ns, num_points=len(update.point_ids))
+    msg = pb.MapUpdate(
+        keyframe_id=update.keyframe_id, stamp_ns=update.stamp_ns, num_points=len(update.point_ids),
+        kind=_MAP_UPDATE_KIND_TO_PB[update.kind],
+    )
     for kf in update.keyframes:
         correction = msg.keyframes.add(id=kf.id, num_keypoints=len(kf.map_point_ids))
         _transform_to_pb(kf.T_world_cam, correction.T_world_cam)
@@ -421,6 +429,7 @@ def decode_map_update(data: bytes) -> MapUpdate | EndOfStream:
         for kf in msg.keyframes
     )
     return MapUpdate(
+        kind=_MAP_UPDATE_KIND_FROM_PB[msg.kind],
         keyframe_id=msg.keyframe_id,
         stamp_ns=msg.stamp_ns,
         keyframes=keyframes,

@@ -1,4 +1,8 @@
-"""The backend's correction of the map after a keyframe: what the frontend applies to its local copy.
+"""The backend's changes to the map: what the frontend applies to its local copy.
+
+An update has a kind: ``keyframe`` answers one keyframe (its local mapping; in lockstep the
+frontend waits for it), ``correction`` is a change no keyframe asked for (a loop closure, a
+global bundle adjustment) and is applied whenever it arrives.
 
 Semantics are replacement, not deltas, so applying an update twice is harmless: every keyframe
 listed gets its pose and its whole keypoint-to-point association array replaced; every point
@@ -11,8 +15,11 @@ disjoint from the frontend's (0 and up), so neither process needs a round trip t
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
+
+MapUpdateKind = Literal["keyframe", "correction"]
 
 # Point ids at or above this value are created by the backend; below it by the frontend.
 BACKEND_POINT_ID_BASE = 1 << 62
@@ -33,9 +40,10 @@ class KeyframeCorrection:
 
 @dataclass(frozen=True)
 class MapUpdate:
-    """Everything the backend changed while processing keyframe ``keyframe_id``."""
+    """Everything the backend changed while processing keyframe ``keyframe_id`` (kind ``keyframe``),
+    or in a correction that covers the keyframes up to ``keyframe_id`` (kind ``correction``)."""
 
-    keyframe_id: int  # the keyframe whose processing produced this update
+    keyframe_id: int  # the keyframe whose processing produced this update (the newest one a correction covers)
     stamp_ns: int  # that keyframe's stamp
     keyframes: tuple[KeyframeCorrection, ...] = ()
     point_ids: np.ndarray = field(default_factory=lambda: _empty((0,), np.int64))  # (P,)
@@ -46,6 +54,12 @@ class MapUpdate:
     max_distance_m: np.ndarray = field(default_factory=lambda: _empty((0,), np.float64))  # (P,)
     removed_point_ids: np.ndarray = field(default_factory=lambda: _empty((0,), np.int64))  # (R,)
     removed_keyframe_ids: np.ndarray = field(default_factory=lambda: _empty((0,), np.int64))  # (Q,)
+    kind: MapUpdateKind = "keyframe"
+
+    @property
+    def answers_keyframe(self) -> bool:
+        """True when this is the answer to keyframe ``keyframe_id`` (what lockstep waits for)."""
+        return self.kind == "keyframe"
 
     def __post_init__(self) -> None:
         n = len(self.point_ids)

@@ -27,6 +27,12 @@ class TrackingStateKind(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     TRACKING_STATE_LOST: _ClassVar[TrackingStateKind]
     TRACKING_STATE_INITIALIZING: _ClassVar[TrackingStateKind]
 
+class MapUpdateKind(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+    __slots__ = ()
+    MAP_UPDATE_KIND_UNSPECIFIED: _ClassVar[MapUpdateKind]
+    MAP_UPDATE_KIND_KEYFRAME: _ClassVar[MapUpdateKind]
+    MAP_UPDATE_KIND_CORRECTION: _ClassVar[MapUpdateKind]
+
 class StageState(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     __slots__ = ()
     STAGE_STATE_UNSPECIFIED: _ClassVar[StageState]
@@ -45,6 +51,9 @@ TRACKING_STATE_UNSPECIFIED: TrackingStateKind
 TRACKING_STATE_OK: TrackingStateKind
 TRACKING_STATE_LOST: TrackingStateKind
 TRACKING_STATE_INITIALIZING: TrackingStateKind
+MAP_UPDATE_KIND_UNSPECIFIED: MapUpdateKind
+MAP_UPDATE_KIND_KEYFRAME: MapUpdateKind
+MAP_UPDATE_KIND_CORRECTION: MapUpdateKind
 STAGE_STATE_UNSPECIFIED: StageState
 STAGE_STATE_STARTING: StageState
 STAGE_STATE_RUNNING: StageState
@@ -209,7 +218,7 @@ class KeyframeCorrection(_message.Message):
     def __init__(self, id: _Optional[int] = ..., T_world_cam: _Optional[_Union[RigidTransform, _Mapping]] = ..., num_keypoints: _Optional[int] = ..., map_point_ids: _Optional[bytes] = ...) -> None: ...
 
 class MapUpdate(_message.Message):
-    __slots__ = ("keyframe_id", "stamp_ns", "keyframes", "num_points", "point_ids", "p_world", "descriptors", "normals", "min_distance_m", "max_distance_m", "removed_point_ids", "removed_keyframe_ids", "end_of_stream", "count")
+    __slots__ = ("keyframe_id", "stamp_ns", "keyframes", "num_points", "point_ids", "p_world", "descriptors", "normals", "min_distance_m", "max_distance_m", "removed_point_ids", "removed_keyframe_ids", "end_of_stream", "count", "kind")
     KEYFRAME_ID_FIELD_NUMBER: _ClassVar[int]
     STAMP_NS_FIELD_NUMBER: _ClassVar[int]
     KEYFRAMES_FIELD_NUMBER: _ClassVar[int]
@@ -224,6 +233,7 @@ class MapUpdate(_message.Message):
     REMOVED_KEYFRAME_IDS_FIELD_NUMBER: _ClassVar[int]
     END_OF_STREAM_FIELD_NUMBER: _ClassVar[int]
     COUNT_FIELD_NUMBER: _ClassVar[int]
+    KIND_FIELD_NUMBER: _ClassVar[int]
     keyframe_id: int
     stamp_ns: int
     keyframes: _containers.RepeatedCompositeFieldContainer[KeyframeCorrection]
@@ -238,7 +248,8 @@ class MapUpdate(_message.Message):
     removed_keyframe_ids: bytes
     end_of_stream: bool
     count: int
-    def __init__(self, keyframe_id: _Optional[int] = ..., stamp_ns: _Optional[int] = ..., keyframes: _Optional[_Iterable[_Union[KeyframeCorrection, _Mapping]]] = ..., num_points: _Optional[int] = ..., point_ids: _Optional[bytes] = ..., p_world: _Optional[bytes] = ..., descriptors: _Optional[bytes] = ..., normals: _Optional[bytes] = ..., min_distance_m: _Optional[bytes] = ..., max_distance_m: _Optional[bytes] = ..., removed_point_ids: _Optional[bytes] = ..., removed_keyframe_ids: _Optional[bytes] = ..., end_of_stream: _Optional[bool] = ..., count: _Optional[int] = ...) -> None: ...
+    kind: MapUpdateKind
+    def __init__(self, keyframe_id: _Optional[int] = ..., stamp_ns: _Optional[int] = ..., keyframes: _Optional[_Iterable[_Union[KeyframeCorrection, _Mapping]]] = ..., num_points: _Optional[int] = ..., point_ids: _Optional[bytes] = ..., p_world: _Optional[bytes] = ..., descriptors: _Optional[bytes] = ..., normals: _Optional[bytes] = ..., min_distance_m: _Optional[bytes] = ..., max_distance_m: _Optional[bytes] = ..., removed_point_ids: _Optional[bytes] = ..., removed_keyframe_ids: _Optional[bytes] = ..., end_of_stream: _Optional[bool] = ..., count: _Optional[int] = ..., kind: _Optional[_Union[MapUpdateKind, str]] = ...) -> None: ...
 
 class StageStatus(_message.Message):
     __slots__ = ("stage", "state", "processed", "step_ms", "queue_depth", "dropped", "detail", "timings_ms")

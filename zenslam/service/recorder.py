@@ -35,19 +35,20 @@ from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 
 from zenslam.errors import ZenslamError
-from zenslam.schemas import codec, keys
-from zenslam.schemas.map_update import MapUpdate
-from zenslam.service import bus, mcap_io
-from zenslam.service.run_config import RecorderConfig, RunConfig, load_run_config
-from zenslam.service.supervisor import (
-    ProcessSpec,
+from zenslam.runtime import bus
+from zenslam.runtime.stage import (
     StopFlag,
-    Supervisor,
     add_process_arguments,
     bus_config_with,
+    load_section,
     log_cpu_times,
     setup_process_logging,
 )
+from zenslam.runtime.supervisor import ProcessSpec, Supervisor
+from zenslam.schemas import codec, keys
+from zenslam.schemas.map_update import MapUpdate
+from zenslam.service import mcap_io
+from zenslam.service.run_config import RecorderConfig, RunConfig
 
 logger = logging.getLogger(__name__)
 
@@ -314,7 +315,7 @@ def start_recorder(
     for stage in FOLLOWED_STAGES:
         args += ["--follow", stage]
     supervisor.start(ProcessSpec(STAGE, "zenslam.service.recorder", tuple(args)))
-    supervisor.wait_until_alive(session, [STAGE], config.source.start_timeout_s, keep_waiting)
+    supervisor.wait_until_alive(session, [STAGE], config.bus.start_timeout_s, keep_waiting)
     return path
 
 
@@ -331,9 +332,10 @@ def main(argv: list[str] | None = None) -> int:
     setup_process_logging(args.verbose, STAGE)
     stop = StopFlag(args.parent_pid).install()
     try:
-        config = load_run_config(args.config)
-        with bus.open_session(bus_config_with(config.bus, args.connect)) as session:
-            record(session, args.session, args.output, config.recorder, stop, args.follow)
+        config = load_section(args.config, STAGE, RecorderConfig)
+        bus_config = load_section(args.config, "bus", bus.BusConfig)
+        with bus.open_session(bus_config_with(bus_config, args.connect)) as session:
+            record(session, args.session, args.output, config, stop, args.follow)
     except ZenslamError as exc:
         logger.error("%s", exc)
         return 2

@@ -19,10 +19,11 @@ from pathlib import Path
 
 from google.protobuf.message import Message
 
+from zenslam.backend.config import BackendConfig
 from zenslam.backend.node import BackendNode
 from zenslam.schemas import codec, keys
 from zenslam.service import mcap_io
-from zenslam.service.run_config import BackendConfig, RunConfig, load_run_config
+from zenslam.service.run_config import RunConfig, load_run_config
 from zenslam.service.run_output import CONFIG_FILENAME
 
 logger = logging.getLogger(__name__)

@@ -1,9 +1,13 @@
 """The configuration of one run: a YAML file with one section per stage, and ORB-SLAM3 settings files.
 
-``load_run_config`` reads the YAML (sections ``bus``, ``source``, ``frontend``, ``backend``, ``evaluation``, ``recorder``; unknown
-keys are an error). ``read_orbslam_settings`` reads an ORB-SLAM3 (or ORB-SLAM2) settings file with OpenCV's
-FileStorage, and ``apply_orbslam_settings`` makes its rectified calibration override the source's
-and its ORB/threshold values override the frontend's, so users can bring their existing files.
+``load_run_config`` reads the YAML (the run ``mode`` and one section per stage: ``bus``, ``source``,
+``frontend``, ``backend``, ``rerun``, ``evaluation``, ``recorder``; unknown keys are an error). Each
+stage's section is defined with its stage; a stage process reads only its own sections of the
+resolved file (``runtime.stage.load_section``).
+
+``read_orbslam_settings`` reads an ORB-SLAM3 (or ORB-SLAM2) settings file with OpenCV's FileStorage,
+and ``apply_orbslam_settings`` makes its rectified calibration override the source's and its
+ORB/threshold values override the frontend's, so users can bring their existing files.
 """
 
 from __future__ import annotations
@@ -18,15 +22,16 @@ from typing import Any, Literal
 import cv2
 import numpy as np
 
-from zenslam.backend.local_ba import LocalBAConfig
-from zenslam.backend.local_mapping import LocalMappingConfig
+from zenslam.backend.config import BackendConfig
 from zenslam.camera import PinholeCalibration
+from zenslam.config import from_mapping, load_yaml, to_mapping
 from zenslam.errors import CalibrationError, ConfigError
-from zenslam.frontend.pipeline import FrontendConfig
-from zenslam.service.bus import BusConfig
-from zenslam.service.config import from_mapping, load_yaml, to_mapping
-from zenslam.service.mcap_io import ChunkCompression
+from zenslam.frontend.config import FrontendConfig
+from zenslam.runtime.bus import BusConfig
+from zenslam.runtime.rerun_log import RerunConfig
+from zenslam.runtime.stage import RunMode
 from zenslam.service.evaluation.metrics import EvaluationConfig
+from zenslam.service.mcap_io import ChunkCompression
 
 logger = logging.getLogger(__name__)
 
@@ -36,14 +41,9 @@ class SourceConfig:
     """What the source process plays and how (the ``source`` section)."""
 
     spec: str = "synthetic"  # kitti:<root>/sequences/NN | euroc:<folder> | tum:<folder> | synthetic[:<scene>[/<sensor>]]
-    # Lockstep (default): send frame i+1 only after the frontend reported frame i; nothing is dropped
-    # and runs are deterministic, like ORB-SLAM's dataset examples. False = live: frames are sent at
-    # their recorded times (scaled by ``rate``) and a slow frontend skips frames, as with a camera.
-    lockstep: bool = True
     rate: float = 1.0  # live mode: playback speed as a multiple of the recorded rate; 0 = as fast as possible
     max_frames: int | None = None  # frames; stop after this many (None: the whole sequence)
     depth_encoding: Literal["float32_m", "uint16_mm"] = "float32_m"  # how RGB-D depth travels on the bus
-    start_timeout_s: float = 60.0  # seconds to wait for the frontend to come up before giving up
     answer_timeout_s: float = 120.0  # lockstep: seconds to wait for the frontend's answer to one frame
     # Lockstep: frames sent whose frontend/state has not arrived. 2 reads and sends frame i+1 while
     # frame i is tracked, taking the source's reading/decoding off the serial path; the frontend
@@ -61,66 +61,8 @@ class SourceConfig:
             )
         if self.max_frames is not None and self.max_frames < 1:
             raise ConfigError(f"source.max_frames={self.max_frames} must be >= 1, or null for all frames")
-        for name in ("start_timeout_s", "answer_timeout_s"):
-            if not getattr(self, name) > 0:
-                raise ConfigError(f"source.{name}={getattr(self, name)} must be a positive number of seconds")
-
-
-@dataclass(frozen=True)
-class RerunConfig:
-    """What the stage processes log to rerun (the ``rerun`` section): ``<run>/<stage>.rrd``, one recording per run."""
-
-    enabled: bool = True  # every stage process writes its .rrd next to the run's config.yaml
-    image_every_n: int = 1  # frames; the source logs every n-th left image (keypoints and poses are logged every frame)
-    # JPEG-compressed images. Counting rerun's own threads, 51 KITTI left images (1226x370) cost
-    # 1.3 ms of CPU each as JPEG against 4.4 ms raw, and made a 6.1 MB instead of a 22.4 MB .rrd.
-    jpeg: bool = True
-    jpeg_quality: int = 90  # JPEG quality 1-100 (jpeg true)
-
-    def __post_init__(self) -> None:
-        if self.image_every_n < 1:
-            raise ConfigError(f"rerun.image_every_n={self.image_every_n} must be at least 1 frame (1: every image)")
-        if not 1 <= self.jpeg_quality <= 100:
-            raise ConfigError(f"rerun.jpeg_quality={self.jpeg_quality} must be between 1 and 100")
-
-
-@dataclass(frozen=True)
-class BackendConfig:
-    """The backend process (the ``backend`` section): local mapping, local BA and its queues."""
-
-    local_mapping: LocalMappingConfig = field(default_factory=LocalMappingConfig)
-    local_ba: LocalBAConfig = field(default_factory=LocalBAConfig)
-    # Keyframes the backend's inbox holds; when full the frontend's send blocks (lossless: never dropped).
-    keyframe_queue: int = 32  # keyframes
-    # Map updates a subscriber's inbox (the frontend's, the run's) holds before the backend's send blocks.
-    map_update_queue: int = 256  # map updates
-    update_timeout_s: float = 300.0  # lockstep: seconds the frontend waits for the backend's update of one keyframe
-    # Lockstep source only. True: after each keyframe the frontend waits for its map update
-    # (deterministic, but tracking and mapping take turns). False ("pipelined", ``zenslam run
-    # --pipelined``): every frame is still tracked, in order, but updates are applied as they arrive,
-    # as in live mode, with mapping in parallel and the keyframe throttle seeing its real load (like
-    # ORB-SLAM's threads); outputs then depend on timing. The run still ends after every keyframe's update.
-    wait_for_map_updates: bool = True
-    # After its input's end of stream the backend keeps answering backend/map and backend/trajectory
-    # for this long (or until stopped: ``zenslam run`` stops it once it has the final trajectory).
-    linger_s: float = 60.0  # seconds
-    # Added to the backend process's nice value (0-19, POSIX niceness): best-effort mapping yields
-    # the CPU to tracking, as ORB-SLAM's tracking is its real-time thread. Scheduling only: the
-    # numerics, and lockstep outputs, are the same at any value. On the loaded 2-core machine,
-    # nice 10 made live KITTI x2 runs worse (5-9 keyframes against 6-19 in 3 paired runs): mapping
-    # fell behind, the keyframe throttle held keyframes back and tracking ran out of points.
-    nice: int = 0  # niceness increment
-
-    def __post_init__(self) -> None:
-        if not 0 <= self.nice <= 19:
-            raise ConfigError(f"backend.nice={self.nice} must be within 0..19 (a niceness increment; 0 leaves it as is)")
-        for name in ("keyframe_queue", "map_update_queue"):
-            if getattr(self, name) < 1:
-                raise ConfigError(f"backend.{name}={getattr(self, name)} must be at least 1 message")
-        if not self.update_timeout_s > 0:
-            raise ConfigError(f"backend.update_timeout_s={self.update_timeout_s} must be a positive number of seconds")
-        if not self.linger_s >= 0:
-            raise ConfigError(f"backend.linger_s={self.linger_s} must be >= 0 seconds")
+        if not self.answer_timeout_s > 0:
+            raise ConfigError(f"source.answer_timeout_s={self.answer_timeout_s} must be a positive number of seconds")
 
 
 @dataclass(frozen=True)
@@ -161,6 +103,7 @@ class RecorderConfig:
 class RunConfig:
     """Everything a run needs, one section per stage; written resolved next to the run's outputs."""
 
+    mode: RunMode = "lockstep"  # how the stages are paced: lockstep | pipelined | live (runtime.stage.RunMode)
     bus: BusConfig = field(default_factory=BusConfig)
     source: SourceConfig = field(default_factory=SourceConfig)
     frontend: FrontendConfig = field(default_factory=FrontendConfig)
@@ -172,10 +115,43 @@ class RunConfig:
 
 
 def load_run_config(path: str | Path | None) -> RunConfig:
-    """The run configuration in the YAML file ``path`` (defaults for missing keys), or all defaults for None."""
+    """The run configuration in the YAML file ``path`` (defaults for missing keys), or all defaults for None.
+
+    Files written before the run mode and the per-stage sections (``source.lockstep``,
+    ``backend.wait_for_map_updates`` and the keys of ``_MOVED_KEYS``) are read with a warning.
+    """
     if path is None:
         return RunConfig()
-    return from_mapping(RunConfig, load_yaml(Path(path)), "")
+    return from_mapping(RunConfig, _upgrade_earlier_keys(load_yaml(Path(path)), Path(path)), "")
+
+
+# Keys of earlier configuration files and where they live now: (section, key) -> (section, key).
+_MOVED_KEYS = {
+    ("source", "start_timeout_s"): ("bus", "start_timeout_s"),
+    ("backend", "map_update_queue"): ("frontend", "map_update_queue"),
+    ("backend", "update_timeout_s"): ("frontend", "update_timeout_s"),
+}
+
+
+def _upgrade_earlier_keys(data: dict[str, Any], path: Path) -> dict[str, Any]:
+    """``data`` with the keys of earlier files moved to their place today (a copy; ``data`` is kept)."""
+    data = {k: dict(v) if isinstance(v, dict) else v for k, v in data.items()}
+    moved: list[str] = []
+    source, backend = data.get("source"), data.get("backend")
+    lockstep = source.pop("lockstep", None) if isinstance(source, dict) else None
+    waits = backend.pop("wait_for_map_updates", None) if isinstance(backend, dict) else None
+    if lockstep is not None or waits is not None:
+        moved.append("source.lockstep/backend.wait_for_map_updates -> mode")
+        if "mode" not in data:
+            data["mode"] = "live" if lockstep is False else "pipelined" if waits is False else "lockstep"
+    for (section, key), (new_section, new_key) in _MOVED_KEYS.items():
+        old = data.get(section)
+        if isinstance(old, dict) and key in old:
+            moved.append(f"{section}.{key} -> {new_section}.{new_key}")
+            data.setdefault(new_section, {}).setdefault(new_key, old.pop(key))
+    if moved:
+        logger.warning("%s uses keys of an earlier zenslam, read as: %s", path, "; ".join(moved))
+    return data
 
 
 def run_config_to_yaml(config: RunConfig) -> str:

@@ -97,7 +97,8 @@ class RunLog:
         if isinstance(update, codec.EndOfStream):
             self.backend_ended = True
         else:
-            self.updated_keyframes.append(int(update.keyframe_id))
+            if update.answers_keyframe:
+                self.updated_keyframes.append(int(update.keyframe_id))
             for correction in update.keyframes:
                 self.corrected_poses[int(correction.id)] = np.asarray(correction.T_world_cam, dtype=float)
 

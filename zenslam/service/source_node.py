@@ -21,14 +21,23 @@ import zenoh
 
 from zenslam.camera import PinholeCalibration, SensorKind
 from zenslam.errors import ZenslamError
+from zenslam.runtime import bus
+from zenslam.runtime.stage import (
+    RunMode,
+    StopFlag,
+    add_process_arguments,
+    bus_config_with,
+    load_mode,
+    load_section,
+    log_cpu_times,
+    setup_process_logging,
+)
 from zenslam.schemas import codec, keys
-from zenslam.service import bus
-from zenslam.service.run_config import SourceConfig, load_run_config
+from zenslam.service.run_config import SourceConfig
 from zenslam.service.sources import SensorFrame, open_source
-from zenslam.service.supervisor import StopFlag, add_process_arguments, bus_config_with, log_cpu_times, setup_process_logging
 
 if TYPE_CHECKING:
-    from zenslam.service.rerun_log import SourceLog
+    from zenslam.runtime.rerun_log import SourceLog
 
 logger = logging.getLogger(__name__)
 
@@ -83,26 +92,32 @@ def play(
     should_stop: Callable[[], bool],
     source_name: str = "",
     rerun: SourceLog | None = None,
+    mode: RunMode = "lockstep",
+    start_timeout_s: float = 60.0,
 ) -> int:
     """Publish ``frames`` on sensor/frame, then an end-of-stream message; returns the frames sent.
 
     The caller has made sure the consumers are up. Stops early (still sending end-of-stream) when
     ``should_stop()`` turns true or after ``config.max_frames`` frames. ``rerun`` logs each frame sent.
+    In lockstep and pipelined mode every frame waits for the frontend's answers (a window of
+    ``config.frames_in_flight``); live mode plays at the recorded rate. ``start_timeout_s``: seconds
+    to wait for the frontend's subscription.
     """
+    lockstep = mode != "live"
     key = keys.sensor_frame(session_name)
     # Lockstep frames must all arrive, in order; live frames may be dropped when a link is congested.
-    frame_pub = bus.declare_publisher(session, key, codec.SENSOR_FRAME, "lossless" if config.lockstep else "live")
+    frame_pub = bus.declare_publisher(session, key, codec.SENSOR_FRAME, "lossless" if lockstep else "live")
     # End of stream goes on the same key, lossless, so it arrives, and after the frames.
     end_pub = bus.declare_publisher(session, key, codec.SENSOR_FRAME, "lossless")
     status_pub = bus.declare_publisher(session, keys.status(session_name, STAGE), codec.STAGE_STATUS, "lossless")
     states = None
-    if config.lockstep:
+    if lockstep:
         # Lossless: the answer to every frame must be seen, or the source would wait forever.
         states = bus.subscribe(session, keys.frontend_state(session_name), codec.decode_tracking_state, "lossless", 64)
-    if not bus.wait_for_subscribers(frame_pub, config.start_timeout_s, keep_waiting=lambda: not should_stop()):
+    if not bus.wait_for_subscribers(frame_pub, start_timeout_s, keep_waiting=lambda: not should_stop()):
         if not should_stop():
-            raise bus.BusError(f"no subscriber to {key} within {config.start_timeout_s:.0f} s; is the frontend running?")
-    pacer = _Pacer(0.0 if config.lockstep else config.rate, should_stop)
+            raise bus.BusError(f"no subscriber to {key} within {start_timeout_s:.0f} s; is the frontend running?")
+    pacer = _Pacer(0.0 if lockstep else config.rate, should_stop)
     log_cpu_times("at stream start")
     sent = 0
     in_flight: deque[int] = deque()  # lockstep: indices of the frames sent and not answered, oldest first
@@ -146,20 +161,26 @@ def main(argv: list[str] | None = None) -> int:
     setup_process_logging(args.verbose, STAGE)
     stop = StopFlag(args.parent_pid).install()
     try:
-        config = load_run_config(args.config)
-        source = open_source(args.source or config.source.spec)
-        calibration = config.source.calibration or source.calibration
-        from zenslam.service import rerun_log
+        from zenslam.runtime import rerun_log
+
+        config = load_section(args.config, STAGE, SourceConfig)
+        bus_config = load_section(args.config, "bus", bus.BusConfig)
+        rerun_config = load_section(args.config, "rerun", rerun_log.RerunConfig)
+        source = open_source(args.source or config.spec)
+        calibration = config.calibration or source.calibration
 
         with (
-            rerun_log.open_stage_recording(STAGE, args.session, args.config, config.rerun) as recording,
-            bus.open_session(bus_config_with(config.bus, args.connect)) as session,
+            rerun_log.open_stage_recording(STAGE, args.session, args.config, rerun_config) as recording,
+            bus.open_session(bus_config_with(bus_config, args.connect)) as session,
         ):
             rerun = rerun_log.SourceLog(recording) if recording is not None else None
             with bus.declare_alive(session, args.session, STAGE):
-                timeout_s = config.source.start_timeout_s
+                timeout_s = bus_config.start_timeout_s
                 bus.require_alive(session, args.session, args.wait_for, timeout_s, stop.keep_going)
-                play(session, args.session, source, calibration, source.sensor, config.source, stop, source.name, rerun)
+                play(
+                    session, args.session, source, calibration, source.sensor, config, stop, source.name, rerun,
+                    mode=load_mode(args.config), start_timeout_s=timeout_s,
+                )
     except ZenslamError as exc:
         logger.error("%s", exc)
         return 2

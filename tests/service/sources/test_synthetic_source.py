@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from zenslam.errors import ConfigError
-from zenslam.service.config import from_mapping, to_mapping
+from zenslam.config import from_mapping, to_mapping
 from zenslam.service.sources.synthetic import (
     SCENE_NAMES,
     PhotometricConfig,

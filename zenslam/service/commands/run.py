@@ -22,8 +22,11 @@ from pathlib import Path
 from tqdm import tqdm
 
 from zenslam.backend.node import query_trajectory
+from zenslam.errors import ProcessError
+from zenslam.runtime import bus
+from zenslam.runtime.stage import StopFlag, log_cpu_times
+from zenslam.runtime.supervisor import ProcessSpec, Supervisor
 from zenslam.schemas import codec, keys
-from zenslam.service import bus
 from zenslam.service.recorder import start_recorder
 from zenslam.service.run_config import RunConfig, apply_orbslam_settings, load_run_config, read_orbslam_settings
 from zenslam.service.run_output import (
@@ -36,7 +39,6 @@ from zenslam.service.run_output import (
     write_outputs,
 )
 from zenslam.service.sources import Source, open_source
-from zenslam.service.supervisor import ProcessError, ProcessSpec, StopFlag, Supervisor, log_cpu_times
 
 logger = logging.getLogger(__name__)
 
@@ -91,10 +93,6 @@ def resolve_config(args: argparse.Namespace) -> RunConfig:
     source = config.source
     if args.source is not None:
         source = dataclasses.replace(source, spec=args.source)
-    backend = config.backend
-    if args.pacing is not None:
-        source = dataclasses.replace(source, lockstep=args.pacing != "live")
-        backend = dataclasses.replace(backend, wait_for_map_updates=args.pacing != "pipelined")
     if args.rate is not None:
         source = dataclasses.replace(source, rate=args.rate)
     if args.max_frames is not None:
@@ -102,19 +100,13 @@ def resolve_config(args: argparse.Namespace) -> RunConfig:
     bus_config = config.bus
     if args.bus_config is not None:
         bus_config = dataclasses.replace(bus_config, zenoh_config_file=str(args.bus_config))
-    return dataclasses.replace(config, source=source, backend=backend, bus=bus_config)
-
-
-def pacing(config: RunConfig) -> str:
-    """The run mode: "lockstep", "pipelined" (lockstep frames, map updates not waited for) or "live"."""
-    if not config.source.lockstep:
-        return "live"
-    return "lockstep" if config.backend.wait_for_map_updates else "pipelined"
+    mode = config.mode if args.pacing is None else args.pacing
+    return dataclasses.replace(config, mode=mode, source=source, bus=bus_config)
 
 
 def _child_env(config: RunConfig) -> dict[str, str]:
     env = dict(os.environ)
-    if config.source.lockstep:
+    if config.mode != "live":
         # Single-threaded numerics in lockstep runs: same input, same bytes out.
         for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
             env[name] = "1"
@@ -132,7 +124,7 @@ class _Follower:
         # the stages never wait on this process for long.
         self.poses = bus.subscribe(session, keys.frontend_pose(run_id), codec.decode_pose_in_frame, "lossless", capacity)
         self.states = bus.subscribe(session, keys.frontend_state(run_id), codec.decode_tracking_state, "lossless", capacity)
-        update_capacity = max(config.backend.map_update_queue, capacity)
+        update_capacity = max(config.frontend.map_update_queue, capacity)
         self.updates = bus.subscribe(session, keys.backend_map_update(run_id), codec.decode_map_update, "lossless", update_capacity)
         self.backend = bus.subscribe(session, keys.status(run_id, "backend"), codec.decode_stage_status, "lossless", capacity)
         self.log = RunLog()
@@ -226,7 +218,7 @@ def track(config: RunConfig, run_id: str, run_dir: Path, config_path: Path, sour
         try:
             supervisor = Supervisor(run_dir, run_id, config_path, hub, env=_child_env(config))
             with supervisor, bus.declare_alive(session, run_id, "run"):
-                timeout_s = config.source.start_timeout_s
+                timeout_s = config.bus.start_timeout_s
                 # The recorder comes first, and each stage waits until it sees the recorder's token
                 # before publishing: then the recorder's subscription has reached it too.
                 recording = start_recorder(supervisor, session, config, run_dir, stop.keep_going)
@@ -282,8 +274,7 @@ def run(args: argparse.Namespace) -> int:
     logger.info("run %s: %s (%s, %d frames) -> %s", run_id, source.name, source.sensor, len(source), run_dir)
     log, completed = track(config, run_id, run_dir, config_path, source, progress=not args.no_progress)
     extra = {"run": {
-        "run_id": run_id, "source": config.source.spec, "lockstep": config.source.lockstep,
-        "pacing": pacing(config), "completed": completed,
+        "run_id": run_id, "source": config.source.spec, "mode": config.mode, "completed": completed,
     }}
     evaluation_config = evaluation_config_for(config.evaluation, source.sensor)
     result = write_outputs(run_dir, log, source.ground_truth(), evaluation_config, extra)

@@ -19,7 +19,7 @@ from collections.abc import Mapping
 from pathlib import Path
 
 from zenslam.errors import ConfigError
-from zenslam.service.rerun_log import RRD_SUFFIX
+from zenslam.runtime.rerun_log import RRD_SUFFIX
 
 logger = logging.getLogger(__name__)
 

@@ -9,7 +9,7 @@ from typing import Any, Literal
 
 from zenslam.camera import PinholeCalibration, SensorKind
 from zenslam.errors import ConfigError
-from zenslam.service.config import from_mapping, to_mapping
+from zenslam.config import from_mapping, to_mapping
 
 TrajectoryKind = Literal["loop", "figure_eight", "still"]
 

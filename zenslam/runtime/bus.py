@@ -46,6 +46,7 @@ class BusConfig:
     zenoh_config_file: str | None = None  # a zenoh JSON5 config file; when set it replaces the four fields above
     lossless_queue: int = 32  # messages a lossless inbox holds before the sender blocks, messages
     live_queue: int = 2  # newest camera frames a live inbox keeps (older ones dropped), frames
+    start_timeout_s: float = 60.0  # seconds a process waits for the stages it needs to come up
 
 
 def zenoh_config(config: BusConfig) -> zenoh.Config:

@@ -34,6 +34,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -42,10 +43,28 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from zenslam.camera import PinholeCalibration
-from zenslam.service.run_config import RerunConfig
-from zenslam.service.sources.frame import SensorFrame
+from zenslam.errors import ConfigError
+from zenslam.schemas.sensor_data import SensorFrame
 
 logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class RerunConfig:
+    """What the stage processes log to rerun (the ``rerun`` section): ``<run>/<stage>.rrd``, one recording per run."""
+
+    enabled: bool = True  # every stage process writes its .rrd next to the run's config.yaml
+    image_every_n: int = 1  # frames; the source logs every n-th left image (keypoints and poses are logged every frame)
+    # JPEG-compressed images: a third of the CPU and of the file size of raw images.
+    jpeg: bool = True
+    jpeg_quality: int = 90  # JPEG quality 1-100 (jpeg true)
+
+    def __post_init__(self) -> None:
+        if self.image_every_n < 1:
+            raise ConfigError(f"rerun.image_every_n={self.image_every_n} must be at least 1 frame (1: every image)")
+        if not 1 <= self.jpeg_quality <= 100:
+            raise ConfigError(f"rerun.jpeg_quality={self.jpeg_quality} must be between 1 and 100")
+
 
 APPLICATION_ID = "zenslam"
 FRAME_TIMELINE = "frame"  # sequence: the source's frame index

@@ -9,9 +9,8 @@ import numpy as np
 import pytest
 
 from zenslam.camera import PinholeCalibration
-from zenslam.service import rerun_log
-from zenslam.service.rerun_log import BackendLog, FrontendLog, SourceLog, StageRecording, read_rrd, recording_ids
-from zenslam.service.run_config import RerunConfig
+from zenslam.runtime import rerun_log
+from zenslam.runtime.rerun_log import BackendLog, FrontendLog, RerunConfig, SourceLog, StageRecording, read_rrd, recording_ids
 from zenslam.service.sources.frame import SensorFrame
 
 CALIBRATION = PinholeCalibration(400.0, 400.0, 80.0, 60.0, 160, 120, 0.1)

@@ -10,15 +10,17 @@ from pathlib import Path
 
 import pytest
 
-from zenslam.service import bus
-from zenslam.service.supervisor import MALLOC_TUNABLES, ProcessError, ProcessSpec, StopFlag, Supervisor
+from zenslam.errors import ProcessError
+from zenslam.runtime import bus
+from zenslam.runtime.stage import StopFlag
+from zenslam.runtime.supervisor import MALLOC_TUNABLES, ProcessSpec, Supervisor
 
 # A stage-like child: parses the common arguments, joins the bus, announces itself, waits for a stop.
 STAGE_CHILD = """
 import argparse, sys, time
 from pathlib import Path
-from zenslam.service import bus
-from zenslam.service.supervisor import StopFlag, add_process_arguments, bus_config_with
+from zenslam.runtime import bus
+from zenslam.runtime.stage import StopFlag, add_process_arguments, bus_config_with
 parser = argparse.ArgumentParser()
 add_process_arguments(parser)
 parser.add_argument("--name", required=True)

@@ -11,8 +11,9 @@ import pytest
 import zenoh
 
 from zenslam.errors import ConfigError
+from zenslam.runtime import bus
 from zenslam.schemas import codec, keys
-from zenslam.service import bus
+
 
 def _state(i: int, padding: int = 0) -> bytes:
     # lost_reason pads the message to a realistic size for the congestion tests

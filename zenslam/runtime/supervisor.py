@@ -1,6 +1,6 @@
 """Starting and supervising a run's processes, and the command line every stage process accepts.
 
-The supervisor starts each stage as ``python -m <module>`` in its own process group (so a Ctrl-C
+The supervisor starts each stage as ``python -P -m <module>`` in its own process group (so a Ctrl-C
 in the terminal reaches only the supervisor, which then stops the stages in order), with its
 output in ``<run>/logs/<stage>.log``. Each child gets the shared session name, the run's resolved
 config file, the hub endpoint to connect to and the supervisor's pid: a child whose parent is gone
@@ -9,25 +9,20 @@ stops by itself, so no process outlives its run.
 
 from __future__ import annotations
 
-import argparse
-import atexit
-import dataclasses
 import logging
 import os
 import signal
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from types import FrameType
 
 import zenoh
 
-from zenslam.errors import ProcessError, ZenslamError
-from zenslam.service import bus
+from zenslam.errors import ProcessError
+from zenslam.runtime import bus
 
 logger = logging.getLogger(__name__)
 
@@ -87,7 +82,9 @@ class Supervisor:
         log_dir = self.run_dir / "logs"
         log_dir.mkdir(parents=True, exist_ok=True)
         log_path = log_dir / f"{spec.name}.log"
-        command = [sys.executable, "-m", spec.module, *self.common_args(), *spec.args]
+        # -P: the current directory is not put on sys.path, so a stage imports the installed zenslam
+        # even when started from another checkout's root.
+        command = [sys.executable, "-P", "-m", spec.module, *self.common_args(), *spec.args]
         logger.debug("starting %s: %s", spec.name, " ".join(command))
         with open(log_path, "wb") as log:
             try:
@@ -190,78 +187,3 @@ class Supervisor:
                     child.popen.wait(max(0.0, deadline - time.monotonic()))
                 except subprocess.TimeoutExpired:
                     logger.warning("%s did not exit within %.0f s of %s", child.spec.name, wait_s, signal.Signals(signum).name)
-
-
-# ---- the child's side: the command line the supervisor passes, and stopping on request ----
-
-
-def add_process_arguments(parser: argparse.ArgumentParser) -> None:
-    """The arguments every stage process takes (what ``Supervisor.common_args`` passes)."""
-    parser.add_argument("--session", required=True, help="the run's session name: keys are zenslam/<session>/...")
-    parser.add_argument("--config", type=Path, default=None, help="the run's YAML configuration (default: all defaults)")
-    parser.add_argument(
-        "--connect", action="append", default=[], metavar="ENDPOINT",
-        help="zenoh endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable; added to bus.connect)",
-    )
-    parser.add_argument("--parent-pid", type=int, default=None, help="stop when this process is no longer our parent")
-    parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
-
-
-def bus_config_with(config: bus.BusConfig, connect: list[str]) -> bus.BusConfig:
-    """``config`` with extra endpoints to connect to."""
-    if not connect:
-        return config
-    return dataclasses.replace(config, connect=tuple(config.connect) + tuple(connect))
-
-
-class StopFlag:
-    """Set by SIGINT/SIGTERM or by losing the parent process; stage loops poll it between steps."""
-
-    def __init__(self, parent_pid: int | None = None):
-        self._event = threading.Event()
-        self._parent_pid = parent_pid
-        self._previous: dict[int, object] = {}
-
-    def install(self) -> StopFlag:
-        """Handle SIGINT and SIGTERM by setting the flag (main thread only); ``uninstall`` restores."""
-        for signum in (signal.SIGINT, signal.SIGTERM):
-            self._previous[signum] = signal.signal(signum, self._on_signal)
-        return self
-
-    def uninstall(self) -> None:
-        for signum, handler in self._previous.items():
-            signal.signal(signum, handler)
-        self._previous.clear()
-
-    def _on_signal(self, signum: int, frame: FrameType | None) -> None:
-        logger.info("received %s: stopping after the current step", signal.Signals(signum).name)
-        self._event.set()
-
-    def set(self) -> None:
-        self._event.set()
-
-    def __call__(self) -> bool:
-        """True when the process should stop."""
-        if not self._event.is_set() and not bus.parent_alive(self._parent_pid):
-            logger.warning("parent process %s is gone: stopping", self._parent_pid)
-            self._event.set()
-        return self._event.is_set()
-
-    def keep_going(self) -> bool:
-        return not self()
-
-
-def setup_process_logging(verbose: bool, stage: str) -> None:
-    """Logging for a stage process's entry point (the only place besides the CLI that configures it)."""
-    logging.basicConfig(
-        level=logging.DEBUG if verbose else logging.INFO, format=f"%(asctime)s {stage} %(levelname)s %(name)s: %(message)s"
-    )
-    bus.quiet_zenoh_logs()
-    atexit.register(log_cpu_times)  # runs before logging's own atexit shutdown (registered earlier)
-
-
-def log_cpu_times(when: str = "at exit") -> None:
-    """Log the process's CPU time so far (all its threads, zenoh's included) as
-    ``cpu <when>: user U s system S s``; stages log it when their stream starts and at exit."""
-    times = os.times()
-    logger.info("cpu %s: user %.3f s system %.3f s", when, times.user, times.system)

@@ -1,0 +1,35 @@
+"""The backend's configuration: the ``backend`` section of a run's YAML (keys equal the field names)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from zenslam.backend.local_ba import LocalBAConfig
+from zenslam.backend.local_mapping import LocalMappingConfig
+from zenslam.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class BackendConfig:
+    """The backend process (the ``backend`` section): local mapping, local BA and its queues."""
+
+    local_mapping: LocalMappingConfig = field(default_factory=LocalMappingConfig)
+    local_ba: LocalBAConfig = field(default_factory=LocalBAConfig)
+    # Keyframes the backend's inbox holds; when full the frontend's send blocks (lossless: never dropped).
+    keyframe_queue: int = 32  # keyframes
+    # After its input's end of stream the backend keeps answering backend/map and backend/trajectory
+    # for this long (or until stopped: ``zenslam run`` stops it once it has the final trajectory).
+    linger_s: float = 60.0  # seconds
+    # Added to the backend process's nice value (0-19, POSIX niceness): best-effort mapping yields
+    # the CPU to tracking, as ORB-SLAM's tracking is its real-time thread. Scheduling only: the
+    # numerics, and lockstep outputs, are the same at any value. 0 by default: a mapping that
+    # falls behind makes the keyframe throttle hold keyframes back until tracking runs out of points.
+    nice: int = 0  # niceness increment
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.nice <= 19:
+            raise ConfigError(f"backend.nice={self.nice} must be within 0..19 (a niceness increment; 0 leaves it as is)")
+        if self.keyframe_queue < 1:
+            raise ConfigError(f"backend.keyframe_queue={self.keyframe_queue} must be at least 1 message")
+        if not self.linger_s >= 0:
+            raise ConfigError(f"backend.linger_s={self.linger_s} must be >= 0 seconds")

@@ -1,0 +1,34 @@
+"""The frontend's configuration: the ``frontend`` section of a run's YAML (keys equal the field names)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from zenslam.errors import ConfigError
+from zenslam.frontend.keyframe_decision import KeyframeDecisionConfig
+from zenslam.frontend.orb_extractor import OrbConfig
+from zenslam.frontend.pose_optimizer import PoseOptimizerConfig
+from zenslam.frontend.stereo_matcher import StereoMatchConfig
+from zenslam.frontend.tracker import TrackingConfig
+
+
+@dataclass(frozen=True)
+class FrontendConfig:
+    """Tracking (ORB, stereo, pose optimisation, local map, keyframe decision) and the node's inbox."""
+
+    orb: OrbConfig = field(default_factory=OrbConfig)
+    stereo: StereoMatchConfig = field(default_factory=StereoMatchConfig)
+    # A round of pose optimisation stops once a step is below 1e-5 (rad, m): half the time of the
+    # optimiser's own 1e-9 for the same trajectory.
+    pose: PoseOptimizerConfig = field(default_factory=lambda: PoseOptimizerConfig(step_tolerance=1e-5))
+    tracking: TrackingConfig = field(default_factory=TrackingConfig)
+    keyframe: KeyframeDecisionConfig = field(default_factory=KeyframeDecisionConfig)
+    # Map updates the frontend's inbox holds before the backend's send blocks (lossless: never dropped).
+    map_update_queue: int = 256  # map updates
+    update_timeout_s: float = 300.0  # lockstep: seconds the frontend waits for the backend's update of one keyframe
+
+    def __post_init__(self) -> None:
+        if self.map_update_queue < 1:
+            raise ConfigError(f"frontend.map_update_queue={self.map_update_queue} must be at least 1 message")
+        if not self.update_timeout_s > 0:
+            raise ConfigError(f"frontend.update_timeout_s={self.update_timeout_s} must be a positive number of seconds")

@@ -1,0 +1,1 @@
+"""The runtime layer under the stages: bus, supervisor, stage start-up."""

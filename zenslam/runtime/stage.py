@@ -1,0 +1,127 @@
+"""The shared start-up of a stage process: its command line, its configuration sections, stopping, logging.
+
+Every stage (source, frontend, backend, recorder) is started by the ``Supervisor`` as
+``python -m <module>`` with the arguments of ``add_process_arguments``; it reads its own section
+of the run's resolved YAML with ``load_section`` (the file holds every section; a stage reads
+only the ones it needs), polls a ``StopFlag`` between steps, and logs like every other stage.
+"""
+
+from __future__ import annotations
+
+import argparse
+import atexit
+import dataclasses
+import logging
+import os
+import signal
+import threading
+from pathlib import Path
+from types import FrameType
+from typing import Literal, TypeVar, get_args
+
+from zenslam.config import from_mapping, load_yaml
+from zenslam.errors import ConfigError
+from zenslam.runtime import bus
+
+logger = logging.getLogger(__name__)
+
+C = TypeVar("C")
+
+# How a run paces its stages (``mode`` in the run's YAML):
+# - lockstep: the source sends a frame once the frontend has taken the previous ones, and the
+#   frontend waits for the backend's answer to each keyframe; deterministic.
+# - pipelined: frames as in lockstep (nothing dropped), but mapping runs in parallel and its
+#   updates are applied as they arrive; results depend on timing.
+# - live: frames at their recorded times like a camera; a slow stage skips frames.
+RunMode = Literal["lockstep", "pipelined", "live"]
+RUN_MODES: tuple[str, ...] = get_args(RunMode)
+
+
+
+def add_process_arguments(parser: argparse.ArgumentParser) -> None:
+    """The arguments every stage process takes (what ``Supervisor.common_args`` passes)."""
+    parser.add_argument("--session", required=True, help="the run's session name: keys are zenslam/<session>/...")
+    parser.add_argument("--config", type=Path, default=None, help="the run's YAML configuration (default: all defaults)")
+    parser.add_argument(
+        "--connect", action="append", default=[], metavar="ENDPOINT",
+        help="zenoh endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable; added to bus.connect)",
+    )
+    parser.add_argument("--parent-pid", type=int, default=None, help="stop when this process is no longer our parent")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
+
+
+def load_section(path: Path | None, section: str, cls: type[C]) -> C:
+    """The ``section`` of the run's YAML file ``path`` as the frozen dataclass ``cls`` (defaults when
+    ``path`` is None or the section is absent)."""
+    if path is None:
+        return cls()
+    data = load_yaml(Path(path)).get(section)
+    return from_mapping(cls, data, section)
+
+
+def load_mode(path: Path | None) -> RunMode:
+    """The run mode of the run's YAML file ``path`` (lockstep when ``path`` is None or it says none)."""
+    mode = "lockstep" if path is None else load_yaml(Path(path)).get("mode", "lockstep")
+    if mode not in RUN_MODES:
+        raise ConfigError(f"{path}: mode={mode!r} must be one of {list(RUN_MODES)}")
+    return mode
+
+
+def bus_config_with(config: bus.BusConfig, connect: list[str]) -> bus.BusConfig:
+    """``config`` with extra endpoints to connect to."""
+    if not connect:
+        return config
+    return dataclasses.replace(config, connect=tuple(config.connect) + tuple(connect))
+
+
+class StopFlag:
+    """Set by SIGINT/SIGTERM or by losing the parent process; stage loops poll it between steps."""
+
+    def __init__(self, parent_pid: int | None = None):
+        self._event = threading.Event()
+        self._parent_pid = parent_pid
+        self._previous: dict[int, object] = {}
+
+    def install(self) -> StopFlag:
+        """Handle SIGINT and SIGTERM by setting the flag (main thread only); ``uninstall`` restores."""
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            self._previous[signum] = signal.signal(signum, self._on_signal)
+        return self
+
+    def uninstall(self) -> None:
+        for signum, handler in self._previous.items():
+            signal.signal(signum, handler)
+        self._previous.clear()
+
+    def _on_signal(self, signum: int, frame: FrameType | None) -> None:
+        logger.info("received %s: stopping after the current step", signal.Signals(signum).name)
+        self._event.set()
+
+    def set(self) -> None:
+        self._event.set()
+
+    def __call__(self) -> bool:
+        """True when the process should stop."""
+        if not self._event.is_set() and not bus.parent_alive(self._parent_pid):
+            logger.warning("parent process %s is gone: stopping", self._parent_pid)
+            self._event.set()
+        return self._event.is_set()
+
+    def keep_going(self) -> bool:
+        return not self()
+
+
+def setup_process_logging(verbose: bool, stage: str) -> None:
+    """Logging for a stage process's entry point (the only place besides the CLI that configures it)."""
+    logging.basicConfig(
+        level=logging.DEBUG if verbose else logging.INFO, format=f"%(asctime)s {stage} %(levelname)s %(name)s: %(message)s"
+    )
+    bus.quiet_zenoh_logs()
+    atexit.register(log_cpu_times)  # runs before logging's own atexit shutdown (registered earlier)
+
+
+def log_cpu_times(when: str = "at exit") -> None:
+    """Log the process's CPU time so far (all its threads, zenoh's included) as
+    ``cpu <when>: user U s system S s``; stages log it when their stream starts and at exit."""
+    times = os.times()
+    logger.info("cpu %s: user %.3f s system %.3f s", when, times.user, times.system)
