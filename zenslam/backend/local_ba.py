@@ -7,14 +7,13 @@ RGB-D keypoints (uL, uR, v), ``gtsam.GenericProjectionFactorCal3_S2`` for monocu
 isotropic noise sigma = 1/sqrt(inv_sigma2) px under a Huber kernel. RGB-D's virtual uR = uL - bf / depth
 is not a measurement of its own: it carries uL's keypoint error plus the depth sensor's, so those
 rows get cov(uL, uR) = sigma^2 and var(uR) = sigma^2 + disparity_sigma^2 (``obs_disparity_sigma``).
-(ORB-SLAM's isotropic model gives a 4 m point's depth a sigma of ~50 cm at level 0 with a 10 cm
-virtual baseline, leaving it to the parallax between keyframes: on the synthetic figure-eight BA
-then enlarged the map by ~0.1% and the ATE rose 1.67 -> 1.83 cm; with the model, 0.94 cm.)
+(ORB-SLAM's isotropic model gives a far point's depth a sigma of tens of centimetres with a
+10 cm virtual baseline and leaves it to the parallax between keyframes, which lets BA scale the map.)
 Two passes as ORB-SLAM: a few robust iterations, then observations with chi2 above the 95%
 threshold (5.991 for 2 dof, 7.815 for 3) or in front of no camera are dropped and the rest is
 refined without the kernel.
-(Skipping the refinement when the robust pass converged and dropped nothing saved ~6% of the
-iterations on KITTI but cost 0.06-0.2 cm of ATE on the synthetic loop RGB-D and figure-eight.)
+The refinement runs even when the robust pass converged and dropped nothing: skipping it saves
+little and costs accuracy.
 Poses are gtsam ``Pose3`` = T_world_cam (the factors take the camera pose in the world). Fixed
 keyframes stay variables held by ``NonlinearEqualityPose3`` (a hard constraint: no prior with a
 made-up sigma changes the problem), and are copied to the result unchanged.
@@ -34,24 +33,16 @@ retried; any other failure ends the optimisation with the estimate so far and
 ``stats["failure"]`` set. Invalid input (mis-shaped arrays, ids that do not index, non-finite
 poses) is a bug upstream and raises ``ZenslamError`` when the ``BAProblem`` is built.
 
-Solver choice, by measurement (``benchmarks/local_ba.py`` -> ``benchmarks/results/local_ba.json``;
-synthetic windows with 5% outliers; CPU time on the shared 2-core machine): batch
+Solver choice (the measurements are in benchmarks/README.md and ``benchmarks/local_ba.py``): batch
 Levenberg-Marquardt over the window, rebuilt on every call, sequential Cholesky, landmarks
 eliminated before poses, ORB-SLAM's 5 + 10 iterations as caps with a 1e-3 relative-decrease stop
-and a 1e-2 damping floor. KITTI-like windows: 10 keyframes / 6,000 observations 145-155 ms,
-15 / 10,000 275-315 ms, 20 / 12,000 400-465 ms; room window (10 / 4,000) 75-100 ms. ORB-SLAM's
-fixed iterations with gtsam's default damping took 2-4x longer for a final error 0.1-0.4% lower
-and the same pose accuracy; gtsam's COLAMD ordering 1.4-3.3x longer on the KITTI-like windows
-(it interleaves poses with landmarks), the same on the room; multifrontal Cholesky 3-12x longer. iSAM2 fed keyframe by
-keyframe (newest pose as the only constrained key, see FINDINGS) raised
-IndeterminantLinearSystemException on every window with outliers in (Gauss-Newton has no damping
-for a landmark that Huber down-weights); given only the true inliers and well-triangulated
-landmarks, its updates took 12-52 ms median but 35-350 ms for the last keyframes of a window,
-more in total than one batch solve. A persistent iSAM2 would also have to mirror every point
-creation, fusion, culling and outlier decision of local mapping by removing factors, so local BA
-keeps no state between calls. (Reusing the previous window's factor objects for unchanged
-observations saved their ~6 ms of building but made gtsam's solve ~18% slower, so factors are
-built anew for each window.)
+and a 1e-2 damping floor. Fixed iterations with gtsam's default damping, gtsam's COLAMD ordering
+(it interleaves poses with landmarks) and multifrontal Cholesky were all slower for the same pose
+accuracy. iSAM2 fed keyframe by keyframe fails on windows with outliers (Gauss-Newton has no
+damping for a landmark that Huber down-weights) and was slower in total even without them; a
+persistent iSAM2 would also have to mirror every point creation, fusion, culling and outlier
+decision of local mapping by removing factors, so local BA keeps no state between calls, and its
+factors are built anew for each window (reusing them made gtsam's solve slower).
 """
 
 from __future__ import annotations
@@ -99,9 +90,9 @@ class LocalBAConfig:
     relative_error_tolerance: float = 1e-3
     absolute_error_tolerance: float = 1e-5  # ... or by less than this (whitened squared error, unitless)
     # Levenberg-Marquardt damping lambda * I (unitless). Every rejected step costs a full
-    # elimination: from gtsam's 1e-5 most first steps of a robust pass were rejected, and letting
-    # lambda fall below 1e-2 after accepted steps got about every other step rejected (the weak
-    # depth of far monocular points); the floor saved ~20% of the time for 0.1-0.3% more final error.
+    # elimination, and with little damping the weak depth of far monocular points gets steps
+    # rejected often (from gtsam's 1e-5, most first steps of a robust pass): a floor of 1e-2 trades
+    # a slightly higher final error for far fewer rejected steps (benchmarks/local_ba.py).
     lambda_initial: float = 1e-2  # at a pass's start
     lambda_lower_bound: float = 1e-2  # never damp less than this
     max_retries: int = 8  # solver failures repaired by dropping the landmark gtsam names (count)
@@ -415,7 +406,7 @@ def _build_factors(window: _Window, state: _State, rows: np.ndarray, robust: boo
         p.obs_inv_sigma2[rows], np.where(stereo, 3.0, 2.0),
         np.where(stereo, window.right_sigma_scale[rows], 1.0), np.where(stereo, window.disparity_sigma[rows], 0.0),
     ])  # fmt: skip
-    # One integer code per row from per-column 1-D uniques: np.unique(axis=0) took ~3 ms on 6,000 rows, this 0.3.
+    # One integer code per row from per-column 1-D uniques: a tenth of np.unique(axis=0)'s cost.
     code = np.zeros(len(rows), dtype=np.int64)
     for column in keys.T:
         values, index = np.unique(column, return_inverse=True)

@@ -39,16 +39,16 @@ class BAWindowConfig:
     """Which keyframes and points go into local bundle adjustment (ORB-SLAM's LocalBundleAdjustment)."""
 
     enabled: bool = True  # run local BA at all
-    # 10 + 5: KITTI windows of ~6,000 observations (~145 ms, benchmarks/local_ba.py) instead of
-    # 20 + 10 (~200 ms); the same or better ATE on the KITTI clip and the synthetic loop.
+    # 10 + 5 rather than ORB-SLAM's larger windows: a smaller window costs less per keyframe for
+    # the same accuracy on the real and synthetic sequences (benchmarks/local_ba.py).
     max_local_keyframes: int = 10  # optimised poses: the new keyframe and its best connected ones
     max_fixed_keyframes: int = 5  # other keyframes seeing local points, held fixed, most points first
     min_keyframes: int = 3  # BA runs once the map holds this many keyframes (ORB-SLAM: more than 2)
     # Stereo/RGB-D observations deeper than this many baselines get their right-image u's sigma
-    # multiplied by ``far_right_sigma_scale`` (a threshold of 0 = never): a few pixels of disparity carry a depth
-    # bias (KITTI 06: ~0.1 px, levels 5-7 up to 0.3 px) that a window of stereo factors turns into
-    # scale drift, while dropping them (monocular) lets the scale drift the other way where most
-    # of the scene is far (synthetic rooms). See benchmarks/backend_quality.py.
+    # multiplied by ``far_right_sigma_scale`` (a threshold of 0 = never): a disparity of a few
+    # pixels carries a depth bias of a fraction of a pixel that a window of stereo factors turns
+    # into scale drift, while dropping them (monocular) lets the scale drift the other way where
+    # most of the scene is far. See benchmarks/backend_quality.py.
     stereo_max_depth_baselines: float = 20.0  # baselines (stereo cameras; not RGB-D, see below)
     far_right_sigma_scale: float = 4.0  # unitless multiplier; inf = far observations monocular
     # RGB-D depth noise sigma_z = rgbd_depth_sigma_at_1m * z^2 (the quadratic model of structured-light
@@ -56,7 +56,7 @@ class BAWindowConfig:
     # from u by a disparity of sigma bf * this (px) whatever the keypoint's level, and shares u's
     # keypoint error. 0 = ORB-SLAM's model: right u an independent measurement with the keypoint's
     # sigma, which leaves a far RGB-D point's depth to the parallax between keyframes (noisier than
-    # the sensor) and let BA enlarge the synthetic figure-eight's map by ~0.1%.
+    # the sensor), so BA can scale the map.
     rgbd_depth_sigma_at_1m: float = 0.0015  # metres of depth noise at 1 m depth (m / m^2)
 
 
@@ -71,12 +71,11 @@ class LocalMappingConfig:
     # culled and triangulated only; fusion, local BA and keyframe culling run on the last queued one.
     defer_when_queued: bool = True
     # Associations sent with a keyframe whose point reprojects behind the camera or with a squared
-    # error above this (px^2 / level sigma^2 on u, v; 400 = 20 sigma) are dropped at insertion. The
-    # frontend matched them against positions that lag the backend's in pipelined and live runs:
-    # on the KITTI clip (pipelined) each deferred keyframe brought ~20 associations 50-1000 px off
-    # (points a BA had moved since), and the next BA started from ~10^5 instead of ~10^3 of error.
-    # None are dropped in lockstep; at 60 (7.7 sigma) the lag-4 model (backend_quality
-    # --update-lag 4) lost ATE (3.08 -> 3.24 cm) to dropped stale-but-right associations, at 400 none.
+    # error above this (px^2 / level sigma^2 on u, v; 400 = 20 sigma) are dropped at insertion. In
+    # pipelined and live runs the frontend matches against positions that lag the backend's, and
+    # points a BA has moved since can be tens to hundreds of pixels off; such associations would
+    # start the next BA far from its minimum. The gate is wide because a tight one also drops
+    # stale-but-right associations (backend_quality --update-lag measures both).
     max_association_chi2: float = 400.0
     point_culling: PointCullingConfig = field(default_factory=PointCullingConfig)
     triangulation: TriangulationConfig = field(default_factory=TriangulationConfig)

@@ -71,7 +71,7 @@ def _epipolar_pairs(kf1, idx1, kf2, idx2, F12, config) -> tuple[np.ndarray, np.n
     rows, cols = [], []
     for start in range(0, len(idx1), config.block_rows):
         distance = np.abs(lines[start : start + config.block_rows] @ x2h)
-        # flatnonzero + divmod: the same row-major pairs as nonzero, 4x faster on a 2-D mask
+        # flatnonzero + divmod: the same row-major pairs as nonzero, cheaper on a 2-D mask
         r, c = np.divmod(np.flatnonzero(distance < gate), len(idx2))
         rows.append(r + start)
         cols.append(c)

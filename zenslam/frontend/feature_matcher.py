@@ -207,8 +207,8 @@ def match_by_descriptor(
     b = np.ascontiguousarray(desc_b, dtype=np.uint8).reshape(-1, 32)
     if len(a) == 0 or len(b) == 0:
         return np.zeros((0, 2), dtype=np.int64)
-    # OpenCV's batchDistance keeps the two nearest per row (ties: lower index) without the N x M
-    # matrix; ~8x faster than numpy on 1,500 x 1,500 descriptors.
+    # OpenCV's batchDistance keeps the two nearest per row (ties: lower index) without building the
+    # N x M distance matrix that numpy would need.
     k = min(2, len(b))
     dist, nearest = cv2.batchDistance(a, b, cv2.CV_32S, normType=cv2.NORM_HAMMING, K=k)
     best_d, best_j = dist[:, 0].astype(np.int64), nearest[:, 0].astype(np.int64)

@@ -494,7 +494,7 @@ def _intensity_centroid_angles(image: np.ndarray, xy: np.ndarray, weights: np.nd
     cols = np.rint(xy[:, 0]).astype(np.int64) - _HALF_PATCH
     rows = np.rint(xy[:, 1]).astype(np.int64) - _HALF_PATCH
     windows = np.lib.stride_tricks.sliding_window_view(image, (_PATCH_SIZE, _PATCH_SIZE))[rows, cols]
-    # einsum, not @: a threaded OpenBLAS gemm stalled for 10-60 ms on a busy 2-core machine.
+    # einsum, not @: it stays off OpenBLAS, whose threaded gemm can stall a busy machine.
     # float32 is exact here: |m| < 2**24.
     moments = np.einsum("nk,ck->nc", windows.reshape(len(xy), -1).astype(np.float32), weights)
     angle = np.degrees(np.arctan2(moments[:, 1], moments[:, 0]))

@@ -72,8 +72,8 @@ class TrackingConfig:
     min_local_map_inliers: int = 30  # inliers needed after local-map tracking
     # A keyframe gets new points at its unmatched keypoints nearer than this many baselines, and
     # for at least the nearest ``new_points_min`` keypoints. ORB-SLAM2 stops at its close-point
-    # limit (35 baselines) because its local mapping triangulates farther points; without local
-    # mapping, 60 measured best on KITTI 06 and the synthetic loop and figure-eight.
+    # limit (35 baselines) and leaves farther points to local mapping's triangulation; a frontend
+    # that also tracks without mapping needs some farther points of its own, hence more than 35.
     new_points_depth_baselines: float = 60.0
     new_points_min: int = 100  # keypoints (with or without a point) visited nearest first at a keyframe
     # The keyframe decision compares the inliers with the reference keyframe's points seen by at
