@@ -27,6 +27,7 @@ from zenslam.runtime import bus
 from zenslam.runtime.stage import StopFlag, log_cpu_times
 from zenslam.runtime.supervisor import ProcessSpec, Supervisor
 from zenslam.schemas import codec, keys
+from zenslam.service.evaluation.plot import PLANES
 from zenslam.service.recorder import start_recorder
 from zenslam.service.run_config import RunConfig, apply_orbslam_settings, load_run_config, read_orbslam_settings
 from zenslam.service.run_output import (
@@ -81,6 +82,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--max-frames", type=int, default=None, help="stop after this many frames")
     parser.add_argument("--run-id", default=None, help="name of the run folder and bus session (default: date-time-pid)")
     parser.add_argument("--bus-config", type=Path, default=None, help="zenoh JSON5 config file (routers, other machines)")
+    parser.add_argument(
+        "--plane", choices=PLANES, default="auto",
+        help="world axes of trajectory_top.png (default auto: the ground plane of the ground-truth cameras, held "
+        "upright; else the two axes along which the ground truth varies most)",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.set_defaults(handler=run)
 
@@ -277,7 +283,7 @@ def run(args: argparse.Namespace) -> int:
         "run_id": run_id, "source": config.source.spec, "mode": config.mode, "completed": completed,
     }}
     evaluation_config = evaluation_config_for(config.evaluation, source.sensor)
-    result = write_outputs(run_dir, log, source.ground_truth(), evaluation_config, extra)
+    result = write_outputs(run_dir, log, source.ground_truth(), evaluation_config, extra, plane=args.plane)
     for line in _summary(result, log):
         print(line)
     return 0 if completed else _EXIT_INTERRUPTED
