@@ -28,6 +28,7 @@ from zenslam.runtime.stage import StopFlag, log_cpu_times
 from zenslam.runtime.supervisor import ProcessSpec, Supervisor
 from zenslam.schemas import codec, keys
 from zenslam.service.evaluation.plot import PLANES
+from zenslam.service.recorded_ground_truth import publish_ground_truth
 from zenslam.service.recorder import start_recorder
 from zenslam.service.run_config import RunConfig, apply_orbslam_settings, load_run_config, read_orbslam_settings
 from zenslam.service.run_output import (
@@ -40,6 +41,7 @@ from zenslam.service.run_output import (
     write_outputs,
 )
 from zenslam.service.sources import Source, open_source
+from zenslam.trajectory import Trajectory
 
 logger = logging.getLogger(__name__)
 
@@ -213,8 +215,13 @@ def _restoring(stop: StopFlag) -> Iterator[None]:
         stop.uninstall()
 
 
-def track(config: RunConfig, run_id: str, run_dir: Path, config_path: Path, source: Source, progress: bool) -> tuple[RunLog, bool]:
-    """Start the stages, follow them to the end of stream, and see them exit; returns (log, completed)."""
+def track(
+    config: RunConfig, run_id: str, run_dir: Path, config_path: Path, source: Source, progress: bool,
+    ground_truth: Trajectory | None = None,
+) -> tuple[RunLog, bool]:
+    """Start the stages, follow them to the end of stream, and see them exit; returns (log, completed).
+
+    ``ground_truth`` (the source's) goes into the recording, so a replay of it is scored too."""
     hub = None if config.bus.zenoh_config_file else bus.free_tcp_endpoint()
     hub_bus = config.bus if hub is None else dataclasses.replace(config.bus, listen=(hub,))
     total = len(source) if config.source.max_frames is None else min(len(source), config.source.max_frames)
@@ -228,6 +235,8 @@ def track(config: RunConfig, run_id: str, run_dir: Path, config_path: Path, sour
                 # The recorder comes first, and each stage waits until it sees the recorder's token
                 # before publishing: then the recorder's subscription has reached it too.
                 recording = start_recorder(supervisor, session, config, run_dir, stop.keep_going)
+                if recording is not None and ground_truth is not None:
+                    publish_ground_truth(session, run_id, ground_truth)
                 heard = ("--wait-for", "recorder") if recording is not None else ()
                 supervisor.start(ProcessSpec("backend", "zenslam.backend.node", heard))
                 supervisor.wait_until_alive(session, ["backend"], timeout_s, stop.keep_going)
@@ -278,12 +287,13 @@ def run(args: argparse.Namespace) -> int:
     run_dir = prepare_run_dir(args.output, run_id)
     config_path = write_config(run_dir, config)
     logger.info("run %s: %s (%s, %d frames) -> %s", run_id, source.name, source.sensor, len(source), run_dir)
-    log, completed = track(config, run_id, run_dir, config_path, source, progress=not args.no_progress)
+    ground_truth = source.ground_truth()
+    log, completed = track(config, run_id, run_dir, config_path, source, not args.no_progress, ground_truth)
     extra = {"run": {
         "run_id": run_id, "source": config.source.spec, "mode": config.mode, "completed": completed,
     }}
     evaluation_config = evaluation_config_for(config.evaluation, source.sensor)
-    result = write_outputs(run_dir, log, source.ground_truth(), evaluation_config, extra, plane=args.plane)
+    result = write_outputs(run_dir, log, ground_truth, evaluation_config, extra, plane=args.plane)
     for line in _summary(result, log):
         print(line)
     return 0 if completed else _EXIT_INTERRUPTED
