@@ -30,7 +30,13 @@ from zenslam.schemas import codec, keys
 from zenslam.service.evaluation.plot import PLANES
 from zenslam.service.recorded_ground_truth import publish_ground_truth
 from zenslam.service.recorder import start_recorder
-from zenslam.service.run_config import RunConfig, apply_orbslam_settings, load_run_config, read_orbslam_settings
+from zenslam.service.run_config import (
+    RunConfig,
+    apply_orbslam_settings,
+    fit_calibration_to_images,
+    load_run_config,
+    read_orbslam_settings,
+)
 from zenslam.service.run_output import (
     RunLog,
     RunResult,
@@ -283,6 +289,7 @@ def run(args: argparse.Namespace) -> int:
     """Resolve the config, prepare the run folder, track, write the outputs, print the accuracy."""
     config = resolve_config(args)
     source = open_source(config.source.spec)
+    config = fit_calibration_to_images(config, source.calibration.width, source.calibration.height)
     run_id = args.run_id or new_run_id()
     run_dir = prepare_run_dir(args.output, run_id)
     config_path = write_config(run_dir, config)
