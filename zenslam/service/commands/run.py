@@ -70,7 +70,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "(default: source.spec of the config, which defaults to synthetic)",
     )
     parser.add_argument("--output", type=Path, default=Path("recordings"), help="folder of the run folders (default recordings)")
-    parser.add_argument("--config", type=Path, default=None, help="YAML with sections bus, source, frontend, backend, evaluation")
+    sections = ", ".join(f.name for f in dataclasses.fields(RunConfig))
+    parser.add_argument("--config", type=Path, default=None, help=f"YAML with sections {sections} (each optional)")
     parser.add_argument("--orbslam-settings", type=Path, default=None, help="ORB-SLAM2/3 settings file: calibration and ORB values")
     pacing = parser.add_mutually_exclusive_group()
     pacing.add_argument(
