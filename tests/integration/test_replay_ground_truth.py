@@ -37,7 +37,8 @@ def _small_loop(path: Path) -> None:
 def test_a_recorded_synthetic_run_replays_with_its_ate(tmp_path):
     _small_loop(tmp_path / "input.mcap")
     config = RunConfig(
-        source=SourceConfig(spec=f"mcap:{tmp_path / 'input.mcap'}", lockstep=True),
+        source=SourceConfig(spec=f"mcap:{tmp_path / 'input.mcap'}"),
+        mode="lockstep",
         rerun=RerunConfig(enabled=False),
         recorder=RecorderConfig(image_format="jpeg"),
     )

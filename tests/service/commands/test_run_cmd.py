@@ -20,10 +20,14 @@ def _option(parser: argparse.ArgumentParser, flag: str) -> argparse.Action:
     return next(action for action in parser._actions if flag in action.option_strings)
 
 
-def test_config_help_names_every_section_of_the_run_config():
+def test_config_help_names_every_key_and_section_of_the_run_config():
     help_text = _option(_run_parser(), "--config").help
-    sections = [f.name for f in dataclasses.fields(RunConfig)]
-    assert f"sections {', '.join(sections)} " in help_text
+    defaults = RunConfig()
+    fields = [f.name for f in dataclasses.fields(RunConfig)]
+    sections = [name for name in fields if dataclasses.is_dataclass(getattr(defaults, name))]
+    keys = [name for name in fields if name not in sections]
+    assert sections and f"sections {', '.join(sections)} " in help_text
+    assert not keys or f"keys {', '.join(keys)} and " in help_text
 
 
 def test_plane_defaults_to_auto():

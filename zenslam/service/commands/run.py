@@ -70,8 +70,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "(default: source.spec of the config, which defaults to synthetic)",
     )
     parser.add_argument("--output", type=Path, default=Path("recordings"), help="folder of the run folders (default recordings)")
-    sections = ", ".join(f.name for f in dataclasses.fields(RunConfig))
-    parser.add_argument("--config", type=Path, default=None, help=f"YAML with sections {sections} (each optional)")
+    parser.add_argument("--config", type=Path, default=None, help=_config_help())
     parser.add_argument("--orbslam-settings", type=Path, default=None, help="ORB-SLAM2/3 settings file: calibration and ORB values")
     pacing = parser.add_mutually_exclusive_group()
     pacing.add_argument(
@@ -98,6 +97,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.set_defaults(handler=run)
+
+
+def _config_help() -> str:
+    """What --config takes, from RunConfig's fields: its top-level keys and its sections (dataclass fields)."""
+    defaults = RunConfig()
+    names = [f.name for f in dataclasses.fields(RunConfig)]
+    sections = [name for name in names if dataclasses.is_dataclass(getattr(defaults, name))]
+    keys = [name for name in names if name not in sections]
+    top = f"keys {', '.join(keys)} and " if keys else ""
+    return f"YAML with {top}sections {', '.join(sections)} (each optional)"
 
 
 def resolve_config(args: argparse.Namespace) -> RunConfig:
