@@ -14,6 +14,7 @@ from zenslam.service.run_config import (
     RunConfig,
     SourceConfig,
     apply_orbslam_settings,
+    fit_calibration_to_images,
     load_run_config,
     read_orbslam_settings,
     run_config_to_yaml,
@@ -74,6 +75,31 @@ RIGHT.P:  !!opencv-matrix
    dt: d
    data: [435.2046959714599, 0, 367.4517211914062, -47.90639384423901, 0, 435.2046959714599, 252.2008514404297, 0, 0, 0, 1, 0]
 ORBextractor.nFeatures: 1200
+"""
+
+# ORB-SLAM3's and ORB-SLAM2's stock KITTI04-12.yaml: both state 1241x376, the images of 04-12 are 1226x370.
+ORBSLAM3_KITTI_04_12 = ORBSLAM3_KITTI.replace("Camera.width: 1226", "Camera.width: 1241").replace(
+    "Camera.height: 370", "Camera.height: 376"
+)
+ORBSLAM2_KITTI_04_12 = """\
+%YAML:1.0
+Camera.type: "PinHole"
+Camera.fx: 707.0912
+Camera.fy: 707.0912
+Camera.cx: 601.8873
+Camera.cy: 183.1104
+Camera.k1: 0.0
+Camera.k2: 0.0
+Camera.p1: 0.0
+Camera.p2: 0.0
+Camera.bFishEye: 0
+Camera.width: 1241
+Camera.height: 376
+Camera.fps: 10.0
+Camera.bf: 379.8145
+Camera.RGB: 1
+ThDepth: 40.0
+ORBextractor.nFeatures: 2000
 """
 
 RGBD_DISTORTED = """\
@@ -226,3 +252,36 @@ def test_the_run_modes_from_the_command_line(option, mode):
     args = parser.parse_args(["run", "synthetic", *([option] if option else [])])
     config = run_command.resolve_config(args)
     assert config.mode == mode
+
+
+@pytest.mark.parametrize("text", [ORBSLAM3_KITTI_04_12, ORBSLAM2_KITTI_04_12], ids=["orbslam3", "orbslam2"])
+def test_a_slightly_different_stated_size_is_a_warning(tmp_path, caplog, text):
+    path = tmp_path / "KITTI04-12.yaml"
+    path.write_text(text)
+    config = apply_orbslam_settings(RunConfig(), read_orbslam_settings(path))
+    assert (config.source.calibration.width, config.source.calibration.height) == (1241, 376)
+    with caplog.at_level("WARNING", logger="zenslam.camera"):
+        fitted = fit_calibration_to_images(config, 1226, 370).source.calibration
+    assert (fitted.width, fitted.height) == (1226, 370)
+    assert (fitted.fx, fitted.fy, fitted.cx, fitted.cy) == (707.0912, 707.0912, 601.8873, 183.1104)
+    assert fitted.baseline_m == pytest.approx(0.53715, rel=1e-4)
+    assert "1241x376" in caplog.text and "1226x370" in caplog.text
+
+
+@pytest.mark.parametrize("text", [ORBSLAM3_KITTI_04_12, ORBSLAM2_KITTI_04_12], ids=["orbslam3", "orbslam2"])
+def test_a_gross_size_mismatch_is_refused(tmp_path, text):
+    path = tmp_path / "KITTI04-12.yaml"
+    path.write_text(text)
+    config = apply_orbslam_settings(RunConfig(), read_orbslam_settings(path))
+    with pytest.raises(CalibrationError, match=r"for 1241x376 images but the source's are 613x185: .*more than 10%"):
+        fit_calibration_to_images(config, 613, 185)  # half the size
+    with pytest.raises(CalibrationError, match=r"for 1241x376 images but the source's are 1226x180: .*principal point"):
+        fit_calibration_to_images(config, 1226, 180)  # cy = 183.1 lies below the images
+
+
+def test_a_principal_point_outside_the_images_is_refused():
+    calibration = PinholeCalibration(700.0, 700.0, 1235.0, 183.0, 1241, 376, 0.5)
+    with pytest.raises(CalibrationError, match=r"principal point \(1235, 183\) lies outside the 1226x370 images"):
+        calibration.fitted_to(1226, 370)
+    assert calibration.fitted_to(1241, 376) is calibration
+    assert fit_calibration_to_images(RunConfig(), 1226, 370) == RunConfig()  # no override: nothing to fit

@@ -40,6 +40,11 @@ def sensor_frame(session: str) -> str:
     return f"{session_prefix(session)}/sensor/frame"
 
 
+def source_ground_truth(session: str) -> str:
+    """The source's ground-truth camera poses, sent once before the first frame (zenslam.KeyframeTrajectory)."""
+    return f"{session_prefix(session)}/source/ground_truth"
+
+
 def frontend_pose(session: str) -> str:
     """The tracked camera pose of every frame tracked (foxglove.PoseInFrame)."""
     return f"{session_prefix(session)}/frontend/pose"

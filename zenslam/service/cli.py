@@ -6,6 +6,8 @@ import argparse
 import logging
 import sys
 
+from tqdm.contrib.logging import logging_redirect_tqdm
+
 from zenslam import __version__
 from zenslam.errors import ZenslamError
 from zenslam.service.commands import register_all
@@ -28,7 +30,9 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 0
     try:
-        return int(args.handler(args) or 0)
+        # Log lines go through tqdm.write: printed above a progress bar (zenslam run's) instead of through it.
+        with logging_redirect_tqdm():
+            return int(args.handler(args) or 0)
     except ZenslamError as exc:
         logging.getLogger("zenslam").error("%s", exc)
         return 2

@@ -286,6 +286,16 @@ def apply_orbslam_settings(config: RunConfig, settings: OrbSlamSettings) -> RunC
     return dataclasses.replace(config, source=source, frontend=frontend)
 
 
+def fit_calibration_to_images(config: RunConfig, width: int, height: int) -> RunConfig:
+    """``config`` with its calibration override (if any) fitted to the source's ``width`` x ``height``
+    images: a small size mismatch is a warning, a gross one a CalibrationError (``PinholeCalibration.fitted_to``)."""
+    override = config.source.calibration
+    if override is None:
+        return config
+    fitted = override.fitted_to(width, height)
+    return config if fitted is override else dataclasses.replace(config, source=dataclasses.replace(config.source, calibration=fitted))
+
+
 def _replace_path(obj: Any, path: list[str], value: Any) -> Any:
     name = path[0]
     if not dataclasses.is_dataclass(obj) or name not in {f.name for f in dataclasses.fields(obj)}:

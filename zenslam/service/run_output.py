@@ -27,7 +27,7 @@ import numpy as np
 from zenslam.errors import ConfigError, TrajectoryError
 from zenslam.schemas import codec, keys
 from zenslam.service.evaluation.metrics import Evaluation, EvaluationConfig, evaluate
-from zenslam.service.evaluation.plot import save_evaluation_plot
+from zenslam.service.evaluation.plot import Plane, save_evaluation_plot
 from zenslam.service.evaluation.report import METRICS_FILENAME, write_metrics
 from zenslam.service.evaluation.trajectory_io import write_tum
 from zenslam.service.run_config import RunConfig, run_config_to_yaml
@@ -211,9 +211,10 @@ def write_outputs(
     ground_truth: Trajectory | None,
     evaluation_config: EvaluationConfig,
     extra: dict[str, object] | None = None,
+    plane: Plane = "auto",
 ) -> RunResult:
     """Write trajectory.tum, trajectory_final.tum, keyframes.tum, metrics.json and (with ground truth)
-    trajectory_top.png."""
+    trajectory_top.png, drawn in ``plane`` (``auto``: see ``plot_plane``)."""
     run_dir = Path(run_dir)
     files: list[Path] = []
     estimate = log.trajectory()
@@ -248,7 +249,7 @@ def write_outputs(
         sections["evaluation_error"] = error
     files.append(write_metrics(run_dir / METRICS_FILENAME, evaluation, **sections))
     if evaluation is not None:
-        files.append(save_evaluation_plot(run_dir / PLOT_FILENAME, evaluation))
+        files.append(save_evaluation_plot(run_dir / PLOT_FILENAME, evaluation, plane=plane))
     return RunResult(run_dir, evaluation, error, tuple(files))
 
 

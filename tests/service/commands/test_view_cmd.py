@@ -110,3 +110,20 @@ def test_a_missing_viewer_is_reported(run_dir, tmp_path, monkeypatch, capsys):
 def test_the_default_viewer_is_the_installed_rerun():
     executable = view.viewer_executable()
     assert Path(executable).name == "rerun"
+
+
+def test_the_web_viewer_listens_on_this_machine_only_unless_asked(run_dir, headless, capsys):
+    files = " ".join(str((run_dir / f"{s}.rrd").resolve()) for s in ("backend", "frontend", "source"))
+    assert view.view(_parse([str(run_dir), "--web", "--print-command", "--viewer", "/opt/rerun"])) == 0
+    assert capsys.readouterr().out.strip() == f"/opt/rerun --web-viewer --bind 127.0.0.1 {files}"
+    assert view.view(_parse([str(run_dir), "--web", "--bind", "0.0.0.0", "--print-command", "--viewer", "/opt/rerun"])) == 0
+    assert capsys.readouterr().out.strip() == f"/opt/rerun --web-viewer --bind 0.0.0.0 {files}"
+    with pytest.raises(ConfigError, match="--bind 'everywhere' is not an IP address"):
+        view.view(_parse([str(run_dir), "--web", "--bind", "everywhere", "--print-command"]))
+
+
+def test_the_web_viewer_is_started_bound_to_loopback(run_dir, tmp_path, headless, monkeypatch):
+    viewer, argv_file = _fake_viewer(tmp_path, 0)
+    monkeypatch.setattr(subprocess, "call", lambda command: subprocess.run(command).returncode)  # headless forbids spawning
+    assert view.view(_parse([str(run_dir), "--web", "--viewer", str(viewer)])) == 0
+    assert argv_file.read_text().splitlines()[:3] == ["--web-viewer", "--bind", "127.0.0.1"]

@@ -7,7 +7,7 @@ import logging
 from pathlib import Path
 
 from zenslam.service.evaluation.metrics import EvaluationConfig, evaluate
-from zenslam.service.evaluation.plot import save_evaluation_plot
+from zenslam.service.evaluation.plot import PLANES, save_evaluation_plot
 from zenslam.service.evaluation.report import METRICS_FILENAME, format_summary, write_metrics
 from zenslam.service.evaluation.trajectory_io import TRAJECTORY_FORMATS, detect_format, read_trajectory
 
@@ -41,8 +41,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="largest stamp difference of an associated pose pair, milliseconds (default 10)",
     )
     parser.add_argument(
-        "--plane", choices=("auto", "xy", "xz", "yz"), default="auto",
-        help="world axes of the top-view plot (default auto: drops the axis along which the ground truth varies least)",
+        "--plane", choices=PLANES, default="auto",
+        help="world axes of the top-view plot (default auto: the ground plane of the ground-truth cameras, held "
+        "upright; else the two axes along which the ground truth varies most)",
     )
     parser.add_argument("--output", type=Path, default=None, help="output folder (default: the folder of EST)")
     delta = parser.add_mutually_exclusive_group()

@@ -27,8 +27,16 @@ from zenslam.runtime import bus
 from zenslam.runtime.stage import StopFlag, log_cpu_times
 from zenslam.runtime.supervisor import ProcessSpec, Supervisor
 from zenslam.schemas import codec, keys
+from zenslam.service.evaluation.plot import PLANES
+from zenslam.service.recorded_ground_truth import publish_ground_truth
 from zenslam.service.recorder import start_recorder
-from zenslam.service.run_config import RunConfig, apply_orbslam_settings, load_run_config, read_orbslam_settings
+from zenslam.service.run_config import (
+    RunConfig,
+    apply_orbslam_settings,
+    fit_calibration_to_images,
+    load_run_config,
+    read_orbslam_settings,
+)
 from zenslam.service.run_output import (
     RunLog,
     RunResult,
@@ -39,6 +47,7 @@ from zenslam.service.run_output import (
     write_outputs,
 )
 from zenslam.service.sources import Source, open_source
+from zenslam.trajectory import Trajectory
 
 logger = logging.getLogger(__name__)
 
@@ -61,7 +70,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "(default: source.spec of the config, which defaults to synthetic)",
     )
     parser.add_argument("--output", type=Path, default=Path("recordings"), help="folder of the run folders (default recordings)")
-    parser.add_argument("--config", type=Path, default=None, help="YAML with sections bus, source, frontend, backend, evaluation")
+    parser.add_argument("--config", type=Path, default=None, help=_config_help())
     parser.add_argument("--orbslam-settings", type=Path, default=None, help="ORB-SLAM2/3 settings file: calibration and ORB values")
     pacing = parser.add_mutually_exclusive_group()
     pacing.add_argument(
@@ -81,8 +90,23 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--max-frames", type=int, default=None, help="stop after this many frames")
     parser.add_argument("--run-id", default=None, help="name of the run folder and bus session (default: date-time-pid)")
     parser.add_argument("--bus-config", type=Path, default=None, help="zenoh JSON5 config file (routers, other machines)")
+    parser.add_argument(
+        "--plane", choices=PLANES, default="auto",
+        help="world axes of trajectory_top.png (default auto: the ground plane of the ground-truth cameras, held "
+        "upright; else the two axes along which the ground truth varies most)",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.set_defaults(handler=run)
+
+
+def _config_help() -> str:
+    """What --config takes, from RunConfig's fields: its top-level keys and its sections (dataclass fields)."""
+    defaults = RunConfig()
+    names = [f.name for f in dataclasses.fields(RunConfig)]
+    sections = [name for name in names if dataclasses.is_dataclass(getattr(defaults, name))]
+    keys = [name for name in names if name not in sections]
+    top = f"keys {', '.join(keys)} and " if keys else ""
+    return f"YAML with {top}sections {', '.join(sections)} (each optional)"
 
 
 def resolve_config(args: argparse.Namespace) -> RunConfig:
@@ -207,8 +231,13 @@ def _restoring(stop: StopFlag) -> Iterator[None]:
         stop.uninstall()
 
 
-def track(config: RunConfig, run_id: str, run_dir: Path, config_path: Path, source: Source, progress: bool) -> tuple[RunLog, bool]:
-    """Start the stages, follow them to the end of stream, and see them exit; returns (log, completed)."""
+def track(
+    config: RunConfig, run_id: str, run_dir: Path, config_path: Path, source: Source, progress: bool,
+    ground_truth: Trajectory | None = None,
+) -> tuple[RunLog, bool]:
+    """Start the stages, follow them to the end of stream, and see them exit; returns (log, completed).
+
+    ``ground_truth`` (the source's) goes into the recording, so a replay of it is scored too."""
     hub = None if config.bus.zenoh_config_file else bus.free_tcp_endpoint()
     hub_bus = config.bus if hub is None else dataclasses.replace(config.bus, listen=(hub,))
     total = len(source) if config.source.max_frames is None else min(len(source), config.source.max_frames)
@@ -222,6 +251,8 @@ def track(config: RunConfig, run_id: str, run_dir: Path, config_path: Path, sour
                 # The recorder comes first, and each stage waits until it sees the recorder's token
                 # before publishing: then the recorder's subscription has reached it too.
                 recording = start_recorder(supervisor, session, config, run_dir, stop.keep_going)
+                if recording is not None and ground_truth is not None:
+                    publish_ground_truth(session, run_id, ground_truth)
                 heard = ("--wait-for", "recorder") if recording is not None else ()
                 supervisor.start(ProcessSpec("backend", "zenslam.backend.node", heard))
                 supervisor.wait_until_alive(session, ["backend"], timeout_s, stop.keep_going)
@@ -268,16 +299,18 @@ def run(args: argparse.Namespace) -> int:
     """Resolve the config, prepare the run folder, track, write the outputs, print the accuracy."""
     config = resolve_config(args)
     source = open_source(config.source.spec)
+    config = fit_calibration_to_images(config, source.calibration.width, source.calibration.height)
     run_id = args.run_id or new_run_id()
     run_dir = prepare_run_dir(args.output, run_id)
     config_path = write_config(run_dir, config)
     logger.info("run %s: %s (%s, %d frames) -> %s", run_id, source.name, source.sensor, len(source), run_dir)
-    log, completed = track(config, run_id, run_dir, config_path, source, progress=not args.no_progress)
+    ground_truth = source.ground_truth()
+    log, completed = track(config, run_id, run_dir, config_path, source, not args.no_progress, ground_truth)
     extra = {"run": {
         "run_id": run_id, "source": config.source.spec, "mode": config.mode, "completed": completed,
     }}
     evaluation_config = evaluation_config_for(config.evaluation, source.sensor)
-    result = write_outputs(run_dir, log, source.ground_truth(), evaluation_config, extra)
+    result = write_outputs(run_dir, log, ground_truth, evaluation_config, extra, plane=args.plane)
     for line in _summary(result, log):
         print(line)
     return 0 if completed else _EXIT_INTERRUPTED

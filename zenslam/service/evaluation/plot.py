@@ -16,20 +16,49 @@ from zenslam.service.evaluation.metrics import Evaluation
 logger = logging.getLogger(__name__)
 
 Plane = Literal["auto", "xy", "xz", "yz"]
+PLANES: tuple[Plane, ...] = ("auto", "xy", "xz", "yz")
 
 _AXIS_NAMES = "xyz"
+_UPRIGHT_COS = np.cos(np.radians(30.0))  # image-down within 30 degrees of a world axis: that axis is vertical
+
+
+def ground_plane(T_world_cam: np.ndarray) -> tuple[int, int] | None:
+    """The world plane (two axis indices, ascending) perpendicular to the vertical of camera poses (N, 4, 4),
+    or None when the poses do not show one.
+
+    Cameras on cars, robots, hand-held rigs and drones' forward cameras are held upright, so their
+    image-down direction (camera y) is the world's down: the world axis it follows is vertical,
+    whichever convention the world frame has (KITTI's y down, z up elsewhere). Cameras whose
+    down directions disagree, or point between axes (a nadir camera's y is horizontal), show none.
+    """
+    down = np.asarray(T_world_cam, dtype=float).reshape(-1, 4, 4)[:, :3, 1].mean(axis=0)
+    norm = float(np.linalg.norm(down))
+    if norm < 0.5:  # the cameras disagree on which way is down
+        return None
+    vertical = int(np.argmax(np.abs(down)))
+    if abs(down[vertical]) / norm < _UPRIGHT_COS:
+        return None
+    return tuple(a for a in range(3) if a != vertical)  # type: ignore[return-value]
 
 
 def choose_plane(p_world: np.ndarray) -> tuple[int, int]:
     """The two world axes (indices, ascending) spanning the widest view of positions (N, 3).
 
     The axis of smallest extent is dropped; ties drop y, the down axis of camera-frame worlds such
-    as KITTI's, giving their x-z top view. Without gravity no rule is always right: callers that
-    know the up axis pass an explicit plane.
+    as KITTI's, giving their x-z top view.
     """
-    extent = np.ptp(np.asarray(p_world, dtype=float), axis=0)
+    extent = np.ptp(np.asarray(p_world, dtype=float).reshape(-1, 3), axis=0)
     dropped = min((1, 2, 0), key=lambda axis: extent[axis])
     return tuple(a for a in range(3) if a != dropped)  # type: ignore[return-value]
+
+
+def plot_plane(plane: Plane, T_world_cam: np.ndarray) -> Plane:
+    """The plane to draw poses (N, 4, 4) in: ``plane`` itself unless ``auto``, which takes the ground plane
+    the poses show (``ground_plane``), else the two axes of largest extent (``choose_plane``)."""
+    if plane != "auto":
+        return plane
+    axes = ground_plane(T_world_cam) or choose_plane(np.asarray(T_world_cam, dtype=float).reshape(-1, 4, 4)[:, :3, 3])
+    return "".join(_AXIS_NAMES[a] for a in axes)  # type: ignore[return-value]
 
 
 def save_top_view(
@@ -42,7 +71,8 @@ def save_top_view(
 ) -> Path:
     """Draw ground-truth and estimated positions (N, 3 and M, 3, metres, same world frame) to a PNG.
 
-    ``plane`` names the two world axes drawn; ``auto`` uses ``choose_plane(p_world_gt)``.
+    ``plane`` names the two world axes drawn; ``auto`` uses ``choose_plane(p_world_gt)`` (positions alone
+    show no ground plane: ``save_evaluation_plot`` finds it from the poses).
     """
     path = Path(path)
     p_gt = np.asarray(p_world_gt, dtype=float).reshape(-1, 3)
@@ -71,7 +101,11 @@ def save_top_view(
 
 
 def save_evaluation_plot(path: str | Path, evaluation: Evaluation, *, plane: Plane = "auto") -> Path:
-    """Top view of an evaluation's matched ground truth and aligned estimate, titled with the ATE."""
+    """Top view of an evaluation's matched ground truth and aligned estimate, titled with the ATE; ``auto``
+    draws the ground-truth poses' ground plane (``plot_plane``)."""
     ate = evaluation.ate
     title = f"ATE rmse {ate.rmse_m:.4f} m ({ate.alignment} alignment, {ate.matched_poses} poses)"
-    return save_top_view(path, evaluation.p_world_gt, evaluation.p_world_est_aligned, plane=plane, title=title)
+    return save_top_view(
+        path, evaluation.p_world_gt, evaluation.p_world_est_aligned,
+        plane=plot_plane(plane, evaluation.T_world_cam_gt), title=title,
+    )

@@ -2,8 +2,9 @@
 
 Every recorded zenslam.SensorFrame carries its calibration, sensor kind and source name, so the
 recording alone is enough to play it again. A first pass reads the channel once for the stamps,
-calibration and count (the images are decoded lazily, again, when iterated). The recorder stores
-no ground truth and no IMU channel, so both are None.
+calibration and count (the images are decoded lazily, again, when iterated). The ground truth is
+the one the recorded run's source had (its /source/ground_truth channel; None in recordings made
+before that channel existed). The recorder has no IMU channel, so imu() is None.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from zenslam.camera import PinholeCalibration, SensorKind
 from zenslam.errors import CalibrationError, DatasetError, TimestampError
 from zenslam.schemas import codec, keys
 from zenslam.service import mcap_io
+from zenslam.service.recorded_ground_truth import read_ground_truth, write_ground_truth
 from zenslam.service.sources.frame import ImuSamples, SensorFrame
 from zenslam.trajectory import Trajectory
 
@@ -97,8 +99,8 @@ class McapSource:
         return self._stamps_ns.copy()
 
     def ground_truth(self) -> Trajectory | None:
-        """None: recordings hold the estimate, not ground truth."""
-        return None
+        """The recorded source's ground truth, or None when the recording holds none."""
+        return read_ground_truth(self.path)
 
     def imu(self) -> ImuSamples | None:
         """None: the recorder has no IMU channel."""
@@ -111,12 +113,16 @@ def write_frames(
     calibration: PinholeCalibration,
     sensor: SensorKind,
     source_name: str = "",
+    ground_truth: Trajectory | None = None,
 ) -> int:
     """Record ``frames`` on the sensor/frame channel of a new MCAP file as the recorder would (log time =
-    stamp, ns), ending with the stream's end-of-stream message; returns the frames written."""
+    stamp, ns), ending with the stream's end-of-stream message, after ``ground_truth`` if given;
+    returns the frames written."""
     topic = sensor_frame_topic()
     written, last_stamp_ns = 0, 0
     with mcap_io.RecordingWriter(path) as writer:
+        if ground_truth is not None:
+            write_ground_truth(writer, ground_truth)
         for frame in frames:
             data = codec.encode_sensor_frame(frame, calibration, sensor, source_name)
             writer.write(topic, codec.SENSOR_FRAME, data, frame.stamp_ns)
