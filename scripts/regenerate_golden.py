@@ -40,6 +40,7 @@ def render_input(path: Path, frames: int, width: int, height: int) -> str:
     """The loop scene's first ``frames`` stereo frames at ``width`` x ``height`` (same field of view) into ``path``."""
     from zenslam.service.sources.mcap_source import write_frames
     from zenslam.service.sources.synthetic import SyntheticSource, scene_config
+    from zenslam.trajectory import Trajectory
 
     default = scene_config("loop")
     scale = width / default.width
@@ -48,8 +49,13 @@ def render_input(path: Path, frames: int, width: int, height: int) -> str:
         cx=(width - 1) / 2.0, cy=(height - 1) / 2.0,
     )  # fmt: skip
     source = SyntheticSource(scene)
-    selected = (source.frame(i) for i in range(min(frames, len(source))))
-    write_frames(path, selected, source.calibration, source.sensor, source.name)
+    n = min(frames, len(source))
+    selected = (source.frame(i) for i in range(n))
+    truth = source.ground_truth()  # kept in the recording, so replays of the golden are scored
+    last_stamp_ns = int(source.stamps_ns()[n - 1])
+    kept = truth.stamps_ns <= last_stamp_ns
+    ground_truth = Trajectory(truth.stamps_ns[kept], truth.T_world_cam[kept])
+    write_frames(path, selected, source.calibration, source.sensor, source.name, ground_truth=ground_truth)
     return source.name
 
 
