@@ -128,3 +128,15 @@ def test_adjacent_entries_are_fine_and_the_config_round_trips(tmp_path):
     path = tmp_path / "config.yaml"
     path.write_text(run_config_to_yaml(config))
     assert load_run_config(path) == config
+
+
+def test_the_readme_example_is_a_valid_config():
+    import re
+    from pathlib import Path
+
+    import yaml
+
+    readme = (Path(__file__).resolve().parents[3] / "README.md").read_text()
+    block = next(b for b in re.findall(r"```yaml\n(.+?)\n```", readme, re.S) if "faults:" in b)
+    config = from_mapping(RunConfig, yaml.safe_load(block))
+    assert [f.kind for f in config.source.faults] == ["black", "drop", "corrupt", "stamp_backwards", "stamp_repeat"]
