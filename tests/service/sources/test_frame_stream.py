@@ -11,8 +11,8 @@ from zenslam.errors import DatasetError, FrameReadError, TimestampError
 from zenslam.schemas.sensor_data import SensorFrame
 from zenslam.service.sources.faults import FaultInjector, FrameFault
 from zenslam.service.sources.frame_stream import SkippedFrame, frame_stream, stamp_problem
+from zenslam.service.sources.images import write_png
 from zenslam.service.sources.kitti import KittiSource
-from tests.service.sources.test_kitti import make_kitti
 
 
 class _Stamps:
@@ -28,6 +28,18 @@ class _Stamps:
 
     def frame(self, index: int) -> SensorFrame:
         return SensorFrame(index, self.stamps[index], np.zeros((4, 6), np.uint8))
+
+
+def make_kitti(root: Path, n: int) -> Path:
+    """A fake KITTI sequence <root>/sequences/07 of n random 20x32 stereo pairs at 10 Hz."""
+    seq = root / "sequences" / "07"
+    rng = np.random.default_rng(7)
+    for folder in ("image_0", "image_1"):
+        for i in range(n):
+            write_png(seq / folder / f"{i:06d}.png", rng.integers(0, 255, size=(20, 32), dtype=np.uint8))
+    (seq / "calib.txt").write_text("P0: 700 0 16 0 0 700 10 0 0 0 1 0\nP1: 700 0 16 -350 0 700 10 0 0 0 1 0\n")
+    (seq / "times.txt").write_text("".join(f"{0.1 * i:e}\n" for i in range(n)))
+    return seq
 
 
 def _summary(items) -> list[str | int]:

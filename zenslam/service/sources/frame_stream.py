@@ -21,6 +21,7 @@ from zenslam.service.sources.faults import FaultInjector
 from zenslam.service.sources.frame import Source
 
 SkipReason = Literal["corrupt", "missing", "unreadable", "stamp_backwards", "stamp_repeat", "drop"]
+_READ_REASONS: dict[str, SkipReason] = {"corrupt": "corrupt", "missing": "missing", "unreadable": "unreadable"}
 
 
 @dataclass(frozen=True)
@@ -53,7 +54,7 @@ def frame_stream(source: Source, injector: FaultInjector | None = None) -> Itera
         try:
             frame = injector.read(source, index)
         except FrameReadError as exc:
-            yield SkippedFrame(index, exc.reason if exc.reason in ("missing", "unreadable") else "corrupt", exc)  # type: ignore[arg-type]
+            yield SkippedFrame(index, _READ_REASONS.get(exc.reason, "corrupt"), exc)
             continue
         if frame is None:
             fault = injector.fault_at(index)
