@@ -83,6 +83,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="fail on the first frame that cannot be read or whose stamp does not increase (source.strict); "
         "by default such frames are skipped with a warning and counted in metrics.json",
     )
+    parser.add_argument(
+        "--no-faults", action="store_true",
+        help="ignore source.faults of the config (replays use it: the recorded frames already carry the faults)",
+    )
     parser.add_argument("--run-id", default=None, help="name of the run folder and bus session (default: date-time-pid)")
     parser.add_argument("--bus-config", type=Path, default=None, help="zenoh JSON5 config file (routers, other machines)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -107,6 +111,8 @@ def resolve_config(args: argparse.Namespace) -> RunConfig:
         source = dataclasses.replace(source, max_frames=args.max_frames)
     if args.strict:
         source = dataclasses.replace(source, strict=True)
+    if args.no_faults:
+        source = dataclasses.replace(source, faults=())
     bus_config = config.bus
     if args.bus_config is not None:
         bus_config = dataclasses.replace(bus_config, zenoh_config_file=str(args.bus_config))
