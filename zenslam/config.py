@@ -77,7 +77,7 @@ def _coerce(hint: Any, value: Any, path: str) -> Any:
             raise ConfigError(f"'{path}' must be a list")
         args = get_args(hint)
         if len(args) == 2 and args[1] is Ellipsis:
-            return tuple(_coerce(args[0], v, path) for v in value)
+            return tuple(_coerce(args[0], v, f"{path}[{k}]") for k, v in enumerate(value))
         if len(args) != len(value):
             raise ConfigError(f"'{path}' must have {len(args)} entries, got {len(value)}")
         return tuple(_coerce(a, v, path) for a, v in zip(args, value))

@@ -16,7 +16,30 @@ class CalibrationError(DatasetError):
 
 
 class ImageReadError(DatasetError):
-    """An image file is missing, unreadable or has the wrong size."""
+    """An image file is missing, unreadable or has the wrong size.
+
+    ``path`` is the file (None when the image did not come from one) and ``reason`` one of
+    ``missing``, ``unreadable`` (the file system refused it) or ``corrupt`` (it cannot be decoded,
+    or is of the wrong size or type).
+    """
+
+    def __init__(self, message: str, path: str | None = None, reason: str = "corrupt"):
+        super().__init__(message)
+        self.path = path
+        self.reason = reason
+
+
+class FrameReadError(ImageReadError):
+    """One frame of a source cannot be read or decoded: that frame is bad, not the dataset.
+
+    Readers raise it from ``Source.frame(index)``; the source process skips the frame (or, with
+    ``source.strict``, stops the run). A dataset that cannot be opened at all raises its other
+    DatasetError subclasses when the source is opened, before any frame is sent.
+    """
+
+    def __init__(self, frame_index: int, message: str, path: str | None = None, reason: str = "corrupt"):
+        super().__init__(f"frame {frame_index}: {message}", path, reason)
+        self.frame_index = frame_index
 
 
 class TimestampError(DatasetError):

@@ -42,7 +42,7 @@ def test_the_golden_is_a_small_lockstep_recording():
     assert GOLDEN.is_file(), f"{GOLDEN} is missing; run `python scripts/regenerate_golden.py`"
     assert GOLDEN.stat().st_size < MAX_GOLDEN_BYTES
     config = replay.recorded_run_config(GOLDEN)
-    assert config.source.lockstep
+    assert config.mode == "lockstep"
     assert len(McapSource(GOLDEN)) == 20
     counts = {topic: len(messages) for topic, messages in replay.read_topics(GOLDEN, replay.COMPARED_TOPICS).items()}
     assert counts[replay.POSE_TOPIC] == 20 and counts[replay.KEYFRAME_TOPIC] >= 1 + 3  # 3 keyframes and the end

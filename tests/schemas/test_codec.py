@@ -212,6 +212,12 @@ def test_pose_in_frame_is_foxglove_and_round_trips():
 def test_stage_status_round_trip():
     status = codec.StageStatusMessage("frontend", "running", processed=10, step_ms=33.5, queue_depth=2, dropped=1, detail="x")
     assert codec.decode_stage_status(codec.encode_stage_status(status)) == status
+    source = codec.StageStatusMessage("source", "finished", processed=50, skipped={"stamp_repeat": 2, "corrupt": 1})
+    assert codec.decode_stage_status(codec.encode_stage_status(source)) == source
+    # Nothing skipped adds no bytes: statuses of clean runs are what they were before the field existed.
+    plain = codec.StageStatusMessage("source", "finished", processed=50)
+    assert codec.encode_stage_status(plain) == codec.encode_stage_status(codec.StageStatusMessage("source", "finished", 50, skipped={}))
+    assert len(codec.encode_stage_status(plain)) < len(codec.encode_stage_status(source))
 
 
 def test_keyframe_of_1000_keypoints_is_compact():

@@ -64,6 +64,21 @@ def test_frames_are_read_lazily(tmp_path, monkeypatch):
     assert first.index == 10 and len(decoded) == 1  # one frame decoded for one frame taken
 
 
+def test_frames_by_position_read_on_and_restart_for_earlier_ones(tmp_path, monkeypatch):
+    frames = _frames(5, np.random.default_rng(5))
+    write_frames(tmp_path / "run.mcap", frames, CAL, "stereo")
+    source = McapSource(tmp_path / "run.mcap")
+    decoded = []
+    original = codec.decode_sensor_frame
+    monkeypatch.setattr(codec, "decode_sensor_frame", lambda data: decoded.append(1) or original(data))
+    assert [source.frame(k).index for k in (0, 1, 3)] == [10, 11, 13]  # position k holds recorded index 10 + k
+    assert len(decoded) == 4  # read on: frame 2 decoded on the way to 3, nothing twice
+    np.testing.assert_array_equal(source.frame(1).left, frames[1].left)  # earlier: from the start again
+    assert len(decoded) == 6
+    with pytest.raises(DatasetError, match="has no frame 5: it has 5 frames"):
+        source.frame(5)
+
+
 def test_other_channels_are_ignored_and_only_sensor_frames_count(tmp_path):
     path = tmp_path / "run.mcap"
     frame = _frames(1, np.random.default_rng(4))[0]

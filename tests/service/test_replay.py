@@ -169,7 +169,7 @@ def test_replay_command_is_registered_and_runs_the_recording_in_lockstep(tmp_pat
     assert args.handler is replay_command.run and args.stage == "backend"
     (tmp_path / "config.yaml").write_text(run_config_to_yaml(RunConfig()))
     argv = replay_command.run_arguments(tmp_path / "run.mcap", tmp_path / "out", "r1", progress=False)
-    assert argv[:3] == ["run", f"mcap:{(tmp_path / 'run.mcap').resolve()}", "--lockstep"]
+    assert argv[:4] == ["run", f"mcap:{(tmp_path / 'run.mcap').resolve()}", "--lockstep", "--no-faults"]
     assert argv[argv.index("--config") + 1] == str(tmp_path / "config.yaml") and "--no-progress" in argv
 
 

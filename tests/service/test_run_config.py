@@ -285,3 +285,18 @@ def test_a_principal_point_outside_the_images_is_refused():
         calibration.fitted_to(1226, 370)
     assert calibration.fitted_to(1241, 376) is calibration
     assert fit_calibration_to_images(RunConfig(), 1226, 370) == RunConfig()  # no override: nothing to fit
+
+
+def test_strict_and_no_faults_from_the_command_line(tmp_path):
+    import argparse
+
+    from zenslam.service.commands import run as run_command
+
+    path = tmp_path / "config.yaml"
+    path.write_text("source:\n  faults:\n    - {kind: drop, first_frame: 3, last_frame: 4}\n")
+    parser = argparse.ArgumentParser()
+    run_command.register(parser.add_subparsers())
+    plain = run_command.resolve_config(parser.parse_args(["run", "--config", str(path)]))
+    assert plain.source.strict is False and [f.kind for f in plain.source.faults] == ["drop"]
+    options = run_command.resolve_config(parser.parse_args(["run", "--config", str(path), "--strict", "--no-faults"]))
+    assert options.source.strict is True and options.source.faults == ()

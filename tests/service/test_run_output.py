@@ -116,6 +116,20 @@ def test_outputs_with_ground_truth(tmp_path):
     np.testing.assert_allclose(written.T_world_cam, log.trajectory().T_world_cam, atol=1e-6)
 
 
+def test_the_source_statuses_give_the_skipped_frames_section(tmp_path):
+    log = _log(_truth(5), lost=set(), keyframes={0}, rng=np.random.default_rng(5))
+    assert log.skipped_frames() == {"total": 0, "reasons": {}}
+    log.add_source_status(codec.StageStatusMessage("source", "running", 2, skipped={"corrupt": 1}))
+    log.add_source_status(codec.StageStatusMessage("source", "running", 3, skipped={"corrupt": 1, "stamp_repeat": 2}))
+    log.add_source_status(codec.StageStatusMessage("source", "finished", 5, skipped={"stamp_repeat": 2, "corrupt": 1}))
+    assert log.source_failure is None
+    write_outputs(tmp_path, log, None, EvaluationConfig())
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["skipped_frames"] == {"total": 3, "reasons": {"corrupt": 1, "stamp_repeat": 2}}
+    log.add_source_status(codec.StageStatusMessage("source", "failed", 5, detail="frame 6: image x.png could not be decoded"))
+    assert log.source_failure == "frame 6: image x.png could not be decoded"
+
+
 def test_outputs_without_ground_truth_have_no_ate_and_no_plot(tmp_path):
     log = _log(_truth(5), lost=set(), keyframes={0}, rng=np.random.default_rng(3))
     result = write_outputs(tmp_path, log, None, EvaluationConfig())

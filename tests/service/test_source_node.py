@@ -132,3 +132,70 @@ def test_lockstep_keeps_at_most_frames_in_flight_unanswered_in_order(session, wi
     assert sent == 8 and not thread.is_alive()
     assert frontend.order == list(range(8))
     assert frontend.most_unanswered == window
+
+
+def _with_skips(n: int, skipped: dict[int, str]) -> list:
+    """Frames 0..n-1 where the indices in ``skipped`` are SkippedFrame with that reason."""
+    from zenslam.errors import FrameReadError
+    from zenslam.service.sources.frame_stream import SkippedFrame
+
+    frames = _frames(n, 1_000)
+    return [
+        SkippedFrame(i, skipped[i], FrameReadError(i, f"image /data/{i:06d}.png could not be decoded", f"/data/{i:06d}.png"))
+        if i in skipped else frames[i]
+        for i in range(n)
+    ]  # fmt: skip
+
+
+def _statuses(inbox: bus.Inbox) -> list:
+    out = []
+    while (status := inbox.get(timeout_s=1.0)) is not None:
+        out.append(status)
+        if status.state in ("finished", "failed"):
+            return out
+    raise AssertionError(f"no final source status among {out}")
+
+
+def test_lockstep_skips_bad_frames_without_waiting_for_them_and_reports_counts(session, caplog):
+    import threading
+
+    name = "skips"
+    frontend = _LockstepFrontend(session, name, lag=0)
+    statuses = bus.subscribe(session, keys.status(name, "source"), codec.decode_stage_status, "lossless", 64)
+    thread = threading.Thread(target=frontend.run)
+    thread.start()
+    config = SourceConfig(frames_in_flight=1, answer_timeout_s=5.0)
+    frames = _with_skips(8, {2: "corrupt", 5: "stamp_repeat", 6: "corrupt"})
+    with caplog.at_level("WARNING", logger="zenslam.service.source_node"):
+        sent = play(session, name, frames, CAL, "mono", config, lambda: False, "test", mode="lockstep", start_timeout_s=5.0)
+    thread.join(timeout=10.0)
+    assert sent == 5 and not thread.is_alive()
+    assert frontend.order == [0, 1, 3, 4, 7]
+    final = _statuses(statuses)[-1]
+    statuses.close()
+    assert final.state == "finished" and final.processed == 5
+    assert final.skipped == {"corrupt": 2, "stamp_repeat": 1}
+    warnings = [r.getMessage() for r in caplog.records if "skipping" in r.getMessage()]
+    assert len(warnings) == 3  # one per skipped frame
+    assert "frame 2: image /data/000002.png could not be decoded [corrupt; 1 frame(s) skipped so far]" in warnings[0]
+
+
+def test_strict_stops_at_the_first_bad_frame_with_a_failed_status_naming_it(session):
+    from zenslam.errors import FrameReadError
+
+    name = "strict"
+    inbox = bus.subscribe(session, keys.sensor_frame(name), codec.decode_sensor_frame, "lossless", 64)
+    statuses = bus.subscribe(session, keys.status(name, "source"), codec.decode_stage_status, "lossless", 64)
+    config = SourceConfig(rate=0.0, strict=True)
+    with pytest.raises(FrameReadError, match=r"frame 3: image /data/000003\.png could not be decoded"):
+        play(session, name, _with_skips(6, {3: "corrupt"}), CAL, "mono", config, lambda: False, "test", mode="live", start_timeout_s=5.0)
+    assert _collect(inbox) == [0, 1, 2, codec.EndOfStream(3)]  # the stream still ends
+    final = _statuses(statuses)[-1]
+    inbox.close()
+    statuses.close()
+    assert final.state == "failed" and final.detail.startswith("frame 3: image /data/000003.png could not be decoded")
+
+
+def test_strict_still_lets_injected_drops_pass(session):
+    sent, received, _ = _play(session, "strict-drop", _with_skips(4, {1: "drop"}), SourceConfig(rate=0.0, strict=True))
+    assert sent == 3 and received == [0, 2, 3, codec.EndOfStream(3)]

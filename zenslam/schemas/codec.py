@@ -139,6 +139,7 @@ class StageStatusMessage:
     dropped: int = 0  # input messages skipped (live mode)
     detail: str = ""
     timings_ms: dict[str, float] = field(default_factory=dict)  # per sub-step of the last step, milliseconds
+    skipped: dict[str, int] = field(default_factory=dict)  # input items not passed on so far, by reason (source: bad frames)
 
 
 @dataclass(frozen=True)
@@ -485,6 +486,8 @@ def encode_stage_status(status: StageStatusMessage) -> bytes:
     )
     for name, ms in status.timings_ms.items():
         msg.timings_ms[name] = float(ms)
+    for reason, count in status.skipped.items():
+        msg.skipped[reason] = int(count)
     return msg.SerializeToString()
 
 
@@ -503,6 +506,7 @@ def decode_stage_status(data: bytes) -> StageStatusMessage:
         dropped=msg.dropped,
         detail=msg.detail,
         timings_ms={k: msg.timings_ms[k] for k in sorted(msg.timings_ms)},
+        skipped={k: int(msg.skipped[k]) for k in sorted(msg.skipped)},
     )
 
 

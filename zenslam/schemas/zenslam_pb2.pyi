@@ -252,7 +252,7 @@ class MapUpdate(_message.Message):
     def __init__(self, keyframe_id: _Optional[int] = ..., stamp_ns: _Optional[int] = ..., keyframes: _Optional[_Iterable[_Union[KeyframeCorrection, _Mapping]]] = ..., num_points: _Optional[int] = ..., point_ids: _Optional[bytes] = ..., p_world: _Optional[bytes] = ..., descriptors: _Optional[bytes] = ..., normals: _Optional[bytes] = ..., min_distance_m: _Optional[bytes] = ..., max_distance_m: _Optional[bytes] = ..., removed_point_ids: _Optional[bytes] = ..., removed_keyframe_ids: _Optional[bytes] = ..., end_of_stream: _Optional[bool] = ..., count: _Optional[int] = ..., kind: _Optional[_Union[MapUpdateKind, str]] = ...) -> None: ...
 
 class StageStatus(_message.Message):
-    __slots__ = ("stage", "state", "processed", "step_ms", "queue_depth", "dropped", "detail", "timings_ms")
+    __slots__ = ("stage", "state", "processed", "step_ms", "queue_depth", "dropped", "detail", "timings_ms", "skipped")
     class TimingsMsEntry(_message.Message):
         __slots__ = ("key", "value")
         KEY_FIELD_NUMBER: _ClassVar[int]
@@ -260,6 +260,13 @@ class StageStatus(_message.Message):
         key: str
         value: float
         def __init__(self, key: _Optional[str] = ..., value: _Optional[float] = ...) -> None: ...
+    class SkippedEntry(_message.Message):
+        __slots__ = ("key", "value")
+        KEY_FIELD_NUMBER: _ClassVar[int]
+        VALUE_FIELD_NUMBER: _ClassVar[int]
+        key: str
+        value: int
+        def __init__(self, key: _Optional[str] = ..., value: _Optional[int] = ...) -> None: ...
     STAGE_FIELD_NUMBER: _ClassVar[int]
     STATE_FIELD_NUMBER: _ClassVar[int]
     PROCESSED_FIELD_NUMBER: _ClassVar[int]
@@ -268,6 +275,7 @@ class StageStatus(_message.Message):
     DROPPED_FIELD_NUMBER: _ClassVar[int]
     DETAIL_FIELD_NUMBER: _ClassVar[int]
     TIMINGS_MS_FIELD_NUMBER: _ClassVar[int]
+    SKIPPED_FIELD_NUMBER: _ClassVar[int]
     stage: str
     state: StageState
     processed: int
@@ -276,7 +284,8 @@ class StageStatus(_message.Message):
     dropped: int
     detail: str
     timings_ms: _containers.ScalarMap[str, float]
-    def __init__(self, stage: _Optional[str] = ..., state: _Optional[_Union[StageState, str]] = ..., processed: _Optional[int] = ..., step_ms: _Optional[float] = ..., queue_depth: _Optional[int] = ..., dropped: _Optional[int] = ..., detail: _Optional[str] = ..., timings_ms: _Optional[_Mapping[str, float]] = ...) -> None: ...
+    skipped: _containers.ScalarMap[str, int]
+    def __init__(self, stage: _Optional[str] = ..., state: _Optional[_Union[StageState, str]] = ..., processed: _Optional[int] = ..., step_ms: _Optional[float] = ..., queue_depth: _Optional[int] = ..., dropped: _Optional[int] = ..., detail: _Optional[str] = ..., timings_ms: _Optional[_Mapping[str, float]] = ..., skipped: _Optional[_Mapping[str, int]] = ...) -> None: ...
 
 class KeyframeTrajectory(_message.Message):
     __slots__ = ("keyframes_processed", "finished", "num_keyframes", "keyframe_ids", "stamps_ns", "T_world_cam")

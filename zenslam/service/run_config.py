@@ -32,6 +32,7 @@ from zenslam.runtime.rerun_log import RerunConfig
 from zenslam.runtime.stage import RunMode
 from zenslam.service.evaluation.metrics import EvaluationConfig
 from zenslam.service.mcap_io import ChunkCompression
+from zenslam.service.sources.faults import FrameFault, check_faults
 
 logger = logging.getLogger(__name__)
 
@@ -50,8 +51,16 @@ class SourceConfig:
     # still takes every frame in order, so lockstep outputs are the same at any window. 1 = strict.
     frames_in_flight: int = 2  # frames
     calibration: PinholeCalibration | None = None  # rectified intrinsics overriding the source's own (None: keep)
+    # A frame that cannot be read or decoded, or whose stamp does not increase: False = skip it with
+    # one warning and count it (metrics.json ``skipped_frames``); True = end the run with an error
+    # naming the frame (``zenslam run --strict``).
+    strict: bool = False
+    # Injected faults, e.g. ``[{kind: drop, first_frame: 10, last_frame: 12}]``: kinds black, drop,
+    # corrupt, stamp_backwards, stamp_repeat over frame indices (inclusive); see sources/faults.py.
+    faults: tuple[FrameFault, ...] = ()
 
     def __post_init__(self) -> None:
+        check_faults(self.faults)
         if not (math.isfinite(self.rate) and self.rate >= 0):
             raise ConfigError(f"source.rate={self.rate} must be >= 0 (1 = recorded rate, 0 = as fast as possible)")
         if self.frames_in_flight < 1:

@@ -1,14 +1,16 @@
 """What a run leaves in recordings/<run-id>/: the resolved config, trajectories, metrics.json and a plot.
 
 ``RunLog`` collects what the run command receives: frontend/state and frontend/pose, the backend's
-map updates (counted) and status timings, and the backend's final keyframe poses. ``write_outputs``
+map updates (counted) and status timings, the backend's final keyframe poses, and the frames the
+source skipped (its source/status ``skipped`` counts). ``write_outputs``
 turns them into ``trajectory.tum`` (every frame tracked ok, as tracked: what a live consumer of
 frontend/pose got), ``trajectory_final.tum`` (ORB-SLAM's saved trajectory: each of those frames
 kept relative to its reference keyframe and composed with that keyframe's final pose, so mapping's
 later corrections reach every frame), ``keyframes.tum`` (the backend's final keyframe poses; the
 frontend's when no backend answered), ``metrics.json`` (ATE/RPE of the tracked trajectory, ATE of
 the final one as ``ate_final``, when there is ground truth; tracking and backend timing, frame and
-keyframe counts) and ``trajectory_top.png``.
+keyframe counts, ``skipped_frames``: ``{"total": N, "reasons": {"corrupt": n, ...}}``) and
+``trajectory_top.png``.
 """
 
 from __future__ import annotations
@@ -91,6 +93,8 @@ class RunLog:
         self.backend_timings: dict[int, dict[str, float]] = {}  # keyframes processed -> ms per step of that one
         self.backend_keyframes: codec.KeyframeTrajectoryMessage | None = None  # the backend's final keyframe poses
         self.backend_queue_max = 0  # most keyframes the backend reported waiting in its inbox after a step
+        self.source_skipped: dict[str, int] = {}  # frames the source did not send, by reason (its latest count)
+        self.source_failure: str | None = None  # what the source said when it failed (e.g. strict and a bad frame)
 
     def add_map_update(self, update: object) -> None:
         """Count a backend/map_update message (a MapUpdate, or the stream's end)."""
@@ -107,6 +111,17 @@ class RunLog:
         if status.state == "running" and status.timings_ms:
             self.backend_timings[status.processed] = dict(status.timings_ms)
             self.backend_queue_max = max(self.backend_queue_max, status.queue_depth)
+
+    def add_source_status(self, status: codec.StageStatusMessage) -> None:
+        """Keep the source's skipped-frame counts (each status carries the totals so far) and its failure."""
+        self.source_skipped = dict(status.skipped)  # statuses arrive in order, lossless: the last one is the newest
+        if status.state == "failed":
+            self.source_failure = status.detail or "the source failed without saying why; see its log"
+
+    def skipped_frames(self) -> dict[str, object]:
+        """The ``skipped_frames`` section of metrics.json: the total and the count per reason."""
+        reasons = {reason: int(count) for reason, count in sorted(self.source_skipped.items())}
+        return {"total": sum(reasons.values()), "reasons": reasons}
 
     def keyframe_counts(self) -> dict[str, int]:
         """Keyframes the frontend sent (states with a keyframe) and the backend processed (updates received)."""
@@ -239,6 +254,7 @@ def write_outputs(
         error = "no frame was tracked, so there is nothing to compare with the ground truth"
     sections: dict[str, object] = {"timing": log.timing(), **log.frame_counts()}
     sections["keyframes"] = log.keyframe_counts()
+    sections["skipped_frames"] = log.skipped_frames()
     sections["keyframes_from"] = "backend" if log.backend_keyframes is not None else "frontend"
     sections["backend_timing"] = log.backend_timing()
     sections["backend_queue_depth_max"] = log.backend_queue_max

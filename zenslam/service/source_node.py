@@ -5,6 +5,13 @@ keeps up, with DROP congestion control, like a camera. Lockstep mode keeps at mo
 ``source.frames_in_flight`` frames sent without the frontend's frontend/state (frame i+1 is read
 while frame i is tracked), with lossless delivery: every frame is tracked, in order, and the run is
 deterministic. Either way the stream ends with an end-of-stream message.
+
+Bad frames (unreadable, corrupt, stamps that do not increase; see sources.frame_stream) are not
+sent: each is logged once as a warning and counted, and the counts by reason travel in the
+``skipped`` map of every source/status message (the last one, "finished" or "failed", holds the
+totals, which ``zenslam run`` writes to metrics.json as ``skipped_frames``). Lockstep never waits
+for a frame it did not send. With ``source.strict`` the first bad frame ends the stream instead,
+with a "failed" status whose detail names the frame and the problem.
 """
 
 from __future__ import annotations
@@ -13,7 +20,7 @@ import argparse
 import logging
 import sys
 import time
-from collections import deque
+from collections import Counter, deque
 from collections.abc import Callable, Iterable
 from typing import TYPE_CHECKING
 
@@ -35,6 +42,8 @@ from zenslam.runtime.stage import (
 from zenslam.schemas import codec, keys
 from zenslam.service.run_config import SourceConfig
 from zenslam.service.sources import SensorFrame, open_source
+from zenslam.service.sources.faults import FaultInjector
+from zenslam.service.sources.frame_stream import SkippedFrame, frame_stream
 
 if TYPE_CHECKING:
     from zenslam.runtime.rerun_log import SourceLog
@@ -85,7 +94,7 @@ def _wait_for_answer(states: bus.Inbox, index: int, timeout_s: float, should_sto
 def play(
     session: zenoh.Session,
     session_name: str,
-    frames: Iterable[SensorFrame],
+    frames: Iterable[SensorFrame | SkippedFrame],
     calibration: PinholeCalibration,
     sensor: SensorKind,
     config: SourceConfig,
@@ -98,10 +107,11 @@ def play(
     """Publish ``frames`` on sensor/frame, then an end-of-stream message; returns the frames sent.
 
     The caller has made sure the consumers are up. Stops early (still sending end-of-stream) when
-    ``should_stop()`` turns true or after ``config.max_frames`` frames. ``rerun`` logs each frame sent.
-    In lockstep and pipelined mode every frame waits for the frontend's answers (a window of
-    ``config.frames_in_flight``); live mode plays at the recorded rate. ``start_timeout_s``: seconds
-    to wait for the frontend's subscription.
+    ``should_stop()`` turns true or after ``config.max_frames`` frames. A SkippedFrame is counted and
+    not sent (with ``config.strict``, its error is raised instead, except for injected drops, which
+    a real source could not notice). ``rerun`` logs each frame sent. In lockstep and pipelined mode
+    every frame waits for the frontend's answers (a window of ``config.frames_in_flight``); live
+    mode plays at the recorded rate. ``start_timeout_s``: seconds to wait for the frontend's subscription.
     """
     lockstep = mode != "live"
     key = keys.sensor_frame(session_name)
@@ -120,11 +130,17 @@ def play(
     pacer = _Pacer(0.0 if lockstep else config.rate, should_stop)
     log_cpu_times("at stream start")
     sent = 0
+    skipped: Counter[str] = Counter()  # frames not sent, by reason
     in_flight: deque[int] = deque()  # lockstep: indices of the frames sent and not answered, oldest first
+    final = codec.StageStatusMessage(STAGE, "failed", detail="the source stopped on an unexpected error")
     try:
         for frame in frames:
             if should_stop() or (config.max_frames is not None and sent >= config.max_frames):
                 break
+            if isinstance(frame, SkippedFrame):
+                _skip(frame, skipped, config.strict, source_name)
+                status_pub.put(codec.encode_stage_status(codec.StageStatusMessage(STAGE, "running", sent, skipped=dict(skipped))))
+                continue
             pacer.wait_for(frame.stamp_ns)
             started = time.perf_counter()
             frame_pub.put(codec.encode_sensor_frame(frame, calibration, sensor, source_name, config.depth_encoding))
@@ -135,17 +151,34 @@ def play(
             # States come lossless and in frame order: the oldest frame in flight is answered first.
             while states is not None and len(in_flight) >= config.frames_in_flight:
                 _wait_for_answer(states, in_flight.popleft(), config.answer_timeout_s, should_stop)
-            status = codec.StageStatusMessage(STAGE, "running", sent, (time.perf_counter() - started) * 1e3)
+            status = codec.StageStatusMessage(STAGE, "running", sent, (time.perf_counter() - started) * 1e3, skipped=dict(skipped))
             status_pub.put(codec.encode_stage_status(status))
         while states is not None and in_flight and not should_stop():
             _wait_for_answer(states, in_flight.popleft(), config.answer_timeout_s, should_stop)
+        final = codec.StageStatusMessage(STAGE, "finished", sent, skipped=dict(skipped))
+    except ZenslamError as exc:
+        final = codec.StageStatusMessage(STAGE, "failed", sent, detail=str(exc), skipped=dict(skipped))
+        raise
     finally:
+        # The final status goes first: whoever sees the end of stream can already have the totals.
+        status_pub.put(codec.encode_stage_status(final))
         end_pub.put(codec.encode_end_of_stream(codec.SENSOR_FRAME, sent))
-        status_pub.put(codec.encode_stage_status(codec.StageStatusMessage(STAGE, "finished", sent)))
         if states is not None:
             states.close()
+    if skipped:
+        logger.warning("skipped %d frame(s): %s", sum(skipped.values()), dict(sorted(skipped.items())))
     logger.info("sent %d frames and the end of stream on %s", sent, key)
     return sent
+
+
+def _skip(frame: SkippedFrame, skipped: Counter[str], strict: bool, source_name: str) -> None:
+    """Count a skipped frame and warn once, or (``strict``) raise its error."""
+    if strict and frame.reason != "drop":
+        raise frame.error
+    skipped[frame.reason] += 1
+    logger.warning(
+        "%s: skipping %s [%s; %d frame(s) skipped so far]", source_name or "source", frame.error, frame.reason, sum(skipped.values())
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -177,8 +210,12 @@ def main(argv: list[str] | None = None) -> int:
             with bus.declare_alive(session, args.session, STAGE):
                 timeout_s = bus_config.start_timeout_s
                 bus.require_alive(session, args.session, args.wait_for, timeout_s, stop.keep_going)
+                injector = FaultInjector(config.faults)
+                for fault in injector.beyond(len(source)):
+                    logger.warning("source.faults %s starts past the last frame (%d); it is never applied", fault.describe(), len(source) - 1)
+                frames = frame_stream(source, injector)
                 play(
-                    session, args.session, source, calibration, source.sensor, config, stop, source.name, rerun,
+                    session, args.session, frames, calibration, source.sensor, config, stop, source.name, rerun,
                     mode=load_mode(args.config), start_timeout_s=timeout_s,
                 )
     except ZenslamError as exc:

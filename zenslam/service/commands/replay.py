@@ -1,7 +1,8 @@
 """``zenslam replay RUN.mcap [--stage all|backend] [--output DIR]``: replay a lockstep recording and compare.
 
 ``--stage all`` runs the whole pipeline again (``zenslam run mcap:RUN.mcap --lockstep`` with the
-``config.yaml`` beside the recording) into a new run folder under DIR and compares its run.mcap
+``config.yaml`` beside the recording, without its ``source.faults``: the recorded frames already
+carry them) into a new run folder under DIR and compares its run.mcap
 with the original; ``--stage backend`` feeds the recorded keyframes to a fresh backend and compares
 its map updates with the recorded ones. Prints "identical" or the first difference; exit 0 when
 identical, 1 when not.
@@ -46,7 +47,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run_arguments(recording: Path, output: Path, run_id: str, progress: bool) -> list[str]:
     """The ``zenslam run`` arguments that replay ``recording``'s sensor frames in lockstep with its config."""
-    argv = ["run", f"mcap:{recording.resolve()}", "--lockstep", "--output", str(output), "--run-id", run_id]
+    argv = ["run", f"mcap:{recording.resolve()}", "--lockstep", "--no-faults", "--output", str(output), "--run-id", run_id]
     config = recording.parent / CONFIG_FILENAME
     if config.is_file():
         argv += ["--config", str(config)]

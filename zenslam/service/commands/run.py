@@ -1,7 +1,8 @@
 """``zenslam run [SOURCE]``: run the source, frontend and backend processes over zenoh and write recordings/<run-id>/.
 
 This process is the run's hub: it opens the session the stages connect to, subscribes to
-frontend/pose, frontend/state, backend/map_update and backend/status like any other consumer would,
+frontend/pose, frontend/state, backend/map_update, backend/status and source/status (the frames the
+source skipped, by reason; a strict source's failure) like any other consumer would,
 starts and supervises the stage processes, and shows progress from the states arriving. After the
 frontend's end of stream it waits, in live mode too, until the backend has processed every
 keyframe (its map-update stream ends), asks it for its final keyframe poses (backend/trajectory),
@@ -88,6 +89,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--rate", type=float, default=None, help="live playback speed, multiple of the recorded rate (0: fastest)")
     parser.add_argument("--max-frames", type=int, default=None, help="stop after this many frames")
+    parser.add_argument(
+        "--strict", action="store_true", default=None,
+        help="fail on the first frame that cannot be read or whose stamp does not increase (source.strict); "
+        "by default such frames are skipped with a warning and counted in metrics.json",
+    )
+    parser.add_argument(
+        "--no-faults", action="store_true",
+        help="ignore source.faults of the config (replays use it: the recorded frames already carry the faults)",
+    )
     parser.add_argument("--run-id", default=None, help="name of the run folder and bus session (default: date-time-pid)")
     parser.add_argument("--bus-config", type=Path, default=None, help="zenoh JSON5 config file (routers, other machines)")
     parser.add_argument(
@@ -121,6 +131,10 @@ def resolve_config(args: argparse.Namespace) -> RunConfig:
         source = dataclasses.replace(source, rate=args.rate)
     if args.max_frames is not None:
         source = dataclasses.replace(source, max_frames=args.max_frames)
+    if args.strict:
+        source = dataclasses.replace(source, strict=True)
+    if args.no_faults:
+        source = dataclasses.replace(source, faults=())
     bus_config = config.bus
     if args.bus_config is not None:
         bus_config = dataclasses.replace(bus_config, zenoh_config_file=str(args.bus_config))
@@ -138,8 +152,8 @@ def _child_env(config: RunConfig) -> dict[str, str]:
 
 
 class _Follower:
-    """Receives frontend/state, frontend/pose, backend/map_update and backend/status into a RunLog,
-    with a progress bar."""
+    """Receives frontend/state, frontend/pose, backend/map_update, backend/status and source/status
+    into a RunLog, with a progress bar."""
 
     def __init__(self, session, run_id: str, config: RunConfig, total: int | None, progress: bool):
         capacity = max(config.bus.lossless_queue, 256)
@@ -151,6 +165,7 @@ class _Follower:
         update_capacity = max(config.frontend.map_update_queue, capacity)
         self.updates = bus.subscribe(session, keys.backend_map_update(run_id), codec.decode_map_update, "lossless", update_capacity)
         self.backend = bus.subscribe(session, keys.status(run_id, "backend"), codec.decode_stage_status, "lossless", capacity)
+        self.source = bus.subscribe(session, keys.status(run_id, "source"), codec.decode_stage_status, "lossless", capacity)
         self.log = RunLog()
         self.bar = tqdm(total=total, unit="frame", desc="tracking", disable=not progress)
 
@@ -159,6 +174,7 @@ class _Follower:
         while (pose := self.poses.get(0)) is not None:
             self.log.add_pose(pose)
         self.poll_backend()
+        self.poll_source()
         state = self.states.get(timeout_s)
         if isinstance(state, codec.EndOfStream):
             self.log.ended = True
@@ -174,6 +190,11 @@ class _Follower:
         while (status := self.backend.get(0)) is not None:
             self.log.add_backend_status(status)
 
+    def poll_source(self) -> None:
+        """Take the source statuses that have arrived (skipped-frame counts, a failure)."""
+        while (status := self.source.get(0)) is not None:
+            self.log.add_source_status(status)
+
     def drain(self, until: float) -> None:
         """Keep taking messages until the poses announced by the states have all arrived, or ``until``."""
         while time.monotonic() < until and (not self.log.ended or self.log.missing_poses() > 0):
@@ -181,7 +202,7 @@ class _Follower:
 
     def close(self) -> None:
         self.bar.close()
-        for inbox in (self.poses, self.states, self.updates, self.backend):
+        for inbox in (self.poses, self.states, self.updates, self.backend, self.source):
             inbox.close()
 
 
@@ -197,9 +218,17 @@ def _follow(follower: _Follower, supervisor: Supervisor, stop: StopFlag) -> bool
             follower.drain(time.monotonic() + 1.0)
             if not follower.log.ended:
                 raise ProcessError(f"the frontend exited before the end of stream:\n{supervisor.log_tail('frontend')}")
+        _check_source(follower.log)
         follower.poll(0.05)
     follower.drain(time.monotonic() + _POSE_GRACE_S)
+    _check_source(follower.log)
     return True
+
+
+def _check_source(log: RunLog) -> None:
+    """Raise ProcessError with the source's own words when it reported a failure (e.g. a bad frame in strict mode)."""
+    if log.source_failure is not None:
+        raise ProcessError(f"the source stopped the run: {log.source_failure}")
 
 
 def _follow_backend(follower: _Follower, supervisor: Supervisor, stop: StopFlag) -> bool:
@@ -269,6 +298,7 @@ def track(
                         logger.warning("the backend did not answer the trajectory query; keyframes.tum has the frontend's poses")
                     supervisor.request_stop(["backend"])  # it lingers to answer queries until told to go
                 statuses = supervisor.wait_exit(_EXIT_WAIT_S if completed else 10.0)
+                follower.poll_source()  # its last status: the final skipped-frame counts
                 supervisor.check()
                 stuck = [name for name, code in statuses.items() if code is None]
                 if stuck:
@@ -285,6 +315,10 @@ def _summary(result: RunResult, log: RunLog) -> list[str]:
         f"frames {counts['frames']}: {counts['tracked_ok']} tracked, {counts['lost_frames']} lost, "
         f"{keyframes['sent']} keyframes ({keyframes['processed']} processed by the backend)",
     ]
+    skipped = log.skipped_frames()
+    if skipped["total"]:
+        reasons = ", ".join(f"{count} {reason}" for reason, count in skipped["reasons"].items())
+        lines.append(f"frames skipped by the source: {skipped['total']} ({reasons})")
     if result.evaluation is not None:
         ate, rpe = result.evaluation.ate, result.evaluation.rpe
         lines.append(f"ATE RMSE {ate.rmse_m:.4f} m ({ate.alignment} alignment, {ate.matched_poses} poses)")

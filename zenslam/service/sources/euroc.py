@@ -40,7 +40,7 @@ from zenslam.service.sources.csv_util import (
     parse_ns,
     read_rows,
 )
-from zenslam.service.sources.frame import ImuSamples, SensorFrame
+from zenslam.service.sources.frame import ImuSamples, SensorFrame, check_frame_index, reading_frame
 from zenslam.service.sources.images import read_grey
 from zenslam.trajectory import Trajectory
 
@@ -259,11 +259,19 @@ class EurocSource:
         return len(self._stamps)
 
     def __iter__(self) -> Iterator[SensorFrame]:
+        for i in range(len(self._stamps)):
+            yield self.frame(i)
+
+    def frame(self, index: int) -> SensorFrame:
+        """Rectified stereo pair ``index``; FrameReadError names the image that cannot be read."""
+        check_frame_index(self.name, index, len(self))
         (l1, l2), (r1, r2) = self._rect.maps_left, self._rect.maps_right
-        for i, stamp in enumerate(self._stamps):
-            left = cv2.remap(read_grey(self._left[i], self._shape), l1, l2, cv2.INTER_LINEAR)
-            right = cv2.remap(read_grey(self._right[i], self._shape), r1, r2, cv2.INTER_LINEAR)
-            yield SensorFrame(index=i, stamp_ns=int(stamp), left=left, right=right)
+        with reading_frame(index):
+            raw_left = read_grey(self._left[index], self._shape)
+            raw_right = read_grey(self._right[index], self._shape)
+        left = cv2.remap(raw_left, l1, l2, cv2.INTER_LINEAR)
+        right = cv2.remap(raw_right, r1, r2, cv2.INTER_LINEAR)
+        return SensorFrame(index=index, stamp_ns=int(self._stamps[index]), left=left, right=right)
 
     def stamps_ns(self) -> np.ndarray:
         """Stamps (N,) int64 ns of the kept stereo pairs (the cam0 stamps)."""

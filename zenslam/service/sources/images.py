@@ -16,11 +16,11 @@ _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 def _read(path: Path) -> np.ndarray:
     """The bytes of the image file at ``path``; ImageReadError when it is missing or unreadable."""
     if not path.is_file():
-        raise ImageReadError(f"image {path} does not exist; check the dataset folder is complete")
+        raise ImageReadError(f"image {path} does not exist; check the dataset folder is complete", str(path), "missing")
     try:
         return np.fromfile(path, dtype=np.uint8)
     except OSError as exc:
-        raise ImageReadError(f"image {path} cannot be read ({exc}); check its permissions") from exc
+        raise ImageReadError(f"image {path} cannot be read ({exc}); check its permissions", str(path), "unreadable") from exc
 
 
 def _decode(path: Path, data: np.ndarray, flags: int) -> np.ndarray:
@@ -29,7 +29,8 @@ def _decode(path: Path, data: np.ndarray, flags: int) -> np.ndarray:
     if image is None:
         raise ImageReadError(
             f"image {path} could not be decoded ({data.size} bytes): the file is corrupt or not an image; "
-            "re-download or replace it"
+            "re-download or replace it",
+            str(path),
         )
     return image
 
@@ -44,7 +45,8 @@ def _check_shape(path: Path, image: np.ndarray, expected_shape: tuple[int, int] 
         h, w = image.shape[:2]
         raise ImageReadError(
             f"image {path} is {w}x{h} pixels but the calibration expects {expected_shape[1]}x{expected_shape[0]}; "
-            "the image or the calibration belongs to another camera"
+            "the image or the calibration belongs to another camera",
+            str(path),
         )
 
 
@@ -71,7 +73,8 @@ def read_depth_u16(path: Path, expected_shape: tuple[int, int] | None = None) ->
         channels = 1 if image.ndim == 2 else image.shape[2]
         raise ImageReadError(
             f"depth image {path} is {image.dtype} with {channels} channel(s); "
-            "a depth image must be a single-channel 16-bit PNG"
+            "a depth image must be a single-channel 16-bit PNG",
+            str(path),
         )
     _check_shape(path, image, expected_shape)
     return image

@@ -17,7 +17,7 @@ import numpy as np
 from zenslam.camera import PinholeCalibration, SensorKind
 from zenslam.errors import CalibrationError, DatasetError
 from zenslam.service.sources.csv_util import check_increasing, parse_floats, parse_seconds_ns, read_rows
-from zenslam.service.sources.frame import ImuSamples, SensorFrame
+from zenslam.service.sources.frame import ImuSamples, SensorFrame, check_frame_index, reading_frame
 from zenslam.service.sources.images import image_size, read_grey
 from zenslam.trajectory import Trajectory
 
@@ -144,13 +144,16 @@ class KittiSource:
         return len(self._stamps)
 
     def __iter__(self) -> Iterator[SensorFrame]:
-        for i, stamp in enumerate(self._stamps):
-            yield SensorFrame(
-                index=i,
-                stamp_ns=int(stamp),
-                left=read_grey(self._left[i], self._shape),
-                right=read_grey(self._right[i], self._shape),
-            )
+        for i in range(len(self._stamps)):
+            yield self.frame(i)
+
+    def frame(self, index: int) -> SensorFrame:
+        """Stereo pair ``index``; FrameReadError names the image that cannot be read."""
+        check_frame_index(self.name, index, len(self))
+        with reading_frame(index):
+            left = read_grey(self._left[index], self._shape)
+            right = read_grey(self._right[index], self._shape)
+        return SensorFrame(index=index, stamp_ns=int(self._stamps[index]), left=left, right=right)
 
     def stamps_ns(self) -> np.ndarray:
         """Frame stamps (N,) int64 ns from times.txt (seconds since the sequence start)."""

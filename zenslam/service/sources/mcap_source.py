@@ -20,7 +20,7 @@ from zenslam.errors import CalibrationError, DatasetError, TimestampError
 from zenslam.schemas import codec, keys
 from zenslam.service import mcap_io
 from zenslam.service.recorded_ground_truth import read_ground_truth, write_ground_truth
-from zenslam.service.sources.frame import ImuSamples, SensorFrame
+from zenslam.service.sources.frame import ImuSamples, SensorFrame, check_frame_index
 from zenslam.trajectory import Trajectory
 
 logger = logging.getLogger(__name__)
@@ -65,6 +65,8 @@ class McapSource:
         self._calibration = first.calibration
         self._sensor: SensorKind = first.sensor
         self._name = first.source_name or self.path.stem
+        self._cursor: Iterator[codec.FrameMessage] | None = None  # frame(): the recorded frames from _cursor_next on
+        self._cursor_next = 0
         logger.info("%s: %d %s frames of %r", self.path, len(stamps), self._sensor, self._name)
 
     def _decoded(self) -> Iterator[codec.FrameMessage]:
@@ -93,6 +95,18 @@ class McapSource:
     def __iter__(self) -> Iterator[SensorFrame]:
         for decoded in self._decoded():
             yield decoded.frame
+
+    def frame(self, index: int) -> SensorFrame:
+        """The ``index``-th recorded frame (its ``index`` field is the one recorded). Reads on from the
+        last frame asked for; asking for an earlier one reads the file again from its start."""
+        check_frame_index(self.name, index, len(self))
+        if self._cursor is None or index < self._cursor_next:
+            self._cursor, self._cursor_next = self._decoded(), 0
+        for decoded in self._cursor:
+            self._cursor_next += 1
+            if self._cursor_next == index + 1:
+                return decoded.frame
+        raise DatasetError(f"{self.path} ended before frame {index} of {len(self)}; was it changed while being read?")
 
     def stamps_ns(self) -> np.ndarray:
         """All frame stamps (N,) int64, in recorded order."""

@@ -39,7 +39,7 @@ from zenslam.service.sources.csv_util import (
     parse_seconds_ns,
     read_rows,
 )
-from zenslam.service.sources.frame import ImuSamples, SensorFrame
+from zenslam.service.sources.frame import ImuSamples, SensorFrame, check_frame_index, reading_frame
 from zenslam.service.sources.images import read_depth_u16, read_grey, write_png
 from zenslam.trajectory import Trajectory
 
@@ -196,15 +196,21 @@ class TumSource:
         return len(self._stamps)
 
     def __iter__(self) -> Iterator[SensorFrame]:
-        for i, stamp in enumerate(self._stamps):
-            grey = read_grey(self._rgb[i], self._shape)
-            depth = read_depth_u16(self._depth[i], self._shape)
-            if self._maps is not None:
-                grey = cv2.remap(grey, self._maps[0], self._maps[1], cv2.INTER_LINEAR)
-                # Nearest neighbour: blending depths across an object edge would invent surfaces.
-                depth = cv2.remap(depth, self._maps[0], self._maps[1], cv2.INTER_NEAREST)
-            depth_m = depth.astype(np.float32) / np.float32(self._config.depth_scale)
-            yield SensorFrame(index=i, stamp_ns=int(stamp), left=grey, depth_m=depth_m)
+        for i in range(len(self._stamps)):
+            yield self.frame(i)
+
+    def frame(self, index: int) -> SensorFrame:
+        """Colour (as grey) and depth of frame ``index``; FrameReadError names the image that cannot be read."""
+        check_frame_index(self.name, index, len(self))
+        with reading_frame(index):
+            grey = read_grey(self._rgb[index], self._shape)
+            depth = read_depth_u16(self._depth[index], self._shape)
+        if self._maps is not None:
+            grey = cv2.remap(grey, self._maps[0], self._maps[1], cv2.INTER_LINEAR)
+            # Nearest neighbour: blending depths across an object edge would invent surfaces.
+            depth = cv2.remap(depth, self._maps[0], self._maps[1], cv2.INTER_NEAREST)
+        depth_m = depth.astype(np.float32) / np.float32(self._config.depth_scale)
+        return SensorFrame(index=index, stamp_ns=int(self._stamps[index]), left=grey, depth_m=depth_m)
 
     def stamps_ns(self) -> np.ndarray:
         """Colour-image stamps (N,) int64 ns of the associated frames."""
