@@ -32,6 +32,7 @@ from zenslam.backend.map import BackendMap
 from zenslam.errors import ZenslamError
 from zenslam.runtime import bus
 from zenslam.runtime.stage import (
+    STOPPED,
     StopFlag,
     add_process_arguments,
     bus_config_with,
@@ -172,10 +173,10 @@ def serve(
                 _linger(queryables, node, config.linger_s, should_stop)
     finally:
         if not ended:
-            left = inbox.depth
+            left = inbox.count_waiting(_is_keyframe)
             if left:
                 logger.warning("stopped with at least %d keyframe(s) not processed (%d processed)", left, node.processed)
-            _end_stream(outputs, node)
+            _end_stream(outputs, node, STOPPED)
         inbox.close()
         queryables.close()
     return ended
@@ -217,10 +218,10 @@ def _is_keyframe(message: codec.KeyframeMessage | codec.EndOfStream) -> bool:
     return not isinstance(message, codec.EndOfStream)
 
 
-def _end_stream(outputs: _Outputs, node: BackendNode) -> None:
+def _end_stream(outputs: _Outputs, node: BackendNode, detail: str = "") -> None:
     node.finished = True
     outputs.update.put(codec.encode_end_of_stream(codec.MAP_UPDATE, node.processed))
-    outputs.send_status(codec.StageStatusMessage(STAGE, "finished", node.processed))
+    outputs.send_status(codec.StageStatusMessage(STAGE, "finished", node.processed, detail=detail))
 
 
 def _linger(queryables: _Queryables, node: BackendNode, linger_s: float, should_stop: Callable[[], bool]) -> None:

@@ -33,6 +33,7 @@ from zenslam.errors import CalibrationError, ZenslamError
 from zenslam.frontend.config import FrontendConfig
 from zenslam.runtime import bus
 from zenslam.runtime.stage import (
+    STOPPED,
     RunMode,
     StopFlag,
     add_process_arguments,
@@ -265,14 +266,13 @@ class _MapUpdates:
             self._apply(node, update)
 
     def wait_for(self, node: FrontendNode, keyframe_id: int, should_stop: Callable[[], bool]) -> None:
-        """Lockstep: apply updates until the one for ``keyframe_id`` has been applied."""
+        """Lockstep: apply updates until the one for ``keyframe_id`` has been applied, the backend has
+        ended its stream (``ended``: it was stopped) or ``should_stop()``."""
         deadline = time.monotonic() + self.timeout_s
-        while not should_stop():
+        while not should_stop() and not self.ended:
             update = self.inbox.get(timeout_s=0.1)
             if update is not None and self._apply(node, update) >= keyframe_id:
                 return
-            if self.ended:
-                raise bus.BusError(f"the backend ended its stream while the frontend waited for its update of keyframe {keyframe_id}")
             if update is None and time.monotonic() > deadline:
                 raise bus.BusError(
                     f"lockstep: no map update for keyframe {keyframe_id} from the backend within {self.timeout_s:.0f} s "
@@ -323,6 +323,11 @@ def serve(
                 held = None
                 if updates is not None and not wait_for_updates:
                     updates.apply_pending(node)
+                if updates is not None and updates.ended:
+                    # The backend ends its stream before ours only when it was stopped: no more map
+                    # updates will come (lockstep would wait for one forever), so the run ends here.
+                    logger.warning("the backend ended its stream: ending ours after %d frames", node.frames)
+                    break
                 if message is None:
                     continue
                 if isinstance(message, codec.EndOfStream):
@@ -347,7 +352,9 @@ def serve(
     finally:
         node.close()
         outputs.end_streams(node.frames, node.keyframes)
-        outputs.send_status(codec.StageStatusMessage(STAGE, "finished", node.frames, dropped=node.skipped))
+        outputs.send_status(
+            codec.StageStatusMessage(STAGE, "finished", node.frames, dropped=node.skipped, detail="" if ended else STOPPED)
+        )
         frames.close()
         if updates is not None:
             updates.inbox.close()

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from zenslam.errors import ConfigError, TrajectoryError
+from zenslam.runtime.stop import STOPPED
 from zenslam.schemas import codec, keys
 from zenslam.service.evaluation.metrics import Evaluation, EvaluationConfig, evaluate
 from zenslam.service.evaluation.plot import save_evaluation_plot
@@ -40,6 +41,7 @@ TRAJECTORY_FILENAME = "trajectory.tum"
 FINAL_TRAJECTORY_FILENAME = "trajectory_final.tum"
 KEYFRAMES_FILENAME = "keyframes.tum"
 PLOT_FILENAME = "trajectory_top.png"
+_NO_POSE = Trajectory(np.zeros(0, dtype=np.int64), np.zeros((0, 4, 4)))
 
 
 def new_run_id() -> str:
@@ -91,6 +93,7 @@ class RunLog:
         self.backend_timings: dict[int, dict[str, float]] = {}  # keyframes processed -> ms per step of that one
         self.backend_keyframes: codec.KeyframeTrajectoryMessage | None = None  # the backend's final keyframe poses
         self.backend_queue_max = 0  # most keyframes the backend reported waiting in its inbox after a step
+        self.stopped_stages: list[str] = []  # stages whose last status says they stopped before their input's end
 
     def add_map_update(self, update: object) -> None:
         """Count a backend/map_update message (a MapUpdate, or the stream's end)."""
@@ -101,6 +104,13 @@ class RunLog:
                 self.updated_keyframes.append(int(update.keyframe_id))
             for correction in update.keyframes:
                 self.corrected_poses[int(correction.id)] = np.asarray(correction.T_world_cam, dtype=float)
+
+    def add_status(self, status: codec.StageStatusMessage) -> None:
+        """Note a stage that ended before its input did; keep the backend's per-keyframe timings."""
+        if status.state == "finished" and status.detail == STOPPED and status.stage not in self.stopped_stages:
+            self.stopped_stages.append(status.stage)
+        if status.stage == "backend":
+            self.add_backend_status(status)
 
     def add_backend_status(self, status: codec.StageStatusMessage) -> None:
         """Keep the per-step timings of each keyframe the backend reports."""
@@ -221,10 +231,8 @@ def write_outputs(
     keyframes = log.keyframe_trajectory()
     outputs = ((TRAJECTORY_FILENAME, estimate), (FINAL_TRAJECTORY_FILENAME, final), (KEYFRAMES_FILENAME, keyframes))
     for name, trajectory in outputs:
-        if trajectory is not None:
-            files.append(write_tum(run_dir / name, trajectory))
-        else:
-            logger.warning("no pose to write to %s", run_dir / name)
+        # Every file is written, without a pose when there is none (a run stopped before its first frame).
+        files.append(write_tum(run_dir / name, _NO_POSE if trajectory is None else trajectory))
     evaluation, error = None, None
     final_ate = None
     if ground_truth is not None and estimate is not None:

@@ -23,6 +23,7 @@ from zenslam.camera import PinholeCalibration, SensorKind
 from zenslam.errors import ZenslamError
 from zenslam.runtime import bus
 from zenslam.runtime.stage import (
+    STOPPED,
     RunMode,
     StopFlag,
     add_process_arguments,
@@ -66,20 +67,23 @@ class _Pacer:
             time.sleep(min(remaining, 0.05))
 
 
-def _wait_for_answer(states: bus.Inbox, index: int, timeout_s: float, should_stop: Callable[[], bool]) -> None:
-    """Lockstep: wait for the frontend's state of frame ``index``."""
+def _wait_for_answer(states: bus.Inbox, index: int, timeout_s: float, should_stop: Callable[[], bool]) -> bool:
+    """Lockstep: wait for the frontend's state of frame ``index``; False when the frontend ended its
+    stream first (it was stopped: no more answers will come) or ``should_stop()`` turned true."""
     deadline = time.monotonic() + timeout_s
     while not should_stop():
         state = states.get(timeout_s=0.1)
         if isinstance(state, codec.TrackingStateMessage) and state.index == index:
-            return
+            return True
         if isinstance(state, codec.EndOfStream):
-            raise bus.BusError(f"the frontend ended its stream while the source waited for frame {index}")
+            logger.info("the frontend ended its stream before answering frame %d: stopping", index)
+            return False
         if time.monotonic() > deadline:
             raise bus.BusError(
                 f"lockstep: the frontend did not report frame {index} within {timeout_s:.0f} s "
                 "(source.answer_timeout_s); check the frontend's log"
             )
+    return False
 
 
 def play(
@@ -121,9 +125,10 @@ def play(
     log_cpu_times("at stream start")
     sent = 0
     in_flight: deque[int] = deque()  # lockstep: indices of the frames sent and not answered, oldest first
+    answered = True  # False once the frontend stops answering (it ended its stream) or we are stopped
     try:
         for frame in frames:
-            if should_stop() or (config.max_frames is not None and sent >= config.max_frames):
+            if not answered or should_stop() or (config.max_frames is not None and sent >= config.max_frames):
                 break
             pacer.wait_for(frame.stamp_ns)
             started = time.perf_counter()
@@ -133,15 +138,17 @@ def play(
             if rerun is not None:
                 rerun.log_frame(frame)  # while the frontend tracks it
             # States come lossless and in frame order: the oldest frame in flight is answered first.
-            while states is not None and len(in_flight) >= config.frames_in_flight:
-                _wait_for_answer(states, in_flight.popleft(), config.answer_timeout_s, should_stop)
+            while answered and states is not None and len(in_flight) >= config.frames_in_flight:
+                answered = _wait_for_answer(states, in_flight.popleft(), config.answer_timeout_s, should_stop)
             status = codec.StageStatusMessage(STAGE, "running", sent, (time.perf_counter() - started) * 1e3)
             status_pub.put(codec.encode_stage_status(status))
-        while states is not None and in_flight and not should_stop():
-            _wait_for_answer(states, in_flight.popleft(), config.answer_timeout_s, should_stop)
+        # Stopped, the frames in flight are left to the frontend: it tracks them before our end of stream.
+        while answered and states is not None and in_flight:
+            answered = _wait_for_answer(states, in_flight.popleft(), config.answer_timeout_s, should_stop)
     finally:
         end_pub.put(codec.encode_end_of_stream(codec.SENSOR_FRAME, sent))
-        status_pub.put(codec.encode_stage_status(codec.StageStatusMessage(STAGE, "finished", sent)))
+        detail = STOPPED if not answered or should_stop() else ""
+        status_pub.put(codec.encode_stage_status(codec.StageStatusMessage(STAGE, "finished", sent, detail=detail)))
         if states is not None:
             states.close()
     logger.info("sent %d frames and the end of stream on %s", sent, key)
