@@ -89,6 +89,7 @@ class RunLog:
         self.ended = False  # the frontend's end of stream arrived
         self.updated_keyframes: list[int] = []  # keyframe id of every backend map update received, in order
         self.corrected_poses: dict[int, np.ndarray] = {}  # keyframe id -> its newest T_world_cam from a map update
+        self.removed_keyframes: set[int] = set()  # keyframe ids a map update removed (culled)
         self.backend_ended = False  # the backend's end of stream arrived
         self.backend_timings: dict[int, dict[str, float]] = {}  # keyframes processed -> ms per step of that one
         self.backend_keyframes: codec.KeyframeTrajectoryMessage | None = None  # the backend's final keyframe poses
@@ -104,6 +105,7 @@ class RunLog:
                 self.updated_keyframes.append(int(update.keyframe_id))
             for correction in update.keyframes:
                 self.corrected_poses[int(correction.id)] = np.asarray(correction.T_world_cam, dtype=float)
+            self.removed_keyframes.update(np.asarray(update.removed_keyframe_ids).tolist())
 
     def add_status(self, status: codec.StageStatusMessage) -> None:
         """Note a stage that ended before its input did; keep the backend's per-keyframe timings."""
@@ -173,15 +175,23 @@ class RunLog:
         return Trajectory(live.stamps_ns, np.stack(poses))
 
     def keyframe_trajectory(self) -> Trajectory | None:
-        """The backend's final keyframe poses when it answered; else T_world_cam of the frames that made
-        a keyframe, as tracked when they were made."""
+        """The backend's final keyframe poses when it answered; else the keyframes the frontend made,
+        less those a map update removed, each at its newest pose from a map update (as tracked when
+        no update moved it): the map as far as the backend's updates told."""
         backend = self.backend_keyframes
         if backend is not None:
             if len(backend.stamps_ns) == 0:
                 return None
             order = np.argsort(backend.stamps_ns, kind="stable")
             return Trajectory(np.asarray(backend.stamps_ns, dtype=np.int64)[order], np.asarray(backend.T_world_cam)[order])
-        return self._trajectory(lambda s: s.keyframe_id >= 0)
+        made = sorted(
+            (s.stamp_ns, s.keyframe_id) for s in self.states.values()
+            if s.keyframe_id >= 0 and s.keyframe_id not in self.removed_keyframes and s.stamp_ns in self.poses
+        )
+        if not made:
+            return None
+        poses = [self.corrected_poses.get(kf, self.poses[stamp]) for stamp, kf in made]
+        return Trajectory(np.array([stamp for stamp, _ in made], dtype=np.int64), np.stack(poses))
 
     def timing(self) -> dict[str, dict[str, float]]:
         """Per tracking step: mean, median and max milliseconds over the frames that ran it."""

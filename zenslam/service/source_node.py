@@ -43,6 +43,7 @@ if TYPE_CHECKING:
 logger = logging.getLogger(__name__)
 
 STAGE = "source"
+_STOPPED_SUBSCRIBER_WAIT_S = 5.0  # stopped at start-up: seconds to wait for the frontend's subscription
 
 
 class _Pacer:
@@ -121,6 +122,9 @@ def play(
     if not bus.wait_for_subscribers(frame_pub, start_timeout_s, keep_waiting=lambda: not should_stop()):
         if not should_stop():
             raise bus.BusError(f"no subscriber to {key} within {start_timeout_s:.0f} s; is the frontend running?")
+        # Stopped before the frontend's subscription reached this new session: the end of stream
+        # must still reach the frontend, or it would wait for frames that never come.
+        bus.wait_for_subscribers(frame_pub, min(start_timeout_s, _STOPPED_SUBSCRIBER_WAIT_S))
     pacer = _Pacer(0.0 if lockstep else config.rate, should_stop)
     log_cpu_times("at stream start")
     sent = 0

@@ -10,8 +10,7 @@ every keyframe (its map-update stream ends), asks it for its final keyframe pose
 Interrupted (Ctrl-C reaches only this process: the stages run in process groups of their own), it
 stops the stages in the order the data flows, so nothing already sent is lost: the source first
 (it ends its stream), the frontend tracks the frames in flight and ends its own, then the backend
-is asked for its keyframe poses and told to stop after the keyframe in hand; the recorder ends
-once they are gone. The outputs are written as for a finished run, with ``run.completed: false``.
+ends its stream after the keyframe in hand; the recorder ends once they are gone. The outputs are written as for a finished run, with ``run.completed: false``.
 """
 
 from __future__ import annotations
@@ -50,6 +49,7 @@ logger = logging.getLogger(__name__)
 
 _POSE_GRACE_S = 5.0  # seconds to wait, after the end of stream, for poses still in flight
 _STOP_GRACE_S = 30.0  # seconds a stage told to stop gets to end its stream before the next step of stopping
+_CAUGHT_UP_WAIT_S = 5.0  # interrupted: seconds to wait for a backend with no keyframe left to end its stream
 _EXIT_WAIT_S = 30.0  # seconds the stages get to exit by themselves after the end of stream
 _QUERY_TIMEOUT_S = 10.0  # seconds to wait for the backend's answer to the final trajectory query
 
@@ -227,11 +227,19 @@ def _follow(follower: _Follower, supervisor: Supervisor, stop: StopFlag) -> None
 
 
 def _follow_backend(follower: _Follower, supervisor: Supervisor, stop: StopFlag) -> None:
-    """Wait until the backend has processed every keyframe (its map-update stream ended), or an interrupt."""
+    """Wait until the backend has processed every keyframe (its map-update stream ended). Interrupted,
+    wait only while it has caught up with the keyframes sent (its end of stream is on its way),
+    for at most ``_CAUGHT_UP_WAIT_S`` seconds."""
     counts = follower.log.keyframe_counts()
     if not follower.log.backend_ended and not stop():
         logger.info("waiting for the backend: %d of %d keyframes processed", counts["processed"], counts["sent"])
-    while not follower.log.backend_ended and not stop():
+    stopped_at = None
+    while not follower.log.backend_ended:
+        if stop():
+            stopped_at = time.monotonic() if stopped_at is None else stopped_at
+            counts = follower.log.keyframe_counts()
+            if counts["processed"] < counts["sent"] or time.monotonic() - stopped_at > _CAUGHT_UP_WAIT_S:
+                return
         _check(supervisor, stop)
         if supervisor.returncode("backend") is not None:
             follower.poll_backend()
@@ -244,16 +252,18 @@ def _follow_backend(follower: _Follower, supervisor: Supervisor, stop: StopFlag)
 
 
 def _stop_backend(follower: _Follower, supervisor: Supervisor, session, run_id: str) -> None:
-    """Ask the backend for its keyframe poses (it answers between two keyframes), then tell it to go:
-    after its end of stream it lingers to answer queries; stopped before, it ends its stream after
-    the keyframe in hand. Takes its last updates and statuses."""
-    if supervisor.returncode("backend") is None:
-        follower.log.backend_keyframes = query_trajectory(session, run_id, _QUERY_TIMEOUT_S)
-        if follower.log.backend_keyframes is None:
-            logger.warning("the backend did not answer the trajectory query; keyframes.tum has the frontend's poses")
+    """Ask a backend that ended its stream for its keyframe poses (it lingers to answer queries), then
+    tell it to go; one still mapping (interrupted) ends its stream after the keyframe in hand, and
+    keyframes.tum then has the frontend's keyframes with the backend's updates applied. Takes its
+    last updates and statuses."""
+    log = follower.log
+    if log.backend_ended and "backend" not in log.stopped_stages and supervisor.returncode("backend") is None:
+        log.backend_keyframes = query_trajectory(session, run_id, _QUERY_TIMEOUT_S)
+        if log.backend_keyframes is None:
+            logger.warning("the backend did not answer the trajectory query; keyframes.tum has the frontend's keyframes")
     supervisor.request_stop(["backend"])
     deadline = time.monotonic() + _STOP_GRACE_S
-    while not follower.log.backend_ended and supervisor.returncode("backend") is None and time.monotonic() < deadline:
+    while not log.backend_ended and supervisor.returncode("backend") is None and time.monotonic() < deadline:
         follower.poll_backend()
         time.sleep(0.02)
     follower.poll_backend()
@@ -326,11 +336,11 @@ def _summary(result: RunResult, log: RunLog) -> list[str]:
     return lines
 
 
-def _interrupted_line(log: RunLog, total: int, run_dir: Path) -> str:
-    """The one line an interrupted run ends with."""
+def _interrupted_line(log: RunLog, total: int, run_dir: Path, here: bool) -> str:
+    """The one line an interrupted run ends with; ``here``: this process got the signal (else a stage did)."""
     frames = log.frame_counts()["frames"]
     trajectory = log.trajectory()
-    by = f" (the {' and the '.join(log.stopped_stages)} stopped)" if log.stopped_stages else ""
+    by = "" if here else f" (the {' and the '.join(log.stopped_stages)} stopped by a signal of its own)"
     return (
         f"interrupted at frame {frames} of {total}{by}: wrote the {0 if trajectory is None else len(trajectory)} tracked "
         f"poses to {run_dir} (metrics.json run.completed: false)"
@@ -344,7 +354,17 @@ def run(args: argparse.Namespace) -> int:
     every output, marks metrics.json ``run.completed: false``, ends with one line saying so, and
     returns 130.
     """
-    stop = getattr(args, "stop", None)
+    if getattr(args, "stop", None) is not None:
+        return _run(args, args.stop)
+    stop = StopFlag(quiet=True).install()  # called other than through the CLI
+    try:
+        return _run(args, stop)
+    finally:
+        stop.uninstall()
+
+
+def _run(args: argparse.Namespace, stop: StopFlag) -> int:
+    """``run`` with the installed stop flag ``stop``."""
     config = resolve_config(args)
     source = open_source(config.source.spec)
     run_id = args.run_id or new_run_id()
@@ -365,5 +385,5 @@ def run(args: argparse.Namespace) -> int:
         print(line)
     if completed:
         return 0
-    logger.warning("%s", _interrupted_line(log, total, run_dir))
+    logger.warning("%s", _interrupted_line(log, total, run_dir, here=stop()))
     return EXIT_INTERRUPTED
