@@ -139,13 +139,16 @@ def _check_what_was_left(run: _Run, code: int) -> dict:
     assert metrics["run"]["completed"] is False
     recording = run.run_dir / "run.mcap"
     assert mcap_io.has_summary(recording), "run.mcap was not finished (no summary)"
+    states = [decoded for _, decoded in mcap_io.iter_decoded(recording, ["/frontend/state"])]
     published = sum(1 for _ in mcap_io.iter_messages(recording, ["/frontend/pose"]))
-    # Every pose the frontend published is in trajectory.tum (the synthetic and KITTI clips track every frame ok).
-    assert _pose_lines(run.run_dir / "trajectory.tum") == metrics["tracked_ok"] == published
+    assert published == sum(1 for s in states if not isinstance(s, codec.EndOfStream) and s.has_pose)
+    # Every pose the frontend published for a frame tracked ok is in trajectory.tum.
+    tracked_ok = sum(1 for s in states if not isinstance(s, codec.EndOfStream) and s.has_pose and s.state == "ok")
+    assert _pose_lines(run.run_dir / "trajectory.tum") == metrics["tracked_ok"] == tracked_ok
+    assert metrics["frames"] == len(states) - (1 if states and isinstance(states[-1], codec.EndOfStream) else 0)
     assert (run.run_dir / "keyframes.tum").is_file()
     if metrics["frames"]:
         assert _pose_lines(run.run_dir / "keyframes.tum") >= 1
-        states = [decoded for _, decoded in mcap_io.iter_decoded(recording, ["/frontend/state"])]
         assert isinstance(states[-1], codec.EndOfStream), "the frontend's end of stream is not in run.mcap"
     return metrics
 

@@ -42,6 +42,7 @@ from zenslam.runtime.stage import (
     load_section,
     log_cpu_times,
     setup_process_logging,
+    stopped_before_joining,
 )
 from zenslam.schemas import codec, keys
 from zenslam.schemas.map_update import MapUpdate
@@ -386,6 +387,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     setup_process_logging(args.verbose, STAGE)
     stop = StopFlag(args.parent_pid).install()
+    if stopped_before_joining(stop):  # a stop held while the modules above were imported
+        return 0
     try:
         from zenslam.runtime import rerun_log
 
@@ -397,6 +400,8 @@ def main(argv: list[str] | None = None) -> int:
         # OpenCV's pool slowed small calls 3x here; the extractor runs left/right on its own threads.
         cv2.setNumThreads(1)
         node = FrontendNode(default_pipeline_factory(config))
+        if stopped_before_joining(stop):
+            return 0
 
         with (
             rerun_log.open_stage_recording(STAGE, args.session, args.config, rerun_config) as recording,

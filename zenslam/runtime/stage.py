@@ -74,6 +74,15 @@ def bus_config_with(config: bus.BusConfig, connect: list[str]) -> bus.BusConfig:
     return dataclasses.replace(config, connect=tuple(config.connect) + tuple(connect))
 
 
+def stopped_before_joining(stop: StopFlag) -> bool:
+    """True, and logged, when ``stop`` is set before the stage joined the bus: nobody has seen it nor
+    waits for its streams yet, so it may exit at once instead of finishing its start-up."""
+    if stop():
+        logger.info("stopped before joining the bus")
+        return True
+    return False
+
+
 def setup_process_logging(verbose: bool, stage: str) -> None:
     """Logging for a stage process's entry point (the only place besides the CLI that configures it)."""
     logging.basicConfig(

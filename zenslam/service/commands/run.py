@@ -207,15 +207,18 @@ def _follow(follower: _Follower, supervisor: Supervisor, stop: StopFlag) -> None
     stopped (it finishes the frame in hand) when it has not ended ``_STOP_GRACE_S`` seconds later,
     or at a second Ctrl-C.
     """
-    stopping_since, frontend_told = None, False
+    source_told = frontend_told = None  # when each was told to stop
     while not follower.log.ended:
-        if stop() and stopping_since is None:
+        now = time.monotonic()
+        if stop() and source_told is None:
             supervisor.request_stop(["source"])
-            stopping_since = time.monotonic()
-        if stopping_since is not None and not frontend_told:
-            if stop.signals > 1 or time.monotonic() - stopping_since > _STOP_GRACE_S:
-                supervisor.request_stop(["frontend"])
-                frontend_told = True
+            source_told = now
+        if source_told is not None and frontend_told is None and (stop.signals > 1 or now - source_told > _STOP_GRACE_S):
+            supervisor.request_stop(["frontend"])
+            frontend_told = now
+        if frontend_told is not None and now - frontend_told > _STOP_GRACE_S:
+            logger.warning("the frontend did not end its stream within %.0f s of being told to stop", _STOP_GRACE_S)
+            break
         _check(supervisor, stop)
         if supervisor.returncode("frontend") is not None:
             follower.drain(time.monotonic() + 1.0)
