@@ -5,9 +5,9 @@ output in ``<run>/logs/<stage>.log``. A terminal's Ctrl-C signals the foreground
 ``kill -INT -<pgid>`` the group named: either way only the supervisor's own group, never a stage,
 so the supervisor decides the order in which the stages stop. A stage starts with SIGINT and
 SIGTERM blocked (the mask survives exec) until its ``StopFlag`` is installed, so a stop requested
-while it still imports is held, not raised in the middle of an import. Each child gets the shared session name, the run's resolved
-config file, the hub endpoint to connect to and the supervisor's pid: a child whose parent is gone
-stops by itself, so no process outlives its run.
+while it still imports is held, not raised in the middle of an import. Each child gets the shared
+session name, the run's resolved config file, the hub endpoint to connect to and the
+supervisor's pid: a child whose parent is gone stops by itself, so no process outlives its run.
 """
 
 from __future__ import annotations

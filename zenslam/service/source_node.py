@@ -146,7 +146,7 @@ def play(
                 answered = _wait_for_answer(states, in_flight.popleft(), config.answer_timeout_s, should_stop)
             status = codec.StageStatusMessage(STAGE, "running", sent, (time.perf_counter() - started) * 1e3)
             status_pub.put(codec.encode_stage_status(status))
-        # Stopped, the frames in flight are left to the frontend: it tracks them before our end of stream.
+        # The last answers. Stopped, we leave the frames in flight to the frontend: it tracks them before our end of stream.
         while answered and states is not None and in_flight:
             answered = _wait_for_answer(states, in_flight.popleft(), config.answer_timeout_s, should_stop)
     finally:
