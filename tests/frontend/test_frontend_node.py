@@ -181,3 +181,47 @@ def test_lockstep_source_and_frontend_over_the_bus():
         assert message == codec.EndOfStream(len(got_keyframes))
         for inbox in (states, poses, keyframes):
             inbox.close()
+
+
+class _MappedStub(StubPipeline):
+    def apply_map_update(self, update) -> None:
+        pass
+
+
+def test_a_backend_that_ends_its_stream_ends_the_lockstep_frontends_without_error():
+    """The backend was stopped while the frontend waited for its update of keyframe 1: the frontend
+    ends its own streams (the source then stops), and its last status says it stopped early."""
+    from zenslam.frontend.config import FrontendConfig
+    from zenslam.schemas.map_update import MapUpdate
+
+    session_name = "backend-stopped"
+    with bus.open_session(bus.BusConfig()) as session:
+        frames = bus.declare_publisher(session, keys.sensor_frame(session_name), codec.SENSOR_FRAME, "lossless")
+        updates = bus.declare_publisher(session, keys.backend_map_update(session_name), codec.MAP_UPDATE, "lossless")
+        keyframes = bus.subscribe(session, keys.frontend_keyframe(session_name), codec.decode_keyframe, "lossless", 64)
+        states = bus.subscribe(session, keys.frontend_state(session_name), codec.decode_tracking_state, "lossless", 64)
+        statuses = bus.subscribe(session, keys.status(session_name, "frontend"), codec.decode_stage_status, "lossless", 64)
+        result = {}
+        node = FrontendNode(_MappedStub)
+        config = FrontendConfig(update_timeout_s=30.0)
+        frontend = threading.Thread(target=lambda: result.setdefault(
+            "ended", serve(session, session_name, node, "lockstep", bus.BusConfig(), lambda: False, map_updates=config)))
+        frontend.start()
+        assert bus.wait_for_alive(session, session_name, ["frontend"], timeout_s=10.0) == set()
+        for frame in _frames(6):
+            frames.put(codec.encode_sensor_frame(frame, CAL, "stereo"))
+        assert keyframes.get(timeout_s=10.0).id == 0  # frame 0: answered
+        updates.put(codec.encode_map_update(MapUpdate(keyframe_id=0, stamp_ns=0)))
+        assert keyframes.get(timeout_s=10.0).id == 1  # frame 2: the backend stops instead of answering
+        updates.put(codec.encode_end_of_stream(codec.MAP_UPDATE, 1))
+        frontend.join(timeout=10.0)
+        assert not frontend.is_alive() and result["ended"] is False
+        received = []
+        while not isinstance(state := states.get(timeout_s=5.0), codec.EndOfStream):
+            assert state is not None, "the frontend did not end its stream"
+            received.append(state.index)
+        assert received == [0, 1, 2] and state == codec.EndOfStream(3)
+        last = [s for s in iter(lambda: statuses.get(timeout_s=1.0), None)][-1]
+        assert last.state == "finished" and last.detail == "stopped"
+        for inbox in (keyframes, states, statuses):
+            inbox.close()

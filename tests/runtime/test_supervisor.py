@@ -54,6 +54,21 @@ while True:
     time.sleep(0.05)
 """
 
+# Told to stop while it is still "importing" (before its StopFlag is installed): the stop waits.
+SLOW_START_CHILD = """
+import argparse, time
+from pathlib import Path
+from zenslam.runtime.stage import StopFlag, add_process_arguments
+parser = argparse.ArgumentParser()
+add_process_arguments(parser)
+parser.add_argument("--dir", type=Path, required=True)
+args = parser.parse_args()
+(args.dir / "importing").write_text("yes")
+while not (args.dir / "go").exists():
+    time.sleep(0.01)
+stop = StopFlag(args.parent_pid).install()
+(args.dir / "marker").write_text("stopped" if stop() else "not stopped")
+"""
 
 ENV_CHILD = """
 import os
@@ -66,7 +81,8 @@ def modules(tmp_path: Path) -> dict[str, str]:
     """Child modules importable by ``python -m`` through PYTHONPATH."""
     pkg = tmp_path / "children"
     pkg.mkdir()
-    for name, text in {"stage_child": STAGE_CHILD, "crashing_child": CRASHING_CHILD, "stubborn_child": STUBBORN_CHILD, "env_child": ENV_CHILD}.items():
+    for name, text in {"stage_child": STAGE_CHILD, "crashing_child": CRASHING_CHILD, "stubborn_child": STUBBORN_CHILD, "env_child": ENV_CHILD,
+                       "slow_start_child": SLOW_START_CHILD}.items():
         (pkg / f"{name}.py").write_text(textwrap.dedent(text))
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([str(pkg), env.get("PYTHONPATH", "")])
@@ -99,6 +115,21 @@ def test_stage_comes_up_on_the_bus_and_stops_cleanly_on_sigint(tmp_path, modules
             assert supervisor.returncode("dummy") == 0
         assert marker.read_text() == "stopped cleanly"
         assert bus.alive_processes(session, "sup-test") == set()
+
+
+def test_a_stop_sent_while_a_stage_imports_waits_for_its_stop_flag(tmp_path, modules):
+    """Stages start with SIGINT blocked: no KeyboardInterrupt in an import, the flag is set once installed."""
+    with _supervisor(tmp_path, modules) as supervisor:
+        supervisor.start(ProcessSpec("slow", "slow_start_child", ("--dir", str(tmp_path))))
+        deadline = time.monotonic() + 30.0
+        while not (tmp_path / "importing").exists():
+            assert time.monotonic() < deadline and supervisor.returncode("slow") is None, supervisor.log_tail("slow")
+            time.sleep(0.01)
+        supervisor.request_stop(["slow"])
+        (tmp_path / "go").write_text("")
+        assert supervisor.wait_exit(timeout_s=30.0) == {"slow": 0}, supervisor.log_tail("slow")
+    assert (tmp_path / "marker").read_text() == "stopped"
+    assert "Traceback" not in (tmp_path / "run" / "logs" / "slow.log").read_text()
 
 
 def test_a_crash_is_reported_with_the_tail_of_its_output(tmp_path, modules):

@@ -9,7 +9,7 @@ import sys
 _DEMO = """
 import logging, sys
 from tqdm import tqdm
-from zenslam.service import cli
+from zenslam.service import cli, commands
 
 def register(subparsers):
     subparsers.add_parser("demo").set_defaults(handler=handler)
@@ -22,7 +22,7 @@ def handler(args):
     bar.close()
     return 0
 
-cli.register_all = register
+commands.register_all = register  # build_parser imports it when called
 sys.exit(cli.main(["demo"]))
 """
 

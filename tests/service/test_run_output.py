@@ -79,6 +79,39 @@ def test_final_trajectory_follows_the_reference_keyframes_final_poses():
     np.testing.assert_array_equal(final.stamps_ns, [10, 20, 30, 40, 50])
 
 
+def test_without_the_backends_answer_keyframes_take_its_updates_and_lose_the_culled():
+    """An interrupted run: keyframes 0-2 made by the frontend, keyframe 1 moved by a map update, keyframe 2 culled."""
+    log = RunLog()
+    tracked = [make_T(np.eye(3), [float(i), 0.0, 0.0]) for i in range(4)]
+    for i in range(4):
+        log.add_state(codec.TrackingStateMessage(i, 10 * (i + 1), "ok", has_pose=True, keyframe_id=i if i < 3 else -1))
+        log.add_pose(codec.StampedPose(10 * (i + 1), tracked[i]))
+    moved = make_T(so3_exp(np.array([0.0, 0.1, 0.0])), [1.0, 0.5, 0.0])
+    log.add_map_update(MapUpdate(keyframe_id=1, stamp_ns=20, keyframes=(KeyframeCorrection(1, moved, np.zeros(0, np.int64)),)))
+    log.add_map_update(MapUpdate(keyframe_id=2, stamp_ns=30, removed_keyframe_ids=np.array([2], dtype=np.int64)))
+    keyframes = log.keyframe_trajectory()
+    np.testing.assert_array_equal(keyframes.stamps_ns, [10, 20])
+    np.testing.assert_allclose(keyframes.T_world_cam, np.stack([tracked[0], moved]), atol=1e-12)
+
+
+def test_stages_stopped_before_their_input_ended_are_noted():
+    log = RunLog()
+    log.add_status(codec.StageStatusMessage("source", "finished", 5))
+    log.add_status(codec.StageStatusMessage("frontend", "finished", 5, detail="stopped"))
+    log.add_status(codec.StageStatusMessage("backend", "running", 1, 30.0, 2, timings_ms={"total": 30.0}))
+    assert log.stopped_stages == ["frontend"]
+    assert log.backend_timing()["total"]["keyframes"] == 1 and log.backend_queue_max == 2
+
+
+def test_a_run_stopped_before_any_frame_still_writes_every_file(tmp_path):
+    result = write_outputs(tmp_path, RunLog(), _truth(5), EvaluationConfig(), extra={"run": {"completed": False}})
+    assert {p.name for p in result.files} == {"trajectory.tum", "trajectory_final.tum", "keyframes.tum", "metrics.json"}
+    for name in ("trajectory.tum", "trajectory_final.tum", "keyframes.tum"):
+        assert [line for line in (tmp_path / name).read_text().splitlines() if not line.startswith("#")] == []
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["frames"] == 0 and metrics["run"] == {"completed": False} and metrics["evaluation_error"]
+
+
 def test_missing_poses_are_counted():
     log = RunLog()
     log.add_state(codec.TrackingStateMessage(0, 10, "ok", has_pose=True))

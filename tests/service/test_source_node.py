@@ -199,3 +199,27 @@ def test_strict_stops_at_the_first_bad_frame_with_a_failed_status_naming_it(sess
 def test_strict_still_lets_injected_drops_pass(session):
     sent, received, _ = _play(session, "strict-drop", _with_skips(4, {1: "drop"}), SourceConfig(rate=0.0, strict=True))
     assert sent == 3 and received == [0, 2, 3, codec.EndOfStream(3)]
+
+
+def test_a_frontend_that_ends_its_stream_stops_a_lockstep_source_without_error(session):
+    """The frontend was stopped while the source waited for its answer: the source ends its own stream."""
+    name = "frontend-stopped"
+    frames = bus.subscribe(session, keys.sensor_frame(name), codec.decode_sensor_frame, "lossless", 64)
+    states = bus.declare_publisher(session, keys.frontend_state(name), codec.TRACKING_STATE, "lossless")
+
+    def frontend() -> None:  # answers frame 0, then ends its stream instead of answering frame 1
+        assert frames.get(timeout_s=10.0).frame.index == 0
+        states.put(codec.encode_tracking_state(codec.TrackingStateMessage(0, 5_000, "ok", None, 0, {}, False, -1)))
+        assert frames.get(timeout_s=10.0).frame.index == 1
+        states.put(codec.encode_end_of_stream(codec.TRACKING_STATE, 1))
+
+    import threading
+
+    thread = threading.Thread(target=frontend)
+    thread.start()
+    config = SourceConfig(frames_in_flight=1, answer_timeout_s=30.0)
+    sent = play(session, name, _frames(8, 1), CAL, "mono", config, lambda: False, "test", mode="lockstep", start_timeout_s=5.0)
+    thread.join(timeout=10.0)
+    assert sent == 2
+    assert frames.get(timeout_s=5.0) == codec.EndOfStream(2)
+    frames.close()

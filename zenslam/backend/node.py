@@ -32,12 +32,14 @@ from zenslam.backend.map import BackendMap
 from zenslam.errors import ZenslamError
 from zenslam.runtime import bus
 from zenslam.runtime.stage import (
+    STOPPED,
     StopFlag,
     add_process_arguments,
     bus_config_with,
     load_section,
     log_cpu_times,
     setup_process_logging,
+    stopped_before_joining,
 )
 from zenslam.schemas import codec, keys
 from zenslam.schemas.map_update import MapUpdate
@@ -172,10 +174,10 @@ def serve(
                 _linger(queryables, node, config.linger_s, should_stop)
     finally:
         if not ended:
-            left = inbox.depth
+            left = inbox.count_waiting(_is_keyframe)
             if left:
                 logger.warning("stopped with at least %d keyframe(s) not processed (%d processed)", left, node.processed)
-            _end_stream(outputs, node)
+            _end_stream(outputs, node, STOPPED)
         inbox.close()
         queryables.close()
     return ended
@@ -217,10 +219,10 @@ def _is_keyframe(message: codec.KeyframeMessage | codec.EndOfStream) -> bool:
     return not isinstance(message, codec.EndOfStream)
 
 
-def _end_stream(outputs: _Outputs, node: BackendNode) -> None:
+def _end_stream(outputs: _Outputs, node: BackendNode, detail: str = "") -> None:
     node.finished = True
     outputs.update.put(codec.encode_end_of_stream(codec.MAP_UPDATE, node.processed))
-    outputs.send_status(codec.StageStatusMessage(STAGE, "finished", node.processed))
+    outputs.send_status(codec.StageStatusMessage(STAGE, "finished", node.processed, detail=detail))
 
 
 def _linger(queryables: _Queryables, node: BackendNode, linger_s: float, should_stop: Callable[[], bool]) -> None:
@@ -261,6 +263,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     setup_process_logging(args.verbose, STAGE)
     stop = StopFlag(args.parent_pid).install()
+    if stopped_before_joining(stop):  # a stop held while the modules above were imported
+        return 0
     try:
         from zenslam.runtime import rerun_log
 
@@ -270,6 +274,8 @@ def main(argv: list[str] | None = None) -> int:
         if config.nice:
             os.nice(config.nice)
         node = BackendNode.from_config(config)
+        if stopped_before_joining(stop):
+            return 0
 
         with (
             rerun_log.open_stage_recording(STAGE, args.session, args.config, rerun_config) as recording,

@@ -33,6 +33,7 @@ from zenslam.errors import CalibrationError, ZenslamError
 from zenslam.frontend.config import FrontendConfig
 from zenslam.runtime import bus
 from zenslam.runtime.stage import (
+    STOPPED,
     RunMode,
     StopFlag,
     add_process_arguments,
@@ -41,6 +42,7 @@ from zenslam.runtime.stage import (
     load_section,
     log_cpu_times,
     setup_process_logging,
+    stopped_before_joining,
 )
 from zenslam.schemas import codec, keys
 from zenslam.schemas.map_update import MapUpdate
@@ -265,14 +267,13 @@ class _MapUpdates:
             self._apply(node, update)
 
     def wait_for(self, node: FrontendNode, keyframe_id: int, should_stop: Callable[[], bool]) -> None:
-        """Lockstep: apply updates until the one for ``keyframe_id`` has been applied."""
+        """Lockstep: apply updates until the one for ``keyframe_id`` has been applied, the backend has
+        ended its stream (``ended``: it was stopped) or ``should_stop()``."""
         deadline = time.monotonic() + self.timeout_s
-        while not should_stop():
+        while not should_stop() and not self.ended:
             update = self.inbox.get(timeout_s=0.1)
             if update is not None and self._apply(node, update) >= keyframe_id:
                 return
-            if self.ended:
-                raise bus.BusError(f"the backend ended its stream while the frontend waited for its update of keyframe {keyframe_id}")
             if update is None and time.monotonic() > deadline:
                 raise bus.BusError(
                     f"lockstep: no map update for keyframe {keyframe_id} from the backend within {self.timeout_s:.0f} s "
@@ -323,6 +324,11 @@ def serve(
                 held = None
                 if updates is not None and not wait_for_updates:
                     updates.apply_pending(node)
+                if updates is not None and updates.ended:
+                    # The backend ends its stream before ours only when it was stopped: no more map
+                    # updates will come (lockstep would wait for one forever), so the run ends here.
+                    logger.warning("the backend ended its stream: ending ours after %d frames", node.frames)
+                    break
                 if message is None:
                     continue
                 if isinstance(message, codec.EndOfStream):
@@ -347,7 +353,9 @@ def serve(
     finally:
         node.close()
         outputs.end_streams(node.frames, node.keyframes)
-        outputs.send_status(codec.StageStatusMessage(STAGE, "finished", node.frames, dropped=node.skipped))
+        outputs.send_status(
+            codec.StageStatusMessage(STAGE, "finished", node.frames, dropped=node.skipped, detail="" if ended else STOPPED)
+        )
         frames.close()
         if updates is not None:
             updates.inbox.close()
@@ -379,6 +387,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     setup_process_logging(args.verbose, STAGE)
     stop = StopFlag(args.parent_pid).install()
+    if stopped_before_joining(stop):  # a stop held while the modules above were imported
+        return 0
     try:
         from zenslam.runtime import rerun_log
 
@@ -390,6 +400,8 @@ def main(argv: list[str] | None = None) -> int:
         # OpenCV's pool slowed small calls 3x here; the extractor runs left/right on its own threads.
         cv2.setNumThreads(1)
         node = FrontendNode(default_pipeline_factory(config))
+        if stopped_before_joining(stop):
+            return 0
 
         with (
             rerun_log.open_stage_recording(STAGE, args.session, args.config, rerun_config) as recording,

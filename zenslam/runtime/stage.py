@@ -3,7 +3,8 @@
 Every stage (source, frontend, backend, recorder) is started by the ``Supervisor`` as
 ``python -m <module>`` with the arguments of ``add_process_arguments``; it reads its own section
 of the run's resolved YAML with ``load_section`` (the file holds every section; a stage reads
-only the ones it needs), polls a ``StopFlag`` between steps, and logs like every other stage.
+only the ones it needs), polls a ``StopFlag`` (``runtime.stop``) between steps, and logs like every
+other stage.
 """
 
 from __future__ import annotations
@@ -13,15 +14,15 @@ import atexit
 import dataclasses
 import logging
 import os
-import signal
-import threading
 from pathlib import Path
-from types import FrameType
 from typing import Literal, TypeVar, get_args
 
 from zenslam.config import from_mapping, load_yaml
 from zenslam.errors import ConfigError
 from zenslam.runtime import bus
+# The stop flag lives in runtime.stop (the CLI installs it before any heavy import); a stage's
+# start-up takes it from here with the rest.
+from zenslam.runtime.stop import STOPPED, StopFlag  # noqa: F401
 
 logger = logging.getLogger(__name__)
 
@@ -35,7 +36,6 @@ C = TypeVar("C")
 # - live: frames at their recorded times like a camera; a slow stage skips frames.
 RunMode = Literal["lockstep", "pipelined", "live"]
 RUN_MODES: tuple[str, ...] = get_args(RunMode)
-
 
 
 def add_process_arguments(parser: argparse.ArgumentParser) -> None:
@@ -74,41 +74,13 @@ def bus_config_with(config: bus.BusConfig, connect: list[str]) -> bus.BusConfig:
     return dataclasses.replace(config, connect=tuple(config.connect) + tuple(connect))
 
 
-class StopFlag:
-    """Set by SIGINT/SIGTERM or by losing the parent process; stage loops poll it between steps."""
-
-    def __init__(self, parent_pid: int | None = None):
-        self._event = threading.Event()
-        self._parent_pid = parent_pid
-        self._previous: dict[int, object] = {}
-
-    def install(self) -> StopFlag:
-        """Handle SIGINT and SIGTERM by setting the flag (main thread only); ``uninstall`` restores."""
-        for signum in (signal.SIGINT, signal.SIGTERM):
-            self._previous[signum] = signal.signal(signum, self._on_signal)
-        return self
-
-    def uninstall(self) -> None:
-        for signum, handler in self._previous.items():
-            signal.signal(signum, handler)
-        self._previous.clear()
-
-    def _on_signal(self, signum: int, frame: FrameType | None) -> None:
-        logger.info("received %s: stopping after the current step", signal.Signals(signum).name)
-        self._event.set()
-
-    def set(self) -> None:
-        self._event.set()
-
-    def __call__(self) -> bool:
-        """True when the process should stop."""
-        if not self._event.is_set() and not bus.parent_alive(self._parent_pid):
-            logger.warning("parent process %s is gone: stopping", self._parent_pid)
-            self._event.set()
-        return self._event.is_set()
-
-    def keep_going(self) -> bool:
-        return not self()
+def stopped_before_joining(stop: StopFlag) -> bool:
+    """True, and logged, when ``stop`` is set before the stage joined the bus: nobody has seen it nor
+    waits for its streams yet, so it may exit at once instead of finishing its start-up."""
+    if stop():
+        logger.info("stopped before joining the bus")
+        return True
+    return False
 
 
 def setup_process_logging(verbose: bool, stage: str) -> None:

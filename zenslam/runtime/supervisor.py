@@ -1,10 +1,13 @@
 """Starting and supervising a run's processes, and the command line every stage process accepts.
 
-The supervisor starts each stage as ``python -P -m <module>`` in its own process group (so a Ctrl-C
-in the terminal reaches only the supervisor, which then stops the stages in order), with its
-output in ``<run>/logs/<stage>.log``. Each child gets the shared session name, the run's resolved
-config file, the hub endpoint to connect to and the supervisor's pid: a child whose parent is gone
-stops by itself, so no process outlives its run.
+The supervisor starts each stage as ``python -P -m <module>`` in its own process group, with its
+output in ``<run>/logs/<stage>.log``. A terminal's Ctrl-C signals the foreground process group, and
+``kill -INT -<pgid>`` the group named: either way only the supervisor's own group, never a stage,
+so the supervisor decides the order in which the stages stop. A stage starts with SIGINT and
+SIGTERM blocked (the mask survives exec) until its ``StopFlag`` is installed, so a stop requested
+while it still imports is held, not raised in the middle of an import. Each child gets the shared
+session name, the run's resolved config file, the hub endpoint to connect to and the
+supervisor's pid: a child whose parent is gone stops by itself, so no process outlives its run.
 """
 
 from __future__ import annotations
@@ -15,7 +18,8 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -23,6 +27,7 @@ import zenoh
 
 from zenslam.errors import ProcessError
 from zenslam.runtime import bus
+from zenslam.runtime.stop import STOP_SIGNALS
 
 logger = logging.getLogger(__name__)
 
@@ -39,6 +44,17 @@ class ProcessSpec:
 # glibc malloc settings for the stage processes (bytes): no mmap below 32 MiB, return freed heap
 # memory to the system once 128 MiB of it sits unused at the top.
 MALLOC_TUNABLES = "glibc.malloc.mmap_threshold=33554432:glibc.malloc.trim_threshold=134217728"
+
+
+@contextmanager
+def _stop_signals_blocked() -> Iterator[None]:
+    """Block SIGINT and SIGTERM in this thread meanwhile: a child forked here inherits the mask
+    through exec. One arriving meanwhile for this process stays pending and is handled on exit."""
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 @dataclass
@@ -86,7 +102,7 @@ class Supervisor:
         # even when started from another checkout's root.
         command = [sys.executable, "-P", "-m", spec.module, *self.common_args(), *spec.args]
         logger.debug("starting %s: %s", spec.name, " ".join(command))
-        with open(log_path, "wb") as log:
+        with open(log_path, "wb") as log, _stop_signals_blocked():
             try:
                 popen = subprocess.Popen(
                     command, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=self.env, process_group=0

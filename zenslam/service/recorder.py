@@ -208,16 +208,23 @@ class _Followed:
                 keys.all_alive(session_name), zenoh.handlers.FifoChannel(64), history=True
             )
 
-    def done(self) -> bool:
-        if self._subscriber is None:
-            return False
-        while (sample := self._subscriber.try_recv()) is not None:
+    def _take(self) -> None:
+        while self._subscriber is not None and (sample := self._subscriber.try_recv()) is not None:
             name = str(sample.key_expr).removeprefix(self._prefix)
             if sample.kind == zenoh.SampleKind.PUT:
                 self.seen.add(name)
             elif name in self.seen:
                 self.gone.add(name)
-        return self.stages <= self.gone
+
+    def done(self) -> bool:
+        """Every followed stage has appeared and gone (False when following none)."""
+        self._take()
+        return self._subscriber is not None and self.stages <= self.gone
+
+    def none_running(self) -> bool:
+        """No followed stage is up now (those never seen are not waited for)."""
+        self._take()
+        return (self.stages & self.seen) <= self.gone
 
     def close(self) -> None:
         if self._subscriber is not None:
@@ -265,12 +272,16 @@ def record(
     should_stop: Callable[[], bool],
     follow: Iterable[str] = (),
     max_drain_s: float = 5.0,
+    stop_grace_s: float = 5.0,
 ) -> dict[str, int]:
-    """Record the session's messages to the MCAP file ``path`` until ``should_stop()`` or every stage in
-    ``follow`` has come and gone; returns the messages written per topic.
+    """Record the session's messages to the MCAP file ``path`` until every stage in ``follow`` has come
+    and gone, or ``should_stop()``; returns the messages written per topic.
 
-    At the end it keeps taking messages until none has arrived for ``config.quiet_s`` seconds, or
-    for at most ``max_drain_s`` seconds while publishers are still sending.
+    Stopped, it still records for up to ``stop_grace_s`` seconds while a followed stage is up: a
+    stop reaches the stages too, and what they send as they stop (their last results, their ends
+    of stream) belongs in the recording. At the end it keeps taking messages until none has
+    arrived for ``config.quiet_s`` seconds, or for at most ``max_drain_s`` seconds while
+    publishers are still sending.
     """
     writer = mcap_io.RecordingWriter(path, chunk_size=config.chunk_size, compression=config.chunk_compression)
     worker = _Worker(Recorder(writer, config, session_name), config.queue)
@@ -283,6 +294,9 @@ def record(
                 logger.info("recording %s to %s", keys.everything(session_name), path)
                 log_cpu_times("at stream start")
                 while not should_stop() and not followed.done() and worker.error is None:
+                    time.sleep(0.02)
+                stop_until = time.monotonic() + stop_grace_s
+                while not followed.none_running() and time.monotonic() < stop_until and worker.error is None:
                     time.sleep(0.02)
                 drain_until = time.monotonic() + max_drain_s
                 while time.monotonic() - worker.last_arrival < config.quiet_s and time.monotonic() < drain_until:

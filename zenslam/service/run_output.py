@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from zenslam.errors import ConfigError, TrajectoryError
+from zenslam.runtime.stop import STOPPED
 from zenslam.schemas import codec, keys
 from zenslam.service.evaluation.metrics import Evaluation, EvaluationConfig, evaluate
 from zenslam.service.evaluation.plot import Plane, save_evaluation_plot
@@ -42,6 +43,7 @@ TRAJECTORY_FILENAME = "trajectory.tum"
 FINAL_TRAJECTORY_FILENAME = "trajectory_final.tum"
 KEYFRAMES_FILENAME = "keyframes.tum"
 PLOT_FILENAME = "trajectory_top.png"
+_NO_POSE = Trajectory(np.zeros(0, dtype=np.int64), np.zeros((0, 4, 4)))
 
 
 def new_run_id() -> str:
@@ -89,12 +91,14 @@ class RunLog:
         self.ended = False  # the frontend's end of stream arrived
         self.updated_keyframes: list[int] = []  # keyframe id of every backend map update received, in order
         self.corrected_poses: dict[int, np.ndarray] = {}  # keyframe id -> its newest T_world_cam from a map update
+        self.removed_keyframes: set[int] = set()  # keyframe ids a map update removed (culled)
         self.backend_ended = False  # the backend's end of stream arrived
         self.backend_timings: dict[int, dict[str, float]] = {}  # keyframes processed -> ms per step of that one
         self.backend_keyframes: codec.KeyframeTrajectoryMessage | None = None  # the backend's final keyframe poses
         self.backend_queue_max = 0  # most keyframes the backend reported waiting in its inbox after a step
         self.source_skipped: dict[str, int] = {}  # frames the source did not send, by reason (its latest count)
         self.source_failure: str | None = None  # what the source said when it failed (e.g. strict and a bad frame)
+        self.stopped_stages: list[str] = []  # stages whose last status says they stopped before their input's end
 
     def add_map_update(self, update: object) -> None:
         """Count a backend/map_update message (a MapUpdate, or the stream's end)."""
@@ -105,6 +109,16 @@ class RunLog:
                 self.updated_keyframes.append(int(update.keyframe_id))
             for correction in update.keyframes:
                 self.corrected_poses[int(correction.id)] = np.asarray(correction.T_world_cam, dtype=float)
+            self.removed_keyframes.update(np.asarray(update.removed_keyframe_ids).tolist())
+
+    def add_status(self, status: codec.StageStatusMessage) -> None:
+        """Note a stage that ended before its input did; keep the backend's per-keyframe timings."""
+        if status.state == "finished" and status.detail == STOPPED and status.stage not in self.stopped_stages:
+            self.stopped_stages.append(status.stage)
+        if status.stage == "backend":
+            self.add_backend_status(status)
+        elif status.stage == "source":
+            self.add_source_status(status)
 
     def add_backend_status(self, status: codec.StageStatusMessage) -> None:
         """Keep the per-step timings of each keyframe the backend reports."""
@@ -178,15 +192,23 @@ class RunLog:
         return Trajectory(live.stamps_ns, np.stack(poses))
 
     def keyframe_trajectory(self) -> Trajectory | None:
-        """The backend's final keyframe poses when it answered; else T_world_cam of the frames that made
-        a keyframe, as tracked when they were made."""
+        """The backend's final keyframe poses when it answered; else the keyframes the frontend made,
+        less those a map update removed, each at its newest pose from a map update (as tracked when
+        no update moved it): the map as far as the backend's updates told."""
         backend = self.backend_keyframes
         if backend is not None:
             if len(backend.stamps_ns) == 0:
                 return None
             order = np.argsort(backend.stamps_ns, kind="stable")
             return Trajectory(np.asarray(backend.stamps_ns, dtype=np.int64)[order], np.asarray(backend.T_world_cam)[order])
-        return self._trajectory(lambda s: s.keyframe_id >= 0)
+        made = sorted(
+            (s.stamp_ns, s.keyframe_id) for s in self.states.values()
+            if s.keyframe_id >= 0 and s.keyframe_id not in self.removed_keyframes and s.stamp_ns in self.poses
+        )
+        if not made:
+            return None
+        poses = [self.corrected_poses.get(kf, self.poses[stamp]) for stamp, kf in made]
+        return Trajectory(np.array([stamp for stamp, _ in made], dtype=np.int64), np.stack(poses))
 
     def timing(self) -> dict[str, dict[str, float]]:
         """Per tracking step: mean, median and max milliseconds over the frames that ran it."""
@@ -237,10 +259,8 @@ def write_outputs(
     keyframes = log.keyframe_trajectory()
     outputs = ((TRAJECTORY_FILENAME, estimate), (FINAL_TRAJECTORY_FILENAME, final), (KEYFRAMES_FILENAME, keyframes))
     for name, trajectory in outputs:
-        if trajectory is not None:
-            files.append(write_tum(run_dir / name, trajectory))
-        else:
-            logger.warning("no pose to write to %s", run_dir / name)
+        # Every file is written, without a pose when there is none (a run stopped before its first frame).
+        files.append(write_tum(run_dir / name, _NO_POSE if trajectory is None else trajectory))
     evaluation, error = None, None
     final_ate = None
     if ground_truth is not None and estimate is not None:

@@ -30,6 +30,7 @@ from zenslam.camera import PinholeCalibration, SensorKind
 from zenslam.errors import ZenslamError
 from zenslam.runtime import bus
 from zenslam.runtime.stage import (
+    STOPPED,
     RunMode,
     StopFlag,
     add_process_arguments,
@@ -51,6 +52,7 @@ if TYPE_CHECKING:
 logger = logging.getLogger(__name__)
 
 STAGE = "source"
+_STOPPED_SUBSCRIBER_WAIT_S = 5.0  # stopped at start-up: seconds to wait for the frontend's subscription
 
 
 class _Pacer:
@@ -75,20 +77,23 @@ class _Pacer:
             time.sleep(min(remaining, 0.05))
 
 
-def _wait_for_answer(states: bus.Inbox, index: int, timeout_s: float, should_stop: Callable[[], bool]) -> None:
-    """Lockstep: wait for the frontend's state of frame ``index``."""
+def _wait_for_answer(states: bus.Inbox, index: int, timeout_s: float, should_stop: Callable[[], bool]) -> bool:
+    """Lockstep: wait for the frontend's state of frame ``index``; False when the frontend ended its
+    stream first (it was stopped: no more answers will come) or ``should_stop()`` turned true."""
     deadline = time.monotonic() + timeout_s
     while not should_stop():
         state = states.get(timeout_s=0.1)
         if isinstance(state, codec.TrackingStateMessage) and state.index == index:
-            return
+            return True
         if isinstance(state, codec.EndOfStream):
-            raise bus.BusError(f"the frontend ended its stream while the source waited for frame {index}")
+            logger.info("the frontend ended its stream before answering frame %d: stopping", index)
+            return False
         if time.monotonic() > deadline:
             raise bus.BusError(
                 f"lockstep: the frontend did not report frame {index} within {timeout_s:.0f} s "
                 "(source.answer_timeout_s); check the frontend's log"
             )
+    return False
 
 
 def play(
@@ -127,15 +132,19 @@ def play(
     if not bus.wait_for_subscribers(frame_pub, start_timeout_s, keep_waiting=lambda: not should_stop()):
         if not should_stop():
             raise bus.BusError(f"no subscriber to {key} within {start_timeout_s:.0f} s; is the frontend running?")
+        # Stopped before the frontend's subscription reached this new session: the end of stream
+        # must still reach the frontend, or it would wait for frames that never come.
+        bus.wait_for_subscribers(frame_pub, min(start_timeout_s, _STOPPED_SUBSCRIBER_WAIT_S))
     pacer = _Pacer(0.0 if lockstep else config.rate, should_stop)
     log_cpu_times("at stream start")
     sent = 0
     skipped: Counter[str] = Counter()  # frames not sent, by reason
     in_flight: deque[int] = deque()  # lockstep: indices of the frames sent and not answered, oldest first
+    answered = True  # False once the frontend stops answering (it ended its stream) or we are stopped
     final = codec.StageStatusMessage(STAGE, "failed", detail="the source stopped on an unexpected error")
     try:
         for frame in frames:
-            if should_stop() or (config.max_frames is not None and sent >= config.max_frames):
+            if not answered or should_stop() or (config.max_frames is not None and sent >= config.max_frames):
                 break
             if isinstance(frame, SkippedFrame):
                 _skip(frame, skipped, config.strict, source_name)
@@ -149,13 +158,15 @@ def play(
             if rerun is not None:
                 rerun.log_frame(frame)  # while the frontend tracks it
             # States come lossless and in frame order: the oldest frame in flight is answered first.
-            while states is not None and len(in_flight) >= config.frames_in_flight:
-                _wait_for_answer(states, in_flight.popleft(), config.answer_timeout_s, should_stop)
+            while answered and states is not None and len(in_flight) >= config.frames_in_flight:
+                answered = _wait_for_answer(states, in_flight.popleft(), config.answer_timeout_s, should_stop)
             status = codec.StageStatusMessage(STAGE, "running", sent, (time.perf_counter() - started) * 1e3, skipped=dict(skipped))
             status_pub.put(codec.encode_stage_status(status))
-        while states is not None and in_flight and not should_stop():
-            _wait_for_answer(states, in_flight.popleft(), config.answer_timeout_s, should_stop)
-        final = codec.StageStatusMessage(STAGE, "finished", sent, skipped=dict(skipped))
+        # The last answers. Stopped, we leave the frames in flight to the frontend: it tracks them before our end of stream.
+        while answered and states is not None and in_flight:
+            answered = _wait_for_answer(states, in_flight.popleft(), config.answer_timeout_s, should_stop)
+        detail = STOPPED if not answered or should_stop() else ""
+        final = codec.StageStatusMessage(STAGE, "finished", sent, detail=detail, skipped=dict(skipped))
     except ZenslamError as exc:
         final = codec.StageStatusMessage(STAGE, "failed", sent, detail=str(exc), skipped=dict(skipped))
         raise

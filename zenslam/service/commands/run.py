@@ -1,12 +1,17 @@
 """``zenslam run [SOURCE]``: run the source, frontend and backend processes over zenoh and write recordings/<run-id>/.
 
 This process is the run's hub: it opens the session the stages connect to, subscribes to
-frontend/pose, frontend/state, backend/map_update, backend/status and source/status (the frames the
-source skipped, by reason; a strict source's failure) like any other consumer would,
-starts and supervises the stage processes, and shows progress from the states arriving. After the
-frontend's end of stream it waits, in live mode too, until the backend has processed every
-keyframe (its map-update stream ends), asks it for its final keyframe poses (backend/trajectory),
-lets the stages exit and writes the outputs.
+frontend/pose, frontend/state, backend/map_update and the stages' statuses (the source's carry the
+frames it skipped, by reason, and a strict source's failure) like any other consumer would, starts and supervises the stage processes, and shows progress from the states arriving.
+After the frontend's end of stream it waits, in live mode too, until the backend has processed
+every keyframe (its map-update stream ends), asks it for its final keyframe poses
+(backend/trajectory), lets the stages exit and writes the outputs.
+
+Interrupted (Ctrl-C reaches only this process: the stages run in process groups of their own), it
+stops the stages in the order the data flows, so nothing already sent is lost: the source first
+(it ends its stream), the frontend tracks the frames in flight and ends its own, then the backend
+ends its stream after the keyframe in hand; the recorder ends once they are gone. The outputs are
+written as for a finished run, with ``run.completed: false``.
 """
 
 from __future__ import annotations
@@ -16,8 +21,6 @@ import dataclasses
 import logging
 import os
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
 from tqdm import tqdm
@@ -25,12 +28,14 @@ from tqdm import tqdm
 from zenslam.backend.node import query_trajectory
 from zenslam.errors import ProcessError
 from zenslam.runtime import bus
-from zenslam.runtime.stage import StopFlag, log_cpu_times
+from zenslam.runtime.stage import log_cpu_times
+from zenslam.runtime.stop import EXIT_INTERRUPTED, StopFlag
 from zenslam.runtime.supervisor import ProcessSpec, Supervisor
 from zenslam.schemas import codec, keys
+from zenslam.service import mcap_io
 from zenslam.service.evaluation.plot import PLANES
 from zenslam.service.recorded_ground_truth import publish_ground_truth
-from zenslam.service.recorder import start_recorder
+from zenslam.service.recorder import RECORDING_NAME, start_recorder
 from zenslam.service.run_config import (
     RunConfig,
     apply_orbslam_settings,
@@ -52,8 +57,9 @@ from zenslam.trajectory import Trajectory
 
 logger = logging.getLogger(__name__)
 
-_EXIT_INTERRUPTED = 130
 _POSE_GRACE_S = 5.0  # seconds to wait, after the end of stream, for poses still in flight
+_STOP_GRACE_S = 30.0  # seconds a stage told to stop gets to end its stream before the next step of stopping
+_CAUGHT_UP_WAIT_S = 5.0  # interrupted: seconds to wait for a backend with no keyframe left to end its stream
 _EXIT_WAIT_S = 30.0  # seconds the stages get to exit by themselves after the end of stream
 _QUERY_TIMEOUT_S = 10.0  # seconds to wait for the backend's answer to the final trajectory query
 
@@ -106,7 +112,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "upright; else the two axes along which the ground truth varies most)",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    parser.set_defaults(handler=run)
+    parser.set_defaults(handler=run, stop_flag=True)  # args.stop: the CLI's Ctrl-C flag, held from its start
 
 
 def _config_help() -> str:
@@ -152,20 +158,20 @@ def _child_env(config: RunConfig) -> dict[str, str]:
 
 
 class _Follower:
-    """Receives frontend/state, frontend/pose, backend/map_update, backend/status and source/status
-    into a RunLog, with a progress bar."""
+    """Receives frontend/state, frontend/pose, backend/map_update and the stages' statuses into a
+    RunLog, with a progress bar."""
 
     def __init__(self, session, run_id: str, config: RunConfig, total: int | None, progress: bool):
         capacity = max(config.bus.lossless_queue, 256)
         # Lossless: every pose and state is needed for the trajectory and the metrics, every map update
-        # and backend status for the keyframe counts and timings. All are drained at every poll, so
-        # the stages never wait on this process for long.
+        # and backend status for the keyframe counts and timings, every stage's last status to know
+        # whether it was stopped. All are drained at every poll, so the stages never wait on this
+        # process for long.
         self.poses = bus.subscribe(session, keys.frontend_pose(run_id), codec.decode_pose_in_frame, "lossless", capacity)
         self.states = bus.subscribe(session, keys.frontend_state(run_id), codec.decode_tracking_state, "lossless", capacity)
         update_capacity = max(config.frontend.map_update_queue, capacity)
         self.updates = bus.subscribe(session, keys.backend_map_update(run_id), codec.decode_map_update, "lossless", update_capacity)
-        self.backend = bus.subscribe(session, keys.status(run_id, "backend"), codec.decode_stage_status, "lossless", capacity)
-        self.source = bus.subscribe(session, keys.status(run_id, "source"), codec.decode_stage_status, "lossless", capacity)
+        self.statuses = bus.subscribe(session, keys.all_status(run_id), codec.decode_stage_status, "lossless", capacity)
         self.log = RunLog()
         self.bar = tqdm(total=total, unit="frame", desc="tracking", disable=not progress)
 
@@ -174,7 +180,6 @@ class _Follower:
         while (pose := self.poses.get(0)) is not None:
             self.log.add_pose(pose)
         self.poll_backend()
-        self.poll_source()
         state = self.states.get(timeout_s)
         if isinstance(state, codec.EndOfStream):
             self.log.ended = True
@@ -184,16 +189,11 @@ class _Follower:
             self.bar.set_postfix(state=state.state, tracked=state.n_tracked, refresh=False)
 
     def poll_backend(self) -> None:
-        """Take the map updates and backend statuses that have arrived."""
+        """Take the map updates and stage statuses that have arrived."""
         while (update := self.updates.get(0)) is not None:
             self.log.add_map_update(update)
-        while (status := self.backend.get(0)) is not None:
-            self.log.add_backend_status(status)
-
-    def poll_source(self) -> None:
-        """Take the source statuses that have arrived (skipped-frame counts, a failure)."""
-        while (status := self.source.get(0)) is not None:
-            self.log.add_source_status(status)
+        while (status := self.statuses.get(0)) is not None:
+            self.log.add_status(status)
 
     def drain(self, until: float) -> None:
         """Keep taking messages until the poses announced by the states have all arrived, or ``until``."""
@@ -202,27 +202,14 @@ class _Follower:
 
     def close(self) -> None:
         self.bar.close()
-        for inbox in (self.poses, self.states, self.updates, self.backend, self.source):
+        for inbox in (self.poses, self.states, self.updates, self.statuses):
             inbox.close()
 
 
-def _follow(follower: _Follower, supervisor: Supervisor, stop: StopFlag) -> bool:
-    """Follow the run until the frontend's end of stream (True) or an interrupt (False)."""
-    while not follower.log.ended:
-        if stop():
-            supervisor.request_stop()
-            follower.drain(time.monotonic() + 10.0)
-            return False
+def _check(supervisor: Supervisor, stop: StopFlag) -> None:
+    """Raise for a failed stage, unless interrupted: then the run winds down and ``_report_exits`` says."""
+    if not stop():
         supervisor.check()
-        if supervisor.returncode("frontend") is not None:
-            follower.drain(time.monotonic() + 1.0)
-            if not follower.log.ended:
-                raise ProcessError(f"the frontend exited before the end of stream:\n{supervisor.log_tail('frontend')}")
-        _check_source(follower.log)
-        follower.poll(0.05)
-    follower.drain(time.monotonic() + _POSE_GRACE_S)
-    _check_source(follower.log)
-    return True
 
 
 def _check_source(log: RunLog) -> None:
@@ -231,80 +218,160 @@ def _check_source(log: RunLog) -> None:
         raise ProcessError(f"the source stopped the run: {log.source_failure}")
 
 
-def _follow_backend(follower: _Follower, supervisor: Supervisor, stop: StopFlag) -> bool:
-    """Wait until the backend has processed every keyframe (its map-update stream ended): True, or
-    False on an interrupt."""
-    counts = follower.log.keyframe_counts()
-    if not follower.log.backend_ended:
-        logger.info("waiting for the backend: %d of %d keyframes processed", counts["processed"], counts["sent"])
-    while not follower.log.backend_ended:
+def _start_stages(
+    supervisor: Supervisor, session, config: RunConfig, run_dir: Path, stop: StopFlag, ground_truth: Trajectory | None
+) -> bool:
+    """Start the recorder, backend, frontend and source, each once the one it needs is up; False when
+    interrupted first (those started are then told to stop, and no other is started). ``ground_truth``
+    (the source's) goes into the recording, so a replay of it is scored too."""
+    timeout_s = config.bus.start_timeout_s
+    heard: tuple[str, ...] = ()
+    if not stop() and config.recorder.enabled:
+        # The recorder comes first, and each stage waits until it sees the recorder's token before
+        # publishing: then the recorder's subscription has reached it too.
+        start_recorder(supervisor, session, config, run_dir, stop.keep_going)
+        heard = ("--wait-for", "recorder")
+        if ground_truth is not None:
+            publish_ground_truth(session, supervisor.session_name, ground_truth)
+    stages = (
+        ProcessSpec("backend", "zenslam.backend.node", heard),
+        ProcessSpec("frontend", "zenslam.frontend.node", ("--map-updates", "--wait-for", "backend", *heard)),
+        ProcessSpec("source", "zenslam.service.source_node", ("--wait-for", "frontend", *heard)),
+    )
+    for spec in stages:
         if stop():
             supervisor.request_stop()
             return False
-        supervisor.check()
-        if supervisor.returncode("backend") is not None:
-            follower.poll_backend()
-            if not follower.log.backend_ended:
-                raise ProcessError(f"the backend exited before the end of its stream:\n{supervisor.log_tail('backend')}")
-        follower.poll_backend()
-        time.sleep(0.02)
-    follower.poll_backend()  # statuses sent with the end of stream
+        supervisor.start(spec)
+        if spec.name != "source":  # the source is followed through the frontend's states
+            supervisor.wait_until_alive(session, [spec.name], timeout_s, stop.keep_going)
     return True
 
 
-@contextmanager
-def _restoring(stop: StopFlag) -> Iterator[None]:
-    try:
-        yield
-    finally:
-        stop.uninstall()
+def _follow(follower: _Follower, supervisor: Supervisor, stop: StopFlag) -> None:
+    """Follow the run until the frontend's end of stream, then take the poses still in flight.
+
+    On an interrupt only the source is stopped: it ends its stream at once, and the frontend tracks
+    the frames already sent, publishes their poses and ends its own stream. The frontend itself is
+    stopped (it finishes the frame in hand) when it has not ended ``_STOP_GRACE_S`` seconds later,
+    or at a second Ctrl-C.
+    """
+    source_told = frontend_told = None  # when each was told to stop
+    while not follower.log.ended:
+        now = time.monotonic()
+        if stop() and source_told is None:
+            supervisor.request_stop(["source"])
+            source_told = now
+        if source_told is not None and frontend_told is None and (stop.signals > 1 or now - source_told > _STOP_GRACE_S):
+            supervisor.request_stop(["frontend"])
+            frontend_told = now
+        if frontend_told is not None and now - frontend_told > _STOP_GRACE_S:
+            logger.warning("the frontend did not end its stream within %.0f s of being told to stop", _STOP_GRACE_S)
+            break
+        _check(supervisor, stop)
+        if supervisor.returncode("frontend") is not None:
+            follower.drain(time.monotonic() + 1.0)
+            if not follower.log.ended and not stop():
+                raise ProcessError(f"the frontend exited before the end of stream:\n{supervisor.log_tail('frontend')}")
+            break
+        _check_source(follower.log)
+        follower.poll(0.05)
+    follower.drain(time.monotonic() + _POSE_GRACE_S)
+    _check_source(follower.log)
+
+
+def _follow_backend(follower: _Follower, supervisor: Supervisor, stop: StopFlag) -> None:
+    """Wait until the backend has processed every keyframe (its map-update stream ended). Interrupted,
+    wait only while it has caught up with the keyframes sent (its end of stream is on its way),
+    for at most ``_CAUGHT_UP_WAIT_S`` seconds."""
+    counts = follower.log.keyframe_counts()
+    if not follower.log.backend_ended and not stop():
+        logger.info("waiting for the backend: %d of %d keyframes processed", counts["processed"], counts["sent"])
+    stopped_at = None
+    while not follower.log.backend_ended:
+        if stop():
+            stopped_at = time.monotonic() if stopped_at is None else stopped_at
+            counts = follower.log.keyframe_counts()
+            if counts["processed"] < counts["sent"] or time.monotonic() - stopped_at > _CAUGHT_UP_WAIT_S:
+                return
+        _check(supervisor, stop)
+        if supervisor.returncode("backend") is not None:
+            follower.poll_backend()
+            if not follower.log.backend_ended and not stop():
+                raise ProcessError(f"the backend exited before the end of its stream:\n{supervisor.log_tail('backend')}")
+            break
+        follower.poll_backend()
+        time.sleep(0.02)
+    follower.poll_backend()  # statuses sent with the end of stream
+
+
+def _stop_backend(follower: _Follower, supervisor: Supervisor, session, run_id: str) -> None:
+    """Ask a backend that ended its stream for its keyframe poses (it lingers to answer queries), then
+    tell it to go; one still mapping (interrupted) ends its stream after the keyframe in hand, and
+    keyframes.tum then has the frontend's keyframes with the backend's updates applied. Takes its
+    last updates and statuses."""
+    log = follower.log
+    if log.backend_ended and "backend" not in log.stopped_stages and supervisor.returncode("backend") is None:
+        log.backend_keyframes = query_trajectory(session, run_id, _QUERY_TIMEOUT_S)
+        if log.backend_keyframes is None:
+            logger.warning("the backend did not answer the trajectory query; keyframes.tum has the frontend's keyframes")
+    supervisor.request_stop(["backend"])
+    deadline = time.monotonic() + _STOP_GRACE_S
+    while not log.backend_ended and supervisor.returncode("backend") is None and time.monotonic() < deadline:
+        follower.poll_backend()
+        time.sleep(0.02)
+    follower.poll_backend()
+
+
+def _report_exits(supervisor: Supervisor, stop: StopFlag, statuses: dict[str, int | None]) -> None:
+    """Raise for a failed stage; interrupted, warn instead (what was tracked is still written)."""
+    _check(supervisor, stop)
+    for name, code in statuses.items():
+        if code not in (None, 0):
+            logger.warning("%s exited with status %s while the run stopped; see %s", name, code, supervisor.run_dir / "logs")
+    stuck = [name for name, code in statuses.items() if code is None]
+    if stuck:
+        logger.warning("stage(s) %s still running %.0f s after the end of stream; stopping them", stuck, _EXIT_WAIT_S)
 
 
 def track(
     config: RunConfig, run_id: str, run_dir: Path, config_path: Path, source: Source, progress: bool,
-    ground_truth: Trajectory | None = None,
+    stop: StopFlag | None = None, ground_truth: Trajectory | None = None,
 ) -> tuple[RunLog, bool]:
     """Start the stages, follow them to the end of stream, and see them exit; returns (log, completed).
 
-    ``ground_truth`` (the source's) goes into the recording, so a replay of it is scored too."""
+    ``stop`` (installed; default: one installed here) ends the run early: the stages wind down in
+    order, so every pose the frontend published is in the log, and completed is False.
+    ``ground_truth`` (the source's) goes into the recording, so a replay of it is scored too.
+    """
     hub = None if config.bus.zenoh_config_file else bus.free_tcp_endpoint()
     hub_bus = config.bus if hub is None else dataclasses.replace(config.bus, listen=(hub,))
     total = len(source) if config.source.max_frames is None else min(len(source), config.source.max_frames)
-    stop = StopFlag().install()
-    with _restoring(stop), bus.open_session(hub_bus) as session:
-        follower = _Follower(session, run_id, config, total, progress)
-        try:
-            supervisor = Supervisor(run_dir, run_id, config_path, hub, env=_child_env(config))
-            with supervisor, bus.declare_alive(session, run_id, "run"):
-                timeout_s = config.bus.start_timeout_s
-                # The recorder comes first, and each stage waits until it sees the recorder's token
-                # before publishing: then the recorder's subscription has reached it too.
-                recording = start_recorder(supervisor, session, config, run_dir, stop.keep_going)
-                if recording is not None and ground_truth is not None:
-                    publish_ground_truth(session, run_id, ground_truth)
-                heard = ("--wait-for", "recorder") if recording is not None else ()
-                supervisor.start(ProcessSpec("backend", "zenslam.backend.node", heard))
-                supervisor.wait_until_alive(session, ["backend"], timeout_s, stop.keep_going)
-                frontend_args = ("--map-updates", "--wait-for", "backend", *heard)
-                supervisor.start(ProcessSpec("frontend", "zenslam.frontend.node", frontend_args))
-                supervisor.wait_until_alive(session, ["frontend"], timeout_s, stop.keep_going)
-                supervisor.start(ProcessSpec("source", "zenslam.service.source_node", ("--wait-for", "frontend", *heard)))
-                log_cpu_times("at stream start")
-                completed = _follow(follower, supervisor, stop) and _follow_backend(follower, supervisor, stop)
-                log_cpu_times("at stream end")
-                if completed:
-                    follower.log.backend_keyframes = query_trajectory(session, run_id, _QUERY_TIMEOUT_S)
-                    if follower.log.backend_keyframes is None:
-                        logger.warning("the backend did not answer the trajectory query; keyframes.tum has the frontend's poses")
-                    supervisor.request_stop(["backend"])  # it lingers to answer queries until told to go
-                statuses = supervisor.wait_exit(_EXIT_WAIT_S if completed else 10.0)
-                follower.poll_source()  # its last status: the final skipped-frame counts
-                supervisor.check()
-                stuck = [name for name, code in statuses.items() if code is None]
-                if stuck:
-                    logger.warning("stage(s) %s still running %.0f s after the end of stream; stopping them", stuck, _EXIT_WAIT_S)
-        finally:
-            follower.close()
+    owned = stop is None
+    stop = StopFlag(quiet=True).install() if stop is None else stop
+    try:
+        with bus.open_session(hub_bus) as session:
+            follower = _Follower(session, run_id, config, total, progress)
+            try:
+                supervisor = Supervisor(run_dir, run_id, config_path, hub, env=_child_env(config))
+                with supervisor, bus.declare_alive(session, run_id, "run"):
+                    started = _start_stages(supervisor, session, config, run_dir, stop, ground_truth)
+                    if started:
+                        log_cpu_times("at stream start")
+                        _follow(follower, supervisor, stop)
+                        _follow_backend(follower, supervisor, stop)
+                        _stop_backend(follower, supervisor, session, run_id)
+                        log_cpu_times("at stream end")
+                    statuses = supervisor.wait_exit(_EXIT_WAIT_S)
+                    follower.poll_backend()  # the stages' last statuses: the source's final skipped-frame counts
+                    _report_exits(supervisor, stop, statuses)
+                    log = follower.log
+                    completed = started and log.ended and log.backend_ended and not log.stopped_stages and not stop()
+            finally:
+                follower.close()
+    finally:
+        if owned:
+            stop.uninstall()
     return follower.log, completed
 
 
@@ -329,8 +396,35 @@ def _summary(result: RunResult, log: RunLog) -> list[str]:
     return lines
 
 
+def _interrupted_line(log: RunLog, total: int, run_dir: Path, here: bool) -> str:
+    """The one line an interrupted run ends with; ``here``: this process got the signal (else a stage did)."""
+    frames = log.frame_counts()["frames"]
+    trajectory = log.trajectory()
+    by = "" if here else f" (the {' and the '.join(log.stopped_stages)} stopped by a signal of its own)"
+    return (
+        f"interrupted at frame {frames} of {total}{by}: wrote the {0 if trajectory is None else len(trajectory)} tracked "
+        f"poses to {run_dir} (metrics.json run.completed: false)"
+    )
+
+
 def run(args: argparse.Namespace) -> int:
-    """Resolve the config, prepare the run folder, track, write the outputs, print the accuracy."""
+    """Resolve the config, prepare the run folder, track, write the outputs, print the accuracy.
+
+    Interrupted (SIGINT or SIGTERM, from ``args.stop`` set by the CLI, at any moment), it still writes
+    every output, marks metrics.json ``run.completed: false``, ends with one line saying so, and
+    returns 130.
+    """
+    if getattr(args, "stop", None) is not None:
+        return _run(args, args.stop)
+    stop = StopFlag(quiet=True).install()  # called other than through the CLI
+    try:
+        return _run(args, stop)
+    finally:
+        stop.uninstall()
+
+
+def _run(args: argparse.Namespace, stop: StopFlag) -> int:
+    """``run`` with the installed stop flag ``stop``."""
     config = resolve_config(args)
     source = open_source(config.source.spec)
     config = fit_calibration_to_images(config, source.calibration.width, source.calibration.height)
@@ -338,8 +432,12 @@ def run(args: argparse.Namespace) -> int:
     run_dir = prepare_run_dir(args.output, run_id)
     config_path = write_config(run_dir, config)
     logger.info("run %s: %s (%s, %d frames) -> %s", run_id, source.name, source.sensor, len(source), run_dir)
+    total = len(source) if config.source.max_frames is None else min(len(source), config.source.max_frames)
     ground_truth = source.ground_truth()
-    log, completed = track(config, run_id, run_dir, config_path, source, not args.no_progress, ground_truth)
+    log, completed = track(config, run_id, run_dir, config_path, source, not args.no_progress, stop, ground_truth)
+    recording = run_dir / RECORDING_NAME
+    if config.recorder.enabled and not recording.exists():
+        mcap_io.RecordingWriter(recording).finish()  # stopped before the recorder started: nothing crossed the bus
     extra = {"run": {
         "run_id": run_id, "source": config.source.spec, "mode": config.mode, "completed": completed,
     }}
@@ -347,4 +445,7 @@ def run(args: argparse.Namespace) -> int:
     result = write_outputs(run_dir, log, ground_truth, evaluation_config, extra, plane=args.plane)
     for line in _summary(result, log):
         print(line)
-    return 0 if completed else _EXIT_INTERRUPTED
+    if completed:
+        return 0
+    logger.warning("%s", _interrupted_line(log, total, run_dir, here=stop()))
+    return EXIT_INTERRUPTED

@@ -1,0 +1,220 @@
+"""Ctrl-C at any moment of ``zenslam run`` loses nothing: the real command, interrupted with SIGINT.
+
+Each test starts ``zenslam run`` in a session of its own (as a terminal runs a foreground job),
+waits for a moment of the run to be observable (the command's imports under way, a stage starting,
+frames tracked, the backend still mapping after the frontend's end of stream), sends SIGINT to the
+process group (what a terminal's Ctrl-C does), to the command alone, or to every process of the
+run, and checks what the run left: exit status 130, one line saying so, no traceback anywhere,
+a trajectory with every pose the frontend published, keyframes.tum, metrics.json marked as not
+completed, and a recording that opens as is.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+from zenslam.schemas import codec
+from zenslam.service import mcap_io
+
+pytestmark = pytest.mark.integration
+
+DEADLINE_S = 600.0  # for each moment to come and for the command to exit: generous, the stages start slowly on a busy machine
+INTERRUPTED_LINE = "interrupted at frame"
+
+# Pipelined, a keyframe at every frame and a deliberately slow local BA (every iteration run): the
+# backend is still mapping queued keyframes when the frontend ends its stream.
+SLOW_BACKEND_YAML = """\
+mode: pipelined
+frontend:
+  keyframe:
+    max_frames: 1
+    ref_ratio_stereo: 1.0
+backend:
+  local_mapping:
+    defer_when_queued: false
+  local_ba:
+    robust_iterations: 40
+    refine_iterations: 80
+    relative_error_tolerance: 0.0
+    absolute_error_tolerance: 0.0
+"""
+
+
+class _Run:
+    """A ``zenslam run`` in its own session, with its output collected as it comes."""
+
+    def __init__(self, tmp_path: Path, source: str, *options: str):
+        self.run_dir = tmp_path / "it-interrupt"
+        command = [sys.executable, "-m", "zenslam.service.cli", "run", source, "--output", str(tmp_path),
+                   "--run-id", "it-interrupt", *options]  # fmt: skip
+        self.popen = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+        self._out: list[bytes] = []
+        self._err: list[bytes] = []
+        self._readers = [
+            threading.Thread(target=self._read, args=(self.popen.stdout, self._out), daemon=True),
+            threading.Thread(target=self._read, args=(self.popen.stderr, self._err), daemon=True),
+        ]
+        for reader in self._readers:
+            reader.start()
+
+    @staticmethod
+    def _read(stream, into: list[bytes]) -> None:
+        while chunk := stream.read1(65536):
+            into.append(chunk)
+
+    @property
+    def stdout(self) -> str:
+        return b"".join(self._out).decode(errors="replace")
+
+    @property
+    def stderr(self) -> str:
+        return b"".join(self._err).decode(errors="replace")
+
+    def wait_for(self, what: str, condition: Callable[[], bool]) -> None:
+        """Wait until ``condition()``; fail if the run exits first or the deadline passes."""
+        deadline = time.monotonic() + DEADLINE_S
+        while not condition():
+            assert self.popen.poll() is None, f"the run exited ({self.popen.returncode}) before {what}:\n{self.stderr[-3000:]}"
+            assert time.monotonic() < deadline, f"no {what} within {DEADLINE_S:.0f} s:\n{self.stderr[-3000:]}"
+            time.sleep(0.005)
+
+    def frames_tracked(self) -> int:
+        """The last count the progress bar showed (frames whose state the command received)."""
+        counts = re.findall(r"(\d+)/\d+ \[", self.stderr)
+        return int(counts[-1]) if counts else 0
+
+    def children(self) -> list[int]:
+        """The pids of the run's stage processes (children of the command)."""
+        pids = []
+        for stat in Path("/proc").glob("[0-9]*/stat"):
+            try:
+                fields = stat.read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == self.popen.pid:
+                pids.append(int(stat.parent.name))
+        return pids
+
+    def finish(self) -> int:
+        code = self.popen.wait(timeout=DEADLINE_S)
+        for reader in self._readers:
+            reader.join(timeout=30.0)
+        return code
+
+
+def _imports_under_way(run: _Run) -> bool:
+    """The command has loaded zenoh (its command modules are importing) and made no run folder yet."""
+    maps = Path(f"/proc/{run.popen.pid}/maps")
+    try:
+        return "zenoh" in maps.read_text() or (run.run_dir / "config.yaml").exists()
+    except OSError:
+        return False
+
+
+def _pose_lines(path: Path) -> int:
+    return sum(1 for line in path.read_text().splitlines() if line and not line.startswith("#"))
+
+
+def _check_what_was_left(run: _Run, code: int) -> dict:
+    """The run's promises after an interrupt; returns its metrics."""
+    stdout, stderr = run.stdout, run.stderr
+    context = f"stdout:\n{stdout[-2000:]}\nstderr:\n{stderr[-4000:]}"
+    assert code == 130, context
+    assert "Traceback" not in stdout + stderr, context
+    assert sum(INTERRUPTED_LINE in line for line in stderr.splitlines()) == 1, context
+    for log in (run.run_dir / "logs").glob("*.log"):
+        assert "Traceback" not in log.read_text(errors="replace"), f"{log}:\n{log.read_text(errors='replace')[-4000:]}"
+    metrics = json.loads((run.run_dir / "metrics.json").read_text())
+    assert metrics["run"]["completed"] is False
+    recording = run.run_dir / "run.mcap"
+    assert mcap_io.has_summary(recording), "run.mcap was not finished (no summary)"
+    states = [decoded for _, decoded in mcap_io.iter_decoded(recording, ["/frontend/state"])]
+    published = sum(1 for _ in mcap_io.iter_messages(recording, ["/frontend/pose"]))
+    assert published == sum(1 for s in states if not isinstance(s, codec.EndOfStream) and s.has_pose)
+    # Every pose the frontend published for a frame tracked ok is in trajectory.tum.
+    tracked_ok = sum(1 for s in states if not isinstance(s, codec.EndOfStream) and s.has_pose and s.state == "ok")
+    assert _pose_lines(run.run_dir / "trajectory.tum") == metrics["tracked_ok"] == tracked_ok
+    assert metrics["frames"] == len(states) - (1 if states and isinstance(states[-1], codec.EndOfStream) else 0)
+    assert (run.run_dir / "keyframes.tum").is_file()
+    if metrics["frames"]:
+        assert _pose_lines(run.run_dir / "keyframes.tum") >= 1
+        assert isinstance(states[-1], codec.EndOfStream), "the frontend's end of stream is not in run.mcap"
+    return metrics
+
+
+def _interrupt(run: _Run, whom: str) -> None:
+    if whom == "group":
+        os.killpg(run.popen.pid, signal.SIGINT)
+    elif whom == "command":
+        os.kill(run.popen.pid, signal.SIGINT)
+    else:  # every process of the run, as a terminal that signals the whole session would
+        for pid in [run.popen.pid, *run.children()]:
+            try:
+                os.kill(pid, signal.SIGINT)
+            except ProcessLookupError:
+                pass
+
+
+@pytest.mark.skipif(not Path("/proc/self/maps").exists(), reason="needs /proc to see the command's imports")
+def test_ctrl_c_during_the_imports(tmp_path):
+    run = _Run(tmp_path, "synthetic", "--max-frames", "200")
+    run.wait_for("the command's imports", lambda: _imports_under_way(run))
+    _interrupt(run, "group")
+    metrics = _check_what_was_left(run, run.finish())
+    assert metrics["frames"] == 0
+
+
+def test_ctrl_c_while_the_stages_start(tmp_path):
+    """The recorder is up and the backend is importing: it gets the stop held until its handler is in."""
+    run = _Run(tmp_path, "synthetic", "--max-frames", "200")
+    run.wait_for("the backend's start", lambda: (run.run_dir / "logs" / "backend.log").exists())
+    _interrupt(run, "group")
+    metrics = _check_what_was_left(run, run.finish())
+    assert metrics["frames"] == 0
+    assert not (run.run_dir / "logs" / "source.log").exists()  # no stage is started after the interrupt
+
+
+@pytest.mark.parametrize("whom", ["group", "command", "every process"])
+def test_ctrl_c_mid_stream(tmp_path, whom):
+    run = _Run(tmp_path, "synthetic", "--max-frames", "200")
+    run.wait_for("5 frames tracked", lambda: run.frames_tracked() >= 5)
+    _interrupt(run, whom)
+    metrics = _check_what_was_left(run, run.finish())
+    assert 5 <= metrics["frames"] < 200
+
+
+def test_ctrl_c_while_the_backend_drains(tmp_path):
+    config = tmp_path / "slow_backend.yaml"
+    config.write_text(SLOW_BACKEND_YAML)
+    run = _Run(tmp_path, "synthetic", "--max-frames", "30", "--config", str(config))
+    waiting = re.compile(r"waiting for the backend: (\d+) of (\d+) keyframes")
+    run.wait_for("the backend's drain", lambda: waiting.search(run.stderr) is not None)
+    _interrupt(run, "group")
+    metrics = _check_what_was_left(run, run.finish())
+    processed, sent = map(int, waiting.search(run.stderr).groups())
+    assert processed < sent, "the backend had caught up: this run did not test a drain"
+    assert metrics["frames"] == 30  # the frontend had ended: every frame was tracked
+    assert metrics["keyframes"]["processed"] < metrics["keyframes"]["sent"]
+
+
+@pytest.mark.parametrize("moment", ["start-up", "mid-stream"])
+def test_ctrl_c_on_the_kitti_clip(tmp_path, kitti_root, moment):
+    run = _Run(tmp_path, f"kitti:{kitti_root / 'sequences' / '06'}")
+    if moment == "start-up":
+        run.wait_for("the backend's start", lambda: (run.run_dir / "logs" / "backend.log").exists())
+    else:
+        run.wait_for("10 frames tracked", lambda: run.frames_tracked() >= 10)
+    _interrupt(run, "group")
+    metrics = _check_what_was_left(run, run.finish())
+    assert metrics["frames"] < 51
