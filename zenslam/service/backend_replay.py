@@ -15,13 +15,14 @@ import logging
 import math
 import sys
 import tempfile
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Protocol
 
 from zenslam.backend.config import BackendConfig
 from zenslam.backend.node import BackendNode
 from zenslam.runtime.stage import add_process_arguments, load_section, setup_process_logging
+from zenslam.runtime.stop import EXIT_INTERRUPTED, StopFlag
 from zenslam.runtime.supervisor import ProcessSpec, Supervisor
 from zenslam.schemas import codec
 from zenslam.schemas.map_update import MapUpdate
@@ -44,12 +45,17 @@ class Backend(Protocol):
     def step(self, keyframe: codec.KeyframeMessage) -> MapUpdate: ...
 
 
-def map_updates(keyframes: Iterable[mcap_io.RecordedMessage], backend: Backend) -> list[mcap_io.RecordedMessage]:
+def map_updates(
+    keyframes: Iterable[mcap_io.RecordedMessage], backend: Backend, keep_going: Callable[[], bool] = lambda: True
+) -> list[mcap_io.RecordedMessage]:
     """``backend``'s map update for each recorded keyframe message, in order, and its end of stream when
-    the keyframes end with one; logged at the update's stamp (the last one seen, for the end)."""
+    the keyframes end with one; logged at the update's stamp (the last one seen, for the end). Stops
+    early, without an end of stream, once ``keep_going()`` is false."""
     replayed: list[mcap_io.RecordedMessage] = []
     last_stamp_ns = 0
     for message in keyframes:
+        if not keep_going():
+            break
         keyframe = codec.decode_keyframe(message.data)
         if isinstance(keyframe, codec.EndOfStream):
             data = codec.encode_end_of_stream(codec.MAP_UPDATE, backend.processed)
@@ -90,13 +96,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--output", type=Path, required=True, help="MCAP file to write the map updates to")
     args = parser.parse_args(argv)
     setup_process_logging(args.verbose, PROCESS_NAME)
+    stop = StopFlag(args.parent_pid).install()  # the supervisor starts it with SIGINT/SIGTERM held back
     backend = BackendNode.from_config(load_section(args.config, "backend", BackendConfig))
     keyframes = read_topics(args.recording, (KEYFRAME_TOPIC,))[KEYFRAME_TOPIC]
     with mcap_io.RecordingWriter(args.output) as writer:
-        for message in map_updates(keyframes, backend):
+        for message in map_updates(keyframes, backend, stop.keep_going):
             writer.write(message.topic, message.schema, message.data, message.log_time_ns)
     logger.info("%d keyframes replayed through the backend into %s", backend.processed, args.output)
-    return 0
+    return EXIT_INTERRUPTED if stop() else 0
 
 
 if __name__ == "__main__":

@@ -18,6 +18,7 @@ import textwrap
 from pathlib import Path
 
 from zenslam.errors import ProcessError, RecordingError
+from zenslam.runtime.stop import EXIT_INTERRUPTED
 from zenslam.service import backend_replay, mcap_io, replay
 from zenslam.service.commands import run as run_command
 from zenslam.service.recorder import RECORDING_NAME
@@ -37,7 +38,7 @@ verdict (first line of the output):
                                  the earliest value that differs (beyond X), e.g. p_world[1372][0]
 
 exit status: 0 identical or equivalent, 1 a difference, 2 an error (unreadable recording, a replay
-run or backend replay process that failed).
+run or backend replay process that failed), 130 interrupted.
 """
 
 
@@ -107,6 +108,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         run_id = args.run_id or f"replay-{new_run_id()}"
         code, replayed = replay_pipeline(recording, args.output, run_id, progress=not args.no_progress)
+        if code == EXIT_INTERRUPTED:
+            return code
         if code != 0:
             raise ProcessError(f"the replay run ended with exit code {code}; see {replayed.parent}")
         if not replayed.is_file():
