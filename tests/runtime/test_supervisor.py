@@ -198,4 +198,5 @@ def test_children_get_the_malloc_tunables_unless_the_caller_set_their_own(tmp_pa
     with _supervisor(tmp_path, env) as supervisor:
         supervisor.start(ProcessSpec("env", "env_child"))
         supervisor.wait_exit(timeout_s=30.0)
+        # On x86-64 the pinned math kernels add glibc.cpu.hwcaps after them (tests/runtime/test_cpu_kernels.py).
         assert f"GLIBC_TUNABLES={given or MALLOC_TUNABLES}" in supervisor.log_tail("env")

@@ -193,9 +193,47 @@ def test_map_update_round_trip():
     for name in ("point_ids", "p_world", "descriptors", "normals", "min_distance_m", "max_distance_m",
                  "removed_point_ids", "removed_keyframe_ids"):
         np.testing.assert_array_equal(getattr(decoded, name), getattr(update, name), err_msg=name)
+    msg = pb.MapUpdate.FromString(codec.encode_map_update(update))
+    for name in codec.ARRAY_FIELDS[codec.MAP_UPDATE]:
+        np.testing.assert_array_equal(codec.array_field(msg, name), getattr(update, name), err_msg=name)
+        assert codec.array_field(msg, name).dtype == np.asarray(getattr(update, name)).dtype, name
+    np.testing.assert_array_equal(codec.array_field(msg.keyframes[1], "map_point_ids"), update.keyframes[1].map_point_ids)
     empty = codec.decode_map_update(codec.encode_map_update(MapUpdate(keyframe_id=1, stamp_ns=2)))
     assert empty.keyframes == () and empty.p_world.shape == (0, 3) and empty.descriptors.shape == (0, 32)
 
+
+
+def test_array_field_reads_every_array_with_the_codecs_dtype_and_row_shape():
+    kf = _keyframe(np.random.default_rng(9), n=12, m=5)
+    msg = pb.Keyframe.FromString(codec.encode_keyframe(kf))
+    for name in codec.ARRAY_FIELDS[codec.KEYFRAME]:
+        got, want = codec.array_field(msg, name), getattr(kf, name)
+        assert got.dtype == want.dtype and got.shape == want.shape, name
+        np.testing.assert_array_equal(got, want, err_msg=name)
+    T = np.stack([make_T(so3_exp(np.array([0.0, 0.1 * k, 0.0])), np.array([k, 0.0, 0.0])) for k in range(3)])
+    trajectory = codec.KeyframeTrajectoryMessage(np.arange(3, dtype=np.int64), np.arange(3, dtype=np.int64) * 10, T)
+    snapshot = pb.MapSnapshot.FromString(
+        codec.encode_map_snapshot(codec.MapSnapshotMessage(trajectory, np.array([7, 8], np.int64), np.ones((2, 3))))
+    )
+    np.testing.assert_array_equal(codec.array_field(snapshot.keyframes, "T_world_cam"), T)
+    np.testing.assert_array_equal(codec.array_field(snapshot, "p_world"), np.ones((2, 3)))
+
+
+def test_every_bytes_field_of_the_compared_messages_has_an_array_layout():
+    for schema in (codec.KEYFRAME, codec.MAP_UPDATE, codec.KEYFRAME_TRAJECTORY, codec.MAP_SNAPSHOT):
+        descriptors = [codec.MESSAGE_CLASSES[schema].DESCRIPTOR]
+        descriptors += [f.message_type for f in descriptors[0].fields if f.message_type is not None]
+        for descriptor in descriptors:
+            for f in descriptor.fields:
+                if f.type == f.TYPE_BYTES:
+                    assert f.name in codec.ARRAY_FIELDS[descriptor.full_name], f"{descriptor.full_name}.{f.name}"
+
+
+def test_array_field_falls_back_to_bytes_for_unlisted_or_ragged_fields():
+    msg = pb.MapUpdate(p_world=bytes(range(20)))  # not a whole number of float64 triples
+    np.testing.assert_array_equal(codec.array_field(msg, "p_world"), np.arange(20, dtype=np.uint8))
+    frame = pb.SensorFrame(left=b"\x01\x02")
+    assert codec.array_field(frame, "left").tolist() == [1, 2]
 
 def test_pose_in_frame_is_foxglove_and_round_trips():
     T = make_T(so3_exp(np.array([0.3, 0.2, -1.1])), np.array([5.0, 0.25, -3.0]))

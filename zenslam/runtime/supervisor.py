@@ -26,7 +26,7 @@ from pathlib import Path
 import zenoh
 
 from zenslam.errors import ProcessError
-from zenslam.runtime import bus
+from zenslam.runtime import bus, cpu_kernels
 from zenslam.runtime.stop import STOP_SIGNALS
 
 logger = logging.getLogger(__name__)
@@ -83,6 +83,7 @@ class Supervisor:
         # the heap cut the stages' system CPU on the KITTI clip (lockstep) from 1.41 s to 0.64 s,
         # for at most trim_threshold of memory held per process.
         self.env.setdefault("GLIBC_TUNABLES", MALLOC_TUNABLES)
+        self.env = cpu_kernels.with_pinned_kernels(self.env)  # same bits on any x86-64 CPU: see cpu_kernels
         self._children: dict[str, _Child] = {}
 
     def __enter__(self) -> Supervisor:

@@ -61,6 +61,25 @@ _STAGE: dict[str, int] = {
 }
 _NS_PER_S = 1_000_000_000
 
+# Element type and shape of one row of every array that travels in a bytes field, per protobuf
+# message type (the row count follows from the field's length); zenslam.proto states the same.
+ArrayLayout = tuple[str, tuple[int, ...]]
+ARRAY_FIELDS: dict[str, dict[str, ArrayLayout]] = {
+    KEYFRAME: {
+        "keypoints_px": ("<f4", (2,)), "levels": ("<i2", ()), "angles_deg": ("<f4", ()), "right_u": ("<f4", ()),
+        "depth_m": ("<f4", ()), "descriptors": ("u1", (32,)), "map_point_ids": ("<i8", ()), "scale_factors": ("<f8", ()),
+        "new_point_ids": ("<i8", ()), "new_points_world": ("<f8", (3,)),
+    },
+    "zenslam.KeyframeCorrection": {"map_point_ids": ("<i8", ())},
+    MAP_UPDATE: {
+        "point_ids": ("<i8", ()), "p_world": ("<f8", (3,)), "descriptors": ("u1", (32,)), "normals": ("<f8", (3,)),
+        "min_distance_m": ("<f8", ()), "max_distance_m": ("<f8", ()), "removed_point_ids": ("<i8", ()),
+        "removed_keyframe_ids": ("<i8", ()),
+    },
+    KEYFRAME_TRAJECTORY: {"keyframe_ids": ("<i8", ()), "stamps_ns": ("<i8", ()), "T_world_cam": ("<f8", (4, 4))},
+    MAP_SNAPSHOT: {"point_ids": ("<i8", ()), "p_world": ("<f8", (3,))},
+}  # fmt: skip
+
 
 @dataclass(frozen=True)
 class EndOfStream:
@@ -175,6 +194,18 @@ def _unpack(data: bytes, dtype: str, shape: tuple[int, ...], name: str) -> np.nd
     if len(data) != expected:
         raise MessageError(f"field {name}: expected {expected} bytes for {dt} {shape}, got {len(data)}; sender and receiver disagree")
     return np.frombuffer(data, dtype=dt).reshape(shape)
+
+
+def array_field(message: Message, name: str) -> np.ndarray:
+    """The array that bytes field ``name`` of ``message`` holds, shaped (rows, *row shape) with the
+    element type of ARRAY_FIELDS; the raw bytes as uint8 for a field not listed there or whose
+    length is not a whole number of rows."""
+    data = bytes(getattr(message, name))
+    dtype, row_shape = ARRAY_FIELDS.get(message.DESCRIPTOR.full_name, {}).get(name, ("u1", ()))
+    row_bytes = np.dtype(dtype).itemsize * int(np.prod(row_shape))
+    if len(data) % row_bytes:
+        dtype, row_shape = "u1", ()
+    return np.frombuffer(data, dtype=dtype).reshape((-1, *row_shape))
 
 
 def _parse(cls: type[Message], data: bytes) -> Message:
