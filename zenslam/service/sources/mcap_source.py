@@ -112,13 +112,13 @@ def write_frames(
     sensor: SensorKind,
     source_name: str = "",
 ) -> int:
-    """Record ``frames`` on the sensor/frame channel of a new MCAP file as the recorder would (log time =
+    """Record ``frames`` on the sensor/frame channel of a new MCAP file as the recorder would (PNG images, log time =
     stamp, ns), ending with the stream's end-of-stream message; returns the frames written."""
     topic = sensor_frame_topic()
     written, last_stamp_ns = 0, 0
     with mcap_io.RecordingWriter(path) as writer:
         for frame in frames:
-            data = codec.encode_sensor_frame(frame, calibration, sensor, source_name)
+            data = codec.encode_sensor_frame(frame, calibration, sensor, source_name, image_encoding="png")
             writer.write(topic, codec.SENSOR_FRAME, data, frame.stamp_ns)
             written, last_stamp_ns = written + 1, frame.stamp_ns
         writer.write(topic, codec.SENSOR_FRAME, codec.encode_end_of_stream(codec.SENSOR_FRAME, written), last_stamp_ns)
