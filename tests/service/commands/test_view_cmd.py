@@ -110,3 +110,10 @@ def test_a_missing_viewer_is_reported(run_dir, tmp_path, monkeypatch, capsys):
 def test_the_default_viewer_is_the_installed_rerun():
     executable = view.viewer_executable()
     assert Path(executable).name == "rerun"
+
+
+def test_the_command_line_does_not_load_rerun_until_a_command_needs_it():
+    # Every subcommand's module is imported to build the parser; `zenslam run`'s hub must not hold rerun.
+    code = "import sys; from zenslam.service import cli; cli.build_parser(); print('rerun' in sys.modules)"
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert result.stdout.strip() == "False"
