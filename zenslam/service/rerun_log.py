@@ -31,7 +31,9 @@ LocalMapper's map and statistics); algorithm modules never import rerun.
 
 from __future__ import annotations
 
+import importlib.abc
 import logging
+import sys
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
@@ -106,6 +108,35 @@ def sensor_time(stamp_ns: int) -> dict[str, np.datetime64 | np.timedelta64]:
     return {"duration": np.timedelta64(stamp_ns, "ns")}
 
 
+class _NoPandas(importlib.abc.MetaPathFinder):
+    """An import finder under which ``import pandas`` fails as if pandas were not installed."""
+
+    def find_spec(self, name: str, path: Any = None, target: Any = None) -> None:
+        if name.partition(".")[0] == "pandas":
+            raise ModuleNotFoundError(f"No module named {name!r}", name=name)
+        return None
+
+
+@contextmanager
+def _pandas_hidden() -> Iterator[None]:
+    """Hide pandas while pyarrow first looks for it: a stage never converts to pandas.
+
+    pyarrow imports pandas (when installed, as evo needs it) the first time it builds an array from
+    a Python list, only to check for pandas types; rerun does that on its first log call. That
+    import costs a stage process about 27 MB. pyarrow looks once per process, so after the first
+    log call pandas can be importable again (and its explicit conversions still import it).
+    """
+    if "pandas" in sys.modules:
+        yield
+        return
+    finder = _NoPandas()
+    sys.meta_path.insert(0, finder)
+    try:
+        yield
+    finally:
+        sys.meta_path.remove(finder)
+
+
 class StageRecording:
     """One stage's recording stream, saved to ``<run_dir>/<stage>.rrd``; use with ``with`` (flushes on exit)."""
 
@@ -118,7 +149,8 @@ class StageRecording:
         self.stream = rr.RecordingStream(APPLICATION_ID, recording_id=run_id, send_properties=False)
         self.stream.set_log_time_enabled(False)  # wall clock: logged data must compare equal across runs
         self.stream.set_log_tick_enabled(False)  # counts log calls, which differ between processes
-        self.stream.save(self.path, default_blueprint=default_blueprint())
+        with _pandas_hidden():  # the blueprint is the first thing logged
+            self.stream.save(self.path, default_blueprint=default_blueprint())
         self._closed = False
 
     def __enter__(self) -> StageRecording:
