@@ -143,7 +143,8 @@ class RecorderConfig:
     # always written. 0: one after every keyframe and map update.
     map_points_period_s: float = 1.0  # seconds
     # Uncompressed bytes per chunk; a killed recorder loses the open chunk (``zenslam recover`` keeps the rest).
-    chunk_size: int = 4 * 1024 * 1024  # bytes
+    # The writer holds the open chunk and its compressed copy in memory; 1 MiB is two stereo VGA frames.
+    chunk_size: int = 1024 * 1024  # bytes
     # MCAP chunk compression: zstd, lz4 or none. On the KITTI clip's recording lz4 took half of zstd's
     # CPU (0.24 s vs 0.50 s) for an 11% larger file (87 vs 78 MB; raw images barely compress):
     # the recorder competes with tracking and mapping for the CPU, so lz4; zstd for smaller archives.
