@@ -61,7 +61,7 @@ def render_input(path: Path, frames: int, width: int, height: int) -> str:
 
 def golden_config(input_spec: str):
     """The golden run's configuration: lockstep, rerun off, JPEG viewer images."""
-    from zenslam.runtime.rerun_log import RerunConfig
+    from zenslam.runtime.rerun_config import RerunConfig
     from zenslam.service.run_config import RecorderConfig, RunConfig, SourceConfig
 
     return RunConfig(

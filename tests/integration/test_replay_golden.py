@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from zenslam.runtime.rerun_log import RerunConfig
+from zenslam.runtime.rerun_config import RerunConfig
 from zenslam.runtime import cpu_kernels
 from zenslam.service import backend_replay, replay
 from zenslam.service.run_config import RecorderConfig, RunConfig, run_config_to_yaml

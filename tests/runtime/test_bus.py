@@ -38,6 +38,9 @@ def test_default_config_stays_on_loopback_without_multicast():
     assert json.loads(cfg.get_json("scouting/multicast/enabled")) is False
     assert json.loads(cfg.get_json("listen/endpoints")) == ["tcp/127.0.0.1:0"]
     assert json.loads(cfg.get_json("mode")) == "peer"
+    assert json.loads(cfg.get_json("transport/shared_memory/enabled")) is False
+    shm = bus.zenoh_config(bus.BusConfig(shared_memory=True))
+    assert json.loads(shm.get_json("transport/shared_memory/enabled")) is True
 
 
 def test_zenoh_config_file_replaces_the_fields(tmp_path):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from dataclasses import dataclass, field
 from types import SimpleNamespace
 
@@ -156,3 +158,24 @@ def test_the_backend_logs_the_map_its_graphs_local_ba_counts_and_timings(tmp_pat
     assert _value(data, "/backend/counts/map_points", "Scalars:scalars", 4) == [2.0]
     assert _value(data, "/backend/counts/queue_depth", "Scalars:scalars", 9) == [2.0]
     assert _frames(data, "/backend/timing/local_ba", "Scalars:scalars") == [4, 9]
+
+
+def test_a_stage_recording_keeps_pandas_out_of_the_stage_process(tmp_path):
+    # In a fresh interpreter, as in a stage process: pyarrow would import pandas on rerun's first log.
+    code = f"""
+import sys
+import numpy as np
+import rerun as rr
+from rerun.chunk import RrdReader
+from zenslam.runtime.rerun_log import StageRecording
+from zenslam.service.run_config import RerunConfig
+with StageRecording({str(tmp_path)!r}, "r", "backend", RerunConfig()) as recording:
+    recording.at(0, 0)
+    recording.log("backend/map_points", rr.Points3D(np.zeros((4, 3))))
+    recording.log("frontend/state", rr.TextLog("ok"))
+print("pandas" in sys.modules, bool(RrdReader({str(tmp_path / "backend.rrd")!r}).blueprints()))
+import pandas  # still importable by whoever needs it
+"""
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert result.returncode == 0 and "Warning" not in result.stderr, result.stderr[-2000:]
+    assert result.stdout.split() == ["False", "True"]

@@ -65,6 +65,46 @@ def test_depth_float32_is_exact_and_uint16_mm_within_half_a_millimetre():
     assert np.all(mm[0, :5] == 0.0)
 
 
+def _textured(rng: np.random.Generator) -> np.ndarray:
+    """A smooth ramp with noise: compressible like camera images, yet every pixel matters."""
+    ramp = np.add.outer(np.arange(24), 3 * np.arange(32)).astype(np.int16)
+    return np.clip(ramp + rng.integers(-3, 4, ramp.shape), 0, 255).astype(np.uint8)
+
+
+def test_png_frames_decode_to_the_same_pixels_and_keep_everything_else():
+    rng = np.random.default_rng(5)
+    left, right, depth = _textured(rng), _textured(rng), _images(rng)[2]
+    frame = SensorFrame(4, 1_000, left, right, depth_m=depth)
+    raw = codec.encode_sensor_frame(frame, CAL, "rgbd", "tum/desk", depth_encoding="uint16_mm")
+    for data in (codec.encode_sensor_frame(frame, CAL, "rgbd", "tum/desk", "uint16_mm", image_encoding="png"),
+                 codec.sensor_frame_as_png(raw)):  # fmt: skip
+        assert pb.SensorFrame.FromString(data).image_encoding == pb.IMAGE_ENCODING_PNG
+        assert len(data) < len(raw) - 2 * 24 * 32 // 4  # the images shrink
+        png, expected = codec.decode_sensor_frame(data), codec.decode_sensor_frame(raw)
+        assert png.frame.left.dtype == np.uint8 and not png.frame.left.flags.writeable
+        np.testing.assert_array_equal(png.frame.left, left)
+        np.testing.assert_array_equal(png.frame.right, right)
+        np.testing.assert_array_equal(png.frame.depth_m, expected.frame.depth_m)
+        assert (png.frame.index, png.frame.stamp_ns, png.calibration, png.sensor, png.source_name) == (
+            4, 1_000, CAL, "rgbd", "tum/desk"
+        )
+    as_png = codec.sensor_frame_as_png(raw)
+    assert codec.sensor_frame_as_png(as_png) == as_png  # already PNG: unchanged
+    end = codec.encode_end_of_stream(codec.SENSOR_FRAME, 3)
+    assert codec.sensor_frame_as_png(end) == end
+
+
+def test_a_png_of_the_wrong_size_names_the_frame():
+    left = _textured(np.random.default_rng(6))
+    msg = pb.SensorFrame.FromString(codec.encode_sensor_frame(SensorFrame(9, 0, left), CAL, "mono", image_encoding="png"))
+    msg.left = codec.png_bytes(left[:, :30])
+    with pytest.raises(codec.MessageError, match=r"sensor frame 9 left: the PNG holds uint8 \(24, 30\), expected uint8 \(24, 32\)"):
+        codec.decode_sensor_frame(msg.SerializeToString())
+    msg.left = b"not a png"
+    with pytest.raises(codec.MessageError, match="sensor frame 9 left: the PNG holds undecodable bytes"):
+        codec.decode_sensor_frame(msg.SerializeToString())
+
+
 def test_image_size_must_match_calibration():
     left = np.zeros((24, 30), np.uint8)
     with pytest.raises(CalibrationError, match="30x24 but the calibration says 32x24"):

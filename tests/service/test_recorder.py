@@ -15,6 +15,7 @@ from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 
 from zenslam.camera import PinholeCalibration
 from zenslam.schemas import codec, keys
+from zenslam.schemas import zenslam_pb2 as pb
 from zenslam.schemas.map_update import KeyframeCorrection, MapUpdate
 from zenslam.runtime import bus
 from zenslam.service import mcap_io
@@ -65,6 +66,7 @@ def _record_all(tmp_path, messages, config=RecorderConfig()):
         recorder = Recorder(writer, config, SESSION)
         for key, schema, data in messages:
             recorder.record(key, ENCODING.format(schema), data)
+        recorder.finish()
     return path, recorder
 
 
@@ -75,7 +77,29 @@ def _by_topic(path) -> dict[str, list[mcap_io.RecordedMessage]]:
     return out
 
 
-def test_frames_are_recorded_raw_and_as_lossless_png_images_on_request(tmp_path):
+@pytest.mark.parametrize("frame_images", ["png", "raw"])
+def test_frames_are_recorded_losslessly_in_png_or_raw(tmp_path, frame_images):
+    sent = [_frame(i) for i in range(3)] + [codec.encode_end_of_stream(codec.SENSOR_FRAME, 3)]
+    messages = [(keys.sensor_frame(SESSION), codec.SENSOR_FRAME, f) for f in sent]
+    path, _ = _record_all(tmp_path, messages, RecorderConfig(frame_images=frame_images))
+    recorded = _by_topic(path)["/sensor/frame"]
+    encoding = {"png": pb.IMAGE_ENCODING_PNG, "raw": pb.IMAGE_ENCODING_RAW}[frame_images]
+    assert [pb.SensorFrame.FromString(m.data).image_encoding for m in recorded[:3]] == [encoding] * 3
+    if frame_images == "raw":
+        assert [m.data for m in recorded] == sent  # as it came
+    for message, data in zip(recorded, sent):
+        got, expected = mcap_io.decode(message), codec.decode_sensor_frame(data)
+        if isinstance(expected, codec.EndOfStream):
+            assert got == expected
+            continue
+        np.testing.assert_array_equal(got.frame.left, expected.frame.left)  # bit-exact
+        np.testing.assert_array_equal(got.frame.right, expected.frame.right)
+        assert (got.frame.index, got.frame.stamp_ns, got.calibration, got.sensor) == (
+            expected.frame.index, expected.frame.stamp_ns, expected.calibration, expected.sensor
+        )
+
+
+def test_viewer_images_are_lossless_png_on_request(tmp_path):
     config = RecorderConfig(image_format="png")
     path, _ = _record_all(tmp_path, [(keys.sensor_frame(SESSION), codec.SENSOR_FRAME, _frame(i)) for i in range(3)], config)
     topics = _by_topic(path)
@@ -160,6 +184,20 @@ def test_keyframes_and_map_updates_give_point_clouds(tmp_path):
     assert [f.name for f in last.fields] == ["x", "y", "z"] and last.point_stride == 12
     np.testing.assert_array_equal(np.frombuffer(last.data, "<f4").reshape(-1, 3), [[0, 0, 2], [0, 0, 3]])
     assert clouds[-1].log_time_ns == 500  # the update has no stamp of its own: the keyframe's
+
+
+def test_point_clouds_come_at_most_once_per_period_and_the_final_map_last(tmp_path):
+    keyframes = [
+        (keys.frontend_keyframe(SESSION), codec.KEYFRAME, codec.encode_keyframe(_keyframe(i, stamp, [i], [[0, 0, float(i)]])))
+        for i, stamp in enumerate((0, 400_000_000, 1_000_000_000, 1_300_000_000))
+    ]
+    path, _ = _record_all(tmp_path, keyframes, RecorderConfig(map_points_period_s=1.0))
+    clouds = _by_topic(path)["/map/points"]
+    # 0.4 s and 1.3 s came within a second of the previous cloud; 1.3 s is the last map: written at the end.
+    assert [m.log_time_ns for m in clouds] == [0, 1_000_000_000, 1_300_000_000]
+    assert [len(PointCloud.FromString(m.data).data) // 12 for m in clouds] == [1, 3, 4]
+    path, _ = _record_all(tmp_path, keyframes, RecorderConfig(map_points_period_s=0.0))
+    assert len(_by_topic(path)["/map/points"]) == 4
 
 
 def test_an_undecodable_message_is_still_recorded(tmp_path):

@@ -43,7 +43,11 @@ class BusConfig:
     listen: tuple[str, ...] = ("tcp/127.0.0.1:0",)  # zenoh endpoints to listen on; port 0 picks a free port
     connect: tuple[str, ...] = ()  # zenoh endpoints to connect to: the run's hub, or routers
     multicast_scouting: bool = False  # UDP multicast discovery; off keeps a run on its own machine
-    zenoh_config_file: str | None = None  # a zenoh JSON5 config file; when set it replaces the four fields above
+    # zenoh's shared-memory transport: on, every process that sends large messages keeps a 16 MiB
+    # pool, mapped into the memory of every process it sends to; off, large messages cross the
+    # loopback socket instead (one copy per receiver, cheap at camera rates).
+    shared_memory: bool = False
+    zenoh_config_file: str | None = None  # a zenoh JSON5 config file; when set it replaces the five fields above
     lossless_queue: int = 32  # messages a lossless inbox holds before the sender blocks, messages
     live_queue: int = 2  # newest camera frames a live inbox keeps (older ones dropped), frames
     start_timeout_s: float = 60.0  # seconds a process waits for the stages it needs to come up
@@ -65,6 +69,7 @@ def zenoh_config(config: BusConfig) -> zenoh.Config:
         cfg.insert_json5("scouting/multicast/enabled", json.dumps(config.multicast_scouting))
         cfg.insert_json5("listen/endpoints", json.dumps(list(config.listen)))
         cfg.insert_json5("connect/endpoints", json.dumps(list(config.connect)))
+        cfg.insert_json5("transport/shared_memory/enabled", json.dumps(config.shared_memory))
     except zenoh.ZError as exc:
         raise ConfigError(f"invalid bus configuration {config}: {exc}") from exc
     return cfg

@@ -31,10 +31,11 @@ LocalMapper's map and statistics); algorithm modules never import rerun.
 
 from __future__ import annotations
 
+import importlib.abc
 import logging
+import sys
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -43,27 +44,10 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from zenslam.camera import PinholeCalibration
-from zenslam.errors import ConfigError
+from zenslam.runtime.rerun_config import RerunConfig
 from zenslam.schemas.sensor_data import SensorFrame
 
 logger = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class RerunConfig:
-    """What the stage processes log to rerun (the ``rerun`` section): ``<run>/<stage>.rrd``, one recording per run."""
-
-    enabled: bool = True  # every stage process writes its .rrd next to the run's config.yaml
-    image_every_n: int = 1  # frames; the source logs every n-th left image (keypoints and poses are logged every frame)
-    # JPEG-compressed images: a third of the CPU and of the file size of raw images.
-    jpeg: bool = True
-    jpeg_quality: int = 90  # JPEG quality 1-100 (jpeg true)
-
-    def __post_init__(self) -> None:
-        if self.image_every_n < 1:
-            raise ConfigError(f"rerun.image_every_n={self.image_every_n} must be at least 1 frame (1: every image)")
-        if not 1 <= self.jpeg_quality <= 100:
-            raise ConfigError(f"rerun.jpeg_quality={self.jpeg_quality} must be between 1 and 100")
 
 
 APPLICATION_ID = "zenslam"
@@ -125,6 +109,35 @@ def sensor_time(stamp_ns: int) -> dict[str, np.datetime64 | np.timedelta64]:
     return {"duration": np.timedelta64(stamp_ns, "ns")}
 
 
+class _NoPandas(importlib.abc.MetaPathFinder):
+    """An import finder under which ``import pandas`` fails as if pandas were not installed."""
+
+    def find_spec(self, name: str, path: Any = None, target: Any = None) -> None:
+        if name.partition(".")[0] == "pandas":
+            raise ModuleNotFoundError(f"No module named {name!r}", name=name)
+        return None
+
+
+@contextmanager
+def _pandas_hidden() -> Iterator[None]:
+    """Hide pandas while pyarrow first looks for it: a stage never converts to pandas.
+
+    pyarrow imports pandas (when installed, as evo needs it) the first time it builds an array from
+    a Python list, only to check for pandas types; rerun does that on its first log call. That
+    import costs a stage process about 27 MB. pyarrow looks once per process, so after the first
+    log call pandas can be importable again (and its explicit conversions still import it).
+    """
+    if "pandas" in sys.modules:
+        yield
+        return
+    finder = _NoPandas()
+    sys.meta_path.insert(0, finder)
+    try:
+        yield
+    finally:
+        sys.meta_path.remove(finder)
+
+
 class StageRecording:
     """One stage's recording stream, saved to ``<run_dir>/<stage>.rrd``; use with ``with`` (flushes on exit)."""
 
@@ -137,7 +150,8 @@ class StageRecording:
         self.stream = rr.RecordingStream(APPLICATION_ID, recording_id=run_id, send_properties=False)
         self.stream.set_log_time_enabled(False)  # wall clock: logged data must compare equal across runs
         self.stream.set_log_tick_enabled(False)  # counts log calls, which differ between processes
-        self.stream.save(self.path, default_blueprint=default_blueprint())
+        with _pandas_hidden():  # the blueprint is the first thing logged
+            self.stream.save(self.path, default_blueprint=default_blueprint())
         self._closed = False
 
     def __enter__(self) -> StageRecording:

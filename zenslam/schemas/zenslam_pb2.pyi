@@ -20,6 +20,11 @@ class DepthEncoding(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     DEPTH_ENCODING_FLOAT32_M: _ClassVar[DepthEncoding]
     DEPTH_ENCODING_UINT16_MM: _ClassVar[DepthEncoding]
 
+class ImageEncoding(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+    __slots__ = ()
+    IMAGE_ENCODING_RAW: _ClassVar[ImageEncoding]
+    IMAGE_ENCODING_PNG: _ClassVar[ImageEncoding]
+
 class TrackingStateKind(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     __slots__ = ()
     TRACKING_STATE_UNSPECIFIED: _ClassVar[TrackingStateKind]
@@ -47,6 +52,8 @@ SENSOR_KIND_RGBD: SensorKind
 DEPTH_ENCODING_NONE: DepthEncoding
 DEPTH_ENCODING_FLOAT32_M: DepthEncoding
 DEPTH_ENCODING_UINT16_MM: DepthEncoding
+IMAGE_ENCODING_RAW: ImageEncoding
+IMAGE_ENCODING_PNG: ImageEncoding
 TRACKING_STATE_UNSPECIFIED: TrackingStateKind
 TRACKING_STATE_OK: TrackingStateKind
 TRACKING_STATE_LOST: TrackingStateKind
@@ -97,7 +104,7 @@ class RigidTransform(_message.Message):
     def __init__(self, tx: _Optional[float] = ..., ty: _Optional[float] = ..., tz: _Optional[float] = ..., qw: _Optional[float] = ..., qx: _Optional[float] = ..., qy: _Optional[float] = ..., qz: _Optional[float] = ...) -> None: ...
 
 class SensorFrame(_message.Message):
-    __slots__ = ("index", "stamp_ns", "width", "height", "sensor", "calibration", "left", "right", "depth_encoding", "depth", "source_name", "end_of_stream", "count")
+    __slots__ = ("index", "stamp_ns", "width", "height", "sensor", "calibration", "left", "right", "depth_encoding", "depth", "source_name", "end_of_stream", "count", "image_encoding")
     INDEX_FIELD_NUMBER: _ClassVar[int]
     STAMP_NS_FIELD_NUMBER: _ClassVar[int]
     WIDTH_FIELD_NUMBER: _ClassVar[int]
@@ -111,6 +118,7 @@ class SensorFrame(_message.Message):
     SOURCE_NAME_FIELD_NUMBER: _ClassVar[int]
     END_OF_STREAM_FIELD_NUMBER: _ClassVar[int]
     COUNT_FIELD_NUMBER: _ClassVar[int]
+    IMAGE_ENCODING_FIELD_NUMBER: _ClassVar[int]
     index: int
     stamp_ns: int
     width: int
@@ -124,7 +132,8 @@ class SensorFrame(_message.Message):
     source_name: str
     end_of_stream: bool
     count: int
-    def __init__(self, index: _Optional[int] = ..., stamp_ns: _Optional[int] = ..., width: _Optional[int] = ..., height: _Optional[int] = ..., sensor: _Optional[_Union[SensorKind, str]] = ..., calibration: _Optional[_Union[Calibration, _Mapping]] = ..., left: _Optional[bytes] = ..., right: _Optional[bytes] = ..., depth_encoding: _Optional[_Union[DepthEncoding, str]] = ..., depth: _Optional[bytes] = ..., source_name: _Optional[str] = ..., end_of_stream: _Optional[bool] = ..., count: _Optional[int] = ...) -> None: ...
+    image_encoding: ImageEncoding
+    def __init__(self, index: _Optional[int] = ..., stamp_ns: _Optional[int] = ..., width: _Optional[int] = ..., height: _Optional[int] = ..., sensor: _Optional[_Union[SensorKind, str]] = ..., calibration: _Optional[_Union[Calibration, _Mapping]] = ..., left: _Optional[bytes] = ..., right: _Optional[bytes] = ..., depth_encoding: _Optional[_Union[DepthEncoding, str]] = ..., depth: _Optional[bytes] = ..., source_name: _Optional[str] = ..., end_of_stream: _Optional[bool] = ..., count: _Optional[int] = ..., image_encoding: _Optional[_Union[ImageEncoding, str]] = ...) -> None: ...
 
 class TrackingState(_message.Message):
     __slots__ = ("index", "stamp_ns", "state", "lost_reason", "n_tracked", "timings_ms", "has_pose", "keyframe_id", "end_of_stream", "count", "reference_keyframe_id", "T_reference_cam")

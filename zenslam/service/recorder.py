@@ -1,10 +1,13 @@
 """The recorder process: every message under zenslam/<session>/ into run.mcap, plus what viewers draw.
 
 Each bus message is written as it came, on the topic of its key without the session prefix
-(``/sensor/frame``, ``/frontend/pose``, ...), with its protobuf schema embedded. Alongside, for
+(``/sensor/frame``, ``/frontend/pose``, ...), with its protobuf schema embedded; sensor frames'
+images are stored as lossless PNG (``recorder.frame_images``), which decode to the same pixels.
+Alongside, for
 Foxglove and rerun: ``/camera/left`` and ``/camera/right`` (foxglove.CompressedImage, PNG or
 JPEG), ``/tf`` (foxglove.FrameTransform world -> camera for every pose) and ``/map/points``
-(foxglove.PointCloud of the map as rebuilt from keyframes and map updates). Log and publish
+(foxglove.PointCloud of the map as rebuilt from keyframes and map updates, at most one per
+``recorder.map_points_period_s`` of sensor time, and the final map). Log and publish
 times are the messages' own ``stamp_ns`` (messages without one, such as statuses, take the
 latest stamp seen), so a lockstep run's timeline does not depend on the wall clock.
 
@@ -114,15 +117,13 @@ def _set_stamp(timestamp, stamp_ns: int) -> None:
 def compressed_image(image: np.ndarray, stamp_ns: int, config: RecorderConfig, frame_id: str = CAMERA_FRAME) -> bytes:
     """A foxglove.CompressedImage of a uint8 grey image, PNG or JPEG as ``config.image_format`` says."""
     if config.image_format == "jpeg":
-        ok, data = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, config.jpeg_quality])
+        ok, encoded = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, config.jpeg_quality])
+        if not ok:
+            raise mcap_io.RecordingError(f"OpenCV could not encode a {image.dtype} {image.shape} image as JPEG")
+        data = encoded.tobytes()
     else:
-        # Huffman-only deflate: on KITTI and EuRoC frames 25-35% less CPU and 10% smaller files than
-        # the default strategy at level 1 (natural images have few long repeats for LZ77 to find).
-        params = [cv2.IMWRITE_PNG_COMPRESSION, config.png_compression, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY]
-        ok, data = cv2.imencode(".png", image, params)
-    if not ok:
-        raise mcap_io.RecordingError(f"OpenCV could not encode a {image.dtype} {image.shape} image as {config.image_format}")
-    msg = CompressedImage(frame_id=frame_id, data=data.tobytes(), format=config.image_format)
+        data = codec.png_bytes(image, config.png_compression)
+    msg = CompressedImage(frame_id=frame_id, data=data, format=config.image_format)
     _set_stamp(msg.timestamp, stamp_ns)
     return msg.SerializeToString()
 
@@ -157,6 +158,8 @@ class Recorder:
         self.map = MapAccumulator()
         self.last_stamp_ns = 0  # the latest stamp seen: the log time of messages without one
         self.undecodable = 0  # messages recorded raw whose derived channels could not be made
+        self._map_written_ns: int | None = None  # log time of the last /map/points cloud
+        self._map_changed_ns: int | None = None  # log time of a map change no cloud shows yet
 
     def record(self, key: str, encoding: str, data: bytes) -> None:
         """Record the message ``data`` that arrived on zenoh ``key`` with ``encoding`` (which names its schema)."""
@@ -171,7 +174,10 @@ class Recorder:
         stamp_ns = int(getattr(decoded, "stamp_ns", 0) or getattr(getattr(decoded, "frame", None), "stamp_ns", 0))
         self.last_stamp_ns = max(self.last_stamp_ns, stamp_ns)
         log_time = stamp_ns or self.last_stamp_ns
-        self.writer.write(topic, schema, data, log_time)
+        stored = data
+        if isinstance(decoded, codec.FrameMessage) and self.config.frame_images == "png":
+            stored = codec.sensor_frame_as_png(data, self.config.png_compression)
+        self.writer.write(topic, schema, stored, log_time)
         if decoded is not None:
             self._derive(decoded, data, log_time)
 
@@ -184,14 +190,28 @@ class Recorder:
             self.writer.write(TF_TOPIC, mcap_io.FRAME_TRANSFORM, frame_transform(PoseInFrame.FromString(data)), log_time)
         elif isinstance(decoded, codec.KeyframeMessage):
             self.map.add_keyframe(decoded)
-            self._write_map(log_time)
+            self._map_changed(log_time)
         elif isinstance(decoded, MapUpdate):
             self.map.apply(decoded)
+            self._map_changed(log_time)
+
+    def finish(self) -> None:
+        """Write what is still due: the latest map, if its last change came too soon after the previous cloud."""
+        if self._map_changed_ns is not None:
+            self._write_map(self._map_changed_ns)
+
+    def _map_changed(self, log_time: int) -> None:
+        # Each cloud holds the whole map: one per change would grow the file with the square of the map.
+        period_ns = round(self.config.map_points_period_s * _NS_PER_S)
+        if self._map_written_ns is None or log_time - self._map_written_ns >= period_ns:
             self._write_map(log_time)
+        else:
+            self._map_changed_ns = log_time
 
     def _write_map(self, log_time: int) -> None:
         _, p_world = self.map.point_array()
         self.writer.write(MAP_POINTS_TOPIC, mcap_io.POINT_CLOUD, point_cloud(p_world, log_time), log_time)
+        self._map_written_ns, self._map_changed_ns = log_time, None
 
 
 class _Followed:
@@ -284,7 +304,8 @@ def record(
     publishers are still sending.
     """
     writer = mcap_io.RecordingWriter(path, chunk_size=config.chunk_size, compression=config.chunk_compression)
-    worker = _Worker(Recorder(writer, config, session_name), config.queue)
+    recorder = Recorder(writer, config, session_name)
+    worker = _Worker(recorder, config.queue)
     followed = _Followed(session, session_name, follow)
     try:
         # Declared before the liveliness token: whoever waits for the recorder to be alive knows it listens.
@@ -306,7 +327,11 @@ def record(
             followed.close()
     finally:
         worker.close()
-        writer.finish()
+        try:
+            if worker.error is None:
+                recorder.finish()
+        finally:
+            writer.finish()
     if worker.error is not None:
         raise mcap_io.RecordingError(f"recording to {path} failed: {worker.error}") from worker.error
     logger.info("wrote %d messages on %d topics to %s", sum(writer.counts.values()), len(writer.counts), path)

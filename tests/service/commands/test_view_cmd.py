@@ -127,3 +127,10 @@ def test_the_web_viewer_is_started_bound_to_loopback(run_dir, tmp_path, headless
     monkeypatch.setattr(subprocess, "call", lambda command: subprocess.run(command).returncode)  # headless forbids spawning
     assert view.view(_parse([str(run_dir), "--web", "--viewer", str(viewer)])) == 0
     assert argv_file.read_text().splitlines()[:3] == ["--web-viewer", "--bind", "127.0.0.1"]
+
+
+def test_the_command_line_does_not_load_rerun_until_a_command_needs_it():
+    # Every subcommand's module is imported to build the parser; `zenslam run`'s hub must not hold rerun.
+    code = "import sys; from zenslam.service import cli; cli.build_parser(); print('rerun' in sys.modules)"
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert result.stdout.strip() == "False"

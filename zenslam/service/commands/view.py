@@ -21,7 +21,6 @@ from collections.abc import Mapping
 from pathlib import Path
 
 from zenslam.errors import ConfigError
-from zenslam.runtime.rerun_log import RRD_SUFFIX
 
 logger = logging.getLogger(__name__)
 
@@ -51,6 +50,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def rrd_files(target: str | Path) -> list[Path]:
     """The .rrd files of a run folder (sorted by name), or ``[target]`` for an .rrd file."""
+    # Imported here: rerun_log loads rerun (tens of MB), which every other subcommand, ``zenslam run``'s
+    # hub among them, would otherwise hold for the sake of this constant.
+    from zenslam.runtime.rerun_log import RRD_SUFFIX
+
     target = Path(target)
     if target.is_file():
         if target.suffix != RRD_SUFFIX:

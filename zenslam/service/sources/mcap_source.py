@@ -129,16 +129,16 @@ def write_frames(
     source_name: str = "",
     ground_truth: Trajectory | None = None,
 ) -> int:
-    """Record ``frames`` on the sensor/frame channel of a new MCAP file as the recorder would (log time =
-    stamp, ns), ending with the stream's end-of-stream message, after ``ground_truth`` if given;
-    returns the frames written."""
+    """Record ``frames`` on the sensor/frame channel of a new MCAP file as the recorder would (PNG images,
+    log time = stamp, ns), ending with the stream's end-of-stream message, after ``ground_truth`` if
+    given; returns the frames written."""
     topic = sensor_frame_topic()
     written, last_stamp_ns = 0, 0
     with mcap_io.RecordingWriter(path) as writer:
         if ground_truth is not None:
             write_ground_truth(writer, ground_truth)
         for frame in frames:
-            data = codec.encode_sensor_frame(frame, calibration, sensor, source_name)
+            data = codec.encode_sensor_frame(frame, calibration, sensor, source_name, image_encoding="png")
             writer.write(topic, codec.SENSOR_FRAME, data, frame.stamp_ns)
             written, last_stamp_ns = written + 1, frame.stamp_ns
         writer.write(topic, codec.SENSOR_FRAME, codec.encode_end_of_stream(codec.SENSOR_FRAME, written), last_stamp_ns)

@@ -1,0 +1,190 @@
+"""Benchmark a run's footprint: the run folder's bytes (per file, run.mcap per channel) and each process's peak RSS.
+
+Runs ``zenslam run [SOURCE] --lockstep`` (default: the built-in synthetic scene, all its frames)
+into a temporary folder while sampling, every ``--interval`` seconds, ``VmHWM`` (the kernel's peak
+resident set) of every process in the run's tree: the ``zenslam run`` hub and its source, frontend,
+backend and recorder. A process's last sample is its peak up to that moment; the interval only
+matters for growth in a process's last moments. The sum of the per-process peaks is the figure
+the issue's target is about (processes peak at different times, so the real simultaneous peak is
+lower). Then it sums the run folder per file and run.mcap per topic: the messages' own bytes
+(uncompressed) and their share of the file's compressed chunks (each chunk's compressed size
+split across topics in proportion to their bytes in it).
+
+RSS is barely affected by the machine's load; the wall time is (it is printed with the load average).
+
+Run: ``.venv/bin/python benchmarks/footprint.py [SOURCE] [--max-frames N] [--config YAML] [--keep DIR]``
+(writes benchmarks/results/footprint.json, or ``--results PATH``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import psutil
+from mcap.records import Channel, Chunk, Message
+from mcap.stream_reader import StreamReader, breakup_chunk
+
+REPO = Path(__file__).resolve().parents[1]
+RESULTS = REPO / "benchmarks" / "results" / "footprint.json"
+_MB = 1e6
+
+
+def vm_hwm_bytes(pid: int) -> int | None:
+    """The peak resident set of process ``pid`` (bytes), or None once it is gone."""
+    try:
+        with open(f"/proc/{pid}/status") as status:
+            for line in status:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) * 1024
+    except (FileNotFoundError, ProcessLookupError, PermissionError):
+        return None
+    return None
+
+
+def process_name(proc: psutil.Process) -> str:
+    """The stage a process of the run is: ``run`` (the hub) or the ``--stage``/module it was started with."""
+    try:
+        cmdline = proc.cmdline()
+    except psutil.Error:
+        return f"pid{proc.pid}"
+    for module, name in (("zenslam.service.recorder", "recorder"), ("zenslam.service.source_node", "source"),
+                         ("zenslam.frontend.node", "frontend"), ("zenslam.backend.node", "backend")):  # fmt: skip
+        if module in cmdline:
+            return name
+    if "run" in cmdline:
+        return "run"
+    return f"{Path(cmdline[0]).name if cmdline else 'pid'}:{proc.pid}"
+
+
+def run_sampled(command: list[str], interval_s: float) -> tuple[dict[str, int], float, subprocess.CompletedProcess]:
+    """Run ``command``, sampling the peak RSS of it and all its descendants; (peak bytes per stage, wall s, result)."""
+    peaks: dict[int, int] = {}
+    names: dict[int, str] = {}
+    start = time.perf_counter()
+    with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
+        popen = subprocess.Popen(command, stdout=out, stderr=err)
+        root = psutil.Process(popen.pid)
+        while popen.poll() is None:
+            try:
+                tree = [root, *root.children(recursive=True)]
+            except psutil.Error:
+                tree = []
+            for proc in tree:
+                hwm = vm_hwm_bytes(proc.pid)
+                if hwm is None:
+                    continue
+                peaks[proc.pid] = max(peaks.get(proc.pid, 0), hwm)
+                if proc.pid not in names or names[proc.pid].startswith("python"):
+                    names[proc.pid] = process_name(proc)
+            time.sleep(interval_s)
+        wall_s = time.perf_counter() - start
+        out.seek(0)
+        err.seek(0)
+        result = subprocess.CompletedProcess(command, popen.returncode, out.read().decode(), err.read().decode())
+    per_stage: dict[str, int] = {}
+    for pid, peak in peaks.items():
+        per_stage[names[pid]] = per_stage.get(names[pid], 0) + peak
+    return per_stage, wall_s, result
+
+
+def folder_sizes(run_dir: Path) -> dict[str, int]:
+    """Bytes of every file under ``run_dir``, by path relative to it, largest first."""
+    sizes = {str(p.relative_to(run_dir)): p.stat().st_size for p in run_dir.rglob("*") if p.is_file()}
+    return dict(sorted(sizes.items(), key=lambda kv: -kv[1]))
+
+
+def mcap_channels(path: Path) -> dict[str, dict[str, float]]:
+    """Per topic of an MCAP file: messages, their bytes, and their estimated share of the compressed chunks."""
+    topics: dict[int, str] = {}
+    stats: dict[str, dict[str, float]] = defaultdict(lambda: {"messages": 0, "bytes": 0, "stored_bytes": 0.0})
+    with open(path, "rb") as f:
+        for record in StreamReader(f, emit_chunks=True).records:
+            if isinstance(record, Channel):
+                topics[record.id] = record.topic
+            elif isinstance(record, Chunk):
+                in_chunk: dict[str, int] = defaultdict(int)
+                for inner in breakup_chunk(record):
+                    if isinstance(inner, Channel):
+                        topics[inner.id] = inner.topic
+                    elif isinstance(inner, Message):
+                        in_chunk[topics[inner.channel_id]] += len(inner.data)
+                        stats[topics[inner.channel_id]]["messages"] += 1
+                total = sum(in_chunk.values()) or 1
+                for topic, size in in_chunk.items():
+                    stats[topic]["bytes"] += size
+                    stats[topic]["stored_bytes"] += len(record.data) * size / total
+            elif isinstance(record, Message):  # outside chunks: stored as is
+                topic = topics[record.channel_id]
+                stats[topic]["messages"] += 1
+                stats[topic]["bytes"] += len(record.data)
+                stats[topic]["stored_bytes"] += len(record.data)
+    return dict(sorted(stats.items(), key=lambda kv: -kv[1]["stored_bytes"]))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("source", nargs="?", default=None, help="zenslam run's SOURCE (default: its default, the synthetic scene)")
+    parser.add_argument("--max-frames", type=int, default=None)
+    parser.add_argument("--config", type=Path, default=None, help="a run config YAML passed to zenslam run")
+    parser.add_argument("--interval", type=float, default=0.1, help="seconds between RSS samples")
+    parser.add_argument("--keep", type=Path, default=None, help="write the run folder here instead of a temporary folder")
+    parser.add_argument("--results", type=Path, default=RESULTS)
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        output = args.keep or Path(tmp)
+        run_id = f"footprint-{os.getpid()}"
+        command = [sys.executable, "-m", "zenslam.service.cli", "run", *([args.source] if args.source else []), "--lockstep",
+                   "--output", str(output), "--run-id", run_id, "--no-progress"]  # fmt: skip
+        if args.max_frames is not None:
+            command += ["--max-frames", str(args.max_frames)]
+        if args.config is not None:
+            command += ["--config", str(args.config)]
+        load = os.getloadavg()[0]
+        peaks, wall_s, result = run_sampled(command, args.interval)
+        if result.returncode != 0:
+            raise SystemExit(f"{' '.join(command)} failed:\n{result.stdout[-2000:]}\n{result.stderr[-3000:]}")
+        run_dir = output / run_id
+        files = folder_sizes(run_dir)
+        channels = mcap_channels(run_dir / "run.mcap")
+    report = {
+        "machine": platform.platform(),
+        "command": " ".join(command[1:]),
+        "wall_s": round(wall_s, 1),
+        "load_1min_before": load,
+        "folder_mb": round(sum(files.values()) / _MB, 2),
+        "files_mb": {name: round(size / _MB, 3) for name, size in files.items()},
+        "mcap_channels": {
+            topic: {"messages": int(s["messages"]), "mb": round(s["bytes"] / _MB, 3), "stored_mb": round(s["stored_bytes"] / _MB, 3)}
+            for topic, s in channels.items()
+        },
+        "peak_rss_mb": {name: round(peak / _MB, 1) for name, peak in sorted(peaks.items())},
+        "peak_rss_sum_mb": round(sum(peaks.values()) / _MB, 1),
+    }
+    print(f"{report['command']}\nwall {wall_s:.1f} s (load {load:.1f} before)")
+    print(f"run folder {report['folder_mb']:.1f} MB")
+    for name, mb in report["files_mb"].items():
+        if mb >= 0.01:
+            print(f"  {name:<32} {mb:9.2f} MB")
+    print("run.mcap per topic (messages, message MB, estimated stored MB)")
+    for topic, s in report["mcap_channels"].items():
+        print(f"  {topic:<32} {s['messages']:6d} {s['mb']:9.2f} {s['stored_mb']:9.2f}")
+    print("peak RSS (VmHWM)")
+    for name, mb in report["peak_rss_mb"].items():
+        print(f"  {name:<12} {mb:7.1f} MB")
+    print(f"  {'sum':<12} {report['peak_rss_sum_mb']:7.1f} MB")
+    args.results.parent.mkdir(parents=True, exist_ok=True)
+    args.results.write_text(json.dumps(report, indent=2) + "\n")
+    print(f"wrote {args.results}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,27 @@
+"""The ``rerun`` section of a run's YAML: what the stage processes log to rerun (kept apart from
+``rerun_log`` so that reading a configuration does not load rerun)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from zenslam.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class RerunConfig:
+    """What the stage processes log to rerun (the ``rerun`` section): ``<run>/<stage>.rrd``, one recording per run."""
+
+    enabled: bool = True  # every stage process writes its .rrd next to the run's config.yaml
+    image_every_n: int = 1  # frames; the source logs every n-th left image (keypoints and poses are logged every frame)
+    # JPEG-compressed images: a third of the CPU and of the file size of raw images.
+    jpeg: bool = True
+    # JPEG quality 1-100 (jpeg true): 75 keeps the features under the keypoints visible at about
+    # two thirds of the file size of 90.
+    jpeg_quality: int = 75
+
+    def __post_init__(self) -> None:
+        if self.image_every_n < 1:
+            raise ConfigError(f"rerun.image_every_n={self.image_every_n} must be at least 1 frame (1: every image)")
+        if not 1 <= self.jpeg_quality <= 100:
+            raise ConfigError(f"rerun.jpeg_quality={self.jpeg_quality} must be between 1 and 100")
