@@ -20,6 +20,7 @@ from typing import Literal, TypeVar, get_args
 from zenslam.config import from_mapping, load_yaml
 from zenslam.errors import ConfigError
 from zenslam.runtime import bus
+
 # The stop flag lives in runtime.stop (the CLI installs it before any heavy import); a stage's
 # start-up takes it from here with the rest.
 from zenslam.runtime.stop import STOPPED, StopFlag  # noqa: F401

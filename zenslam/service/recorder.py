@@ -27,6 +27,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -51,7 +52,10 @@ from zenslam.runtime.supervisor import ProcessSpec, Supervisor
 from zenslam.schemas import codec, keys
 from zenslam.schemas.map_update import MapUpdate
 from zenslam.service import mcap_io
-from zenslam.service.run_config import RecorderConfig, RunConfig
+from zenslam.service.recorder_config import RecorderConfig
+
+if TYPE_CHECKING:
+    from zenslam.service.run_config import RunConfig
 
 logger = logging.getLogger(__name__)
 

@@ -14,10 +14,9 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import cv2
 import numpy as np
@@ -31,90 +30,10 @@ from zenslam.runtime.bus import BusConfig
 from zenslam.runtime.rerun_config import RerunConfig
 from zenslam.runtime.stage import RunMode
 from zenslam.service.evaluation.metrics import EvaluationConfig
-from zenslam.service.mcap_io import ChunkCompression
-from zenslam.service.sources.faults import FrameFault, check_faults
+from zenslam.service.recorder_config import RecorderConfig
+from zenslam.service.sources.config import SourceConfig
 
 logger = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class SourceConfig:
-    """What the source process plays and how (the ``source`` section)."""
-
-    spec: str = "synthetic"  # kitti:<root>/sequences/NN | euroc:<folder> | tum:<folder> | synthetic[:<scene>[/<sensor>]]
-    rate: float = 1.0  # live mode: playback speed as a multiple of the recorded rate; 0 = as fast as possible
-    max_frames: int | None = None  # frames; stop after this many (None: the whole sequence)
-    depth_encoding: Literal["float32_m", "uint16_mm"] = "float32_m"  # how RGB-D depth travels on the bus
-    answer_timeout_s: float = 120.0  # lockstep: seconds to wait for the frontend's answer to one frame
-    # Lockstep: frames sent whose frontend/state has not arrived. 2 reads and sends frame i+1 while
-    # frame i is tracked, taking the source's reading/decoding off the serial path; the frontend
-    # still takes every frame in order, so lockstep outputs are the same at any window. 1 = strict.
-    frames_in_flight: int = 2  # frames
-    calibration: PinholeCalibration | None = None  # rectified intrinsics overriding the source's own (None: keep)
-    # A frame that cannot be read or decoded, or whose stamp does not increase: False = skip it with
-    # one warning and count it (metrics.json ``skipped_frames``); True = end the run with an error
-    # naming the frame (``zenslam run --strict``).
-    strict: bool = False
-    # Injected faults, e.g. ``[{kind: drop, first_frame: 10, last_frame: 12}]``: kinds black, drop,
-    # corrupt, stamp_backwards, stamp_repeat over frame indices (inclusive); see sources/faults.py.
-    faults: tuple[FrameFault, ...] = ()
-
-    def __post_init__(self) -> None:
-        check_faults(self.faults)
-        if not (math.isfinite(self.rate) and self.rate >= 0):
-            raise ConfigError(f"source.rate={self.rate} must be >= 0 (1 = recorded rate, 0 = as fast as possible)")
-        if self.frames_in_flight < 1:
-            raise ConfigError(
-                f"source.frames_in_flight={self.frames_in_flight} must be at least 1 frame (1: send a frame only after "
-                "the previous one's state arrived)"
-            )
-        if self.max_frames is not None and self.max_frames < 1:
-            raise ConfigError(f"source.max_frames={self.max_frames} must be >= 1, or null for all frames")
-        if not self.answer_timeout_s > 0:
-            raise ConfigError(f"source.answer_timeout_s={self.answer_timeout_s} must be a positive number of seconds")
-
-
-@dataclass(frozen=True)
-class RecorderConfig:
-    """The recorder process (the ``recorder`` section): every bus message to ``<run>/run.mcap``."""
-
-    enabled: bool = True  # start the recorder with ``zenslam run``
-    # How sensor/frame's images are stored; lossless either way. PNG: on the synthetic scene 1.8x
-    # smaller than raw for about 6 ms of CPU per 640x480 image (KITTI 1.7x, EuRoC 2.0x); raw: no CPU.
-    frame_images: Literal["png", "raw"] = "png"
-    # The /camera/* Foxglove images drawn by viewers; sensor/frame itself is always recorded losslessly.
-    # JPEG: on the KITTI clip's 102 images 0.09 s CPU and 12 MB against PNG's 0.71 s and 27 MB
-    # (benchmarks/recorder_compression.py); PNG if the viewer images must be lossless too.
-    image_format: Literal["png", "jpeg"] = "jpeg"
-    jpeg_quality: int = 75  # JPEG quality 1-100 (image_format jpeg); as rerun.jpeg_quality, a viewer's image
-    png_compression: int = 1  # zlib level 0-9 of every PNG (frame_images, image_format png); 1 is fast, higher levels gain ~1%
-    # /map/points clouds (the whole map each) at most this far apart in sensor time; the final map is
-    # always written. 0: one after every keyframe and map update.
-    map_points_period_s: float = 1.0  # seconds
-    # Uncompressed bytes per chunk; a killed recorder loses the open chunk (``zenslam recover`` keeps the rest).
-    # The writer holds the open chunk and its compressed copy in memory; 1 MiB is two stereo VGA frames.
-    chunk_size: int = 1024 * 1024  # bytes
-    # MCAP chunk compression: zstd, lz4 or none. On the KITTI clip's recording lz4 took half of zstd's
-    # CPU (0.24 s vs 0.50 s) for an 11% larger file (87 vs 78 MB; raw images barely compress):
-    # the recorder competes with tracking and mapping for the CPU, so lz4; zstd for smaller archives.
-    chunk_compression: ChunkCompression = "lz4"
-    # Messages waiting for the writer thread; when full, publishers block (lossless: nothing is dropped).
-    queue: int = 64  # messages
-    quiet_s: float = 0.3  # seconds without a message that count as drained, at the end
-
-    def __post_init__(self) -> None:
-        if not 1 <= self.jpeg_quality <= 100:
-            raise ConfigError(f"recorder.jpeg_quality={self.jpeg_quality} must be between 1 and 100")
-        if not 0 <= self.png_compression <= 9:
-            raise ConfigError(f"recorder.png_compression={self.png_compression} must be a zlib level between 0 and 9")
-        if self.chunk_size < 1024:
-            raise ConfigError(f"recorder.chunk_size={self.chunk_size} must be at least 1024 bytes")
-        if self.queue < 1:
-            raise ConfigError(f"recorder.queue={self.queue} must be at least 1 message")
-        if not (math.isfinite(self.map_points_period_s) and self.map_points_period_s >= 0):
-            raise ConfigError(f"recorder.map_points_period_s={self.map_points_period_s} must be >= 0 seconds (0: every map change)")
-        if not self.quiet_s >= 0:
-            raise ConfigError(f"recorder.quiet_s={self.quiet_s} must be >= 0 seconds")
 
 
 @dataclass(frozen=True)

@@ -41,8 +41,8 @@ from zenslam.runtime.stage import (
     setup_process_logging,
 )
 from zenslam.schemas import codec, keys
-from zenslam.service.run_config import SourceConfig
 from zenslam.service.sources import SensorFrame, open_source
+from zenslam.service.sources.config import SourceConfig
 from zenslam.service.sources.faults import FaultInjector
 from zenslam.service.sources.frame_stream import SkippedFrame, frame_stream
 

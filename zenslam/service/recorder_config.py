@@ -1,0 +1,53 @@
+"""The ``recorder`` section of a run's YAML: what the recorder process writes to ``<run>/run.mcap``."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+from zenslam.errors import ConfigError
+from zenslam.service.mcap_io import ChunkCompression
+
+
+@dataclass(frozen=True)
+class RecorderConfig:
+    """The recorder process (the ``recorder`` section): every bus message to ``<run>/run.mcap``."""
+
+    enabled: bool = True  # start the recorder with ``zenslam run``
+    # How sensor/frame's images are stored; lossless either way. PNG: on the synthetic scene 1.8x
+    # smaller than raw for about 6 ms of CPU per 640x480 image (KITTI 1.7x, EuRoC 2.0x); raw: no CPU.
+    frame_images: Literal["png", "raw"] = "png"
+    # The /camera/* Foxglove images drawn by viewers; sensor/frame itself is always recorded losslessly.
+    # JPEG: on the KITTI clip's 102 images 0.09 s CPU and 12 MB against PNG's 0.71 s and 27 MB
+    # (benchmarks/recorder_compression.py); PNG if the viewer images must be lossless too.
+    image_format: Literal["png", "jpeg"] = "jpeg"
+    jpeg_quality: int = 75  # JPEG quality 1-100 (image_format jpeg); as rerun.jpeg_quality, a viewer's image
+    png_compression: int = 1  # zlib level 0-9 of every PNG (frame_images, image_format png); 1 is fast, higher levels gain ~1%
+    # /map/points clouds (the whole map each) at most this far apart in sensor time; the final map is
+    # always written. 0: one after every keyframe and map update.
+    map_points_period_s: float = 1.0  # seconds
+    # Uncompressed bytes per chunk; a killed recorder loses the open chunk (``zenslam recover`` keeps the rest).
+    # The writer holds the open chunk and its compressed copy in memory; 1 MiB is two stereo VGA frames.
+    chunk_size: int = 1024 * 1024  # bytes
+    # MCAP chunk compression: zstd, lz4 or none. On the KITTI clip's recording lz4 took half of zstd's
+    # CPU (0.24 s vs 0.50 s) for an 11% larger file (87 vs 78 MB; raw images barely compress):
+    # the recorder competes with tracking and mapping for the CPU, so lz4; zstd for smaller archives.
+    chunk_compression: ChunkCompression = "lz4"
+    # Messages waiting for the writer thread; when full, publishers block (lossless: nothing is dropped).
+    queue: int = 64  # messages
+    quiet_s: float = 0.3  # seconds without a message that count as drained, at the end
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.jpeg_quality <= 100:
+            raise ConfigError(f"recorder.jpeg_quality={self.jpeg_quality} must be between 1 and 100")
+        if not 0 <= self.png_compression <= 9:
+            raise ConfigError(f"recorder.png_compression={self.png_compression} must be a zlib level between 0 and 9")
+        if self.chunk_size < 1024:
+            raise ConfigError(f"recorder.chunk_size={self.chunk_size} must be at least 1024 bytes")
+        if self.queue < 1:
+            raise ConfigError(f"recorder.queue={self.queue} must be at least 1 message")
+        if not (math.isfinite(self.map_points_period_s) and self.map_points_period_s >= 0):
+            raise ConfigError(f"recorder.map_points_period_s={self.map_points_period_s} must be >= 0 seconds (0: every map change)")
+        if not self.quiet_s >= 0:
+            raise ConfigError(f"recorder.quiet_s={self.quiet_s} must be >= 0 seconds")

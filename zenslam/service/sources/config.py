@@ -1,0 +1,48 @@
+"""The ``source`` section of a run's YAML: what the source process plays and how."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+from zenslam.camera import PinholeCalibration
+from zenslam.errors import ConfigError
+from zenslam.service.sources.faults import FrameFault, check_faults
+
+
+@dataclass(frozen=True)
+class SourceConfig:
+    """What the source process plays and how (the ``source`` section)."""
+
+    spec: str = "synthetic"  # kitti:<root>/sequences/NN | euroc:<folder> | tum:<folder> | synthetic[:<scene>[/<sensor>]]
+    rate: float = 1.0  # live mode: playback speed as a multiple of the recorded rate; 0 = as fast as possible
+    max_frames: int | None = None  # frames; stop after this many (None: the whole sequence)
+    depth_encoding: Literal["float32_m", "uint16_mm"] = "float32_m"  # how RGB-D depth travels on the bus
+    answer_timeout_s: float = 120.0  # lockstep: seconds to wait for the frontend's answer to one frame
+    # Lockstep: frames sent whose frontend/state has not arrived. 2 reads and sends frame i+1 while
+    # frame i is tracked, taking the source's reading/decoding off the serial path; the frontend
+    # still takes every frame in order, so lockstep outputs are the same at any window. 1 = strict.
+    frames_in_flight: int = 2  # frames
+    calibration: PinholeCalibration | None = None  # rectified intrinsics overriding the source's own (None: keep)
+    # A frame that cannot be read or decoded, or whose stamp does not increase: False = skip it with
+    # one warning and count it (metrics.json ``skipped_frames``); True = end the run with an error
+    # naming the frame (``zenslam run --strict``).
+    strict: bool = False
+    # Injected faults, e.g. ``[{kind: drop, first_frame: 10, last_frame: 12}]``: kinds black, drop,
+    # corrupt, stamp_backwards, stamp_repeat over frame indices (inclusive); see sources/faults.py.
+    faults: tuple[FrameFault, ...] = ()
+
+    def __post_init__(self) -> None:
+        check_faults(self.faults)
+        if not (math.isfinite(self.rate) and self.rate >= 0):
+            raise ConfigError(f"source.rate={self.rate} must be >= 0 (1 = recorded rate, 0 = as fast as possible)")
+        if self.frames_in_flight < 1:
+            raise ConfigError(
+                f"source.frames_in_flight={self.frames_in_flight} must be at least 1 frame (1: send a frame only after "
+                "the previous one's state arrived)"
+            )
+        if self.max_frames is not None and self.max_frames < 1:
+            raise ConfigError(f"source.max_frames={self.max_frames} must be >= 1, or null for all frames")
+        if not self.answer_timeout_s > 0:
+            raise ConfigError(f"source.answer_timeout_s={self.answer_timeout_s} must be a positive number of seconds")
