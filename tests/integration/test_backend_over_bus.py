@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from zenslam.backend.node import query_map, query_trajectory
+from zenslam.backend.queries import query_map, query_trajectory
 from zenslam.runtime import bus
 from zenslam.runtime.stage import RunMode
 from zenslam.runtime.supervisor import ProcessSpec, Supervisor

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from zenslam.backend.local_ba import LocalBAConfig
+from zenslam.backend.ba_problem import LocalBAConfig
 from zenslam.backend.local_mapping import LocalMappingConfig
 from zenslam.errors import ConfigError
 

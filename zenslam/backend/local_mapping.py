@@ -19,8 +19,8 @@ from typing import Protocol
 
 import numpy as np
 
+from zenslam.backend.ba_problem import BAProblem, BAResult
 from zenslam.backend.keyframe_culling import KeyframeCullingConfig, cull_redundant_keyframes
-from zenslam.backend.local_ba import BAProblem, BAResult
 from zenslam.backend.map import BackendKeyframe, BackendMap, MapChanges
 from zenslam.backend.point_culling import PointCullingConfig, count_visibility, cull_recent_points
 from zenslam.backend.point_fusion import FusionConfig, fuse_with_neighbours

@@ -232,26 +232,6 @@ def _linger(queryables: _Queryables, node: BackendNode, linger_s: float, should_
         time.sleep(_POLL_S)
 
 
-# ---- the querying side (any process of the session) ----
-
-
-def _query(session: zenoh.Session, key: str, decode: Callable[[bytes], object], timeout_s: float):
-    for reply in session.get(key, timeout=timeout_s):
-        if reply.ok is not None:
-            return decode(reply.ok.payload.to_bytes())
-    return None
-
-
-def query_trajectory(session: zenoh.Session, session_name: str, timeout_s: float = 10.0) -> codec.KeyframeTrajectoryMessage | None:
-    """Ask the backend for its keyframe poses; None when no backend answers within ``timeout_s`` seconds."""
-    return _query(session, keys.backend_trajectory_query(session_name), codec.decode_keyframe_trajectory, timeout_s)
-
-
-def query_map(session: zenoh.Session, session_name: str, timeout_s: float = 10.0) -> codec.MapSnapshotMessage | None:
-    """Ask the backend for a snapshot of its map; None when no backend answers within ``timeout_s`` seconds."""
-    return _query(session, keys.backend_map_query(session_name), codec.decode_map_snapshot, timeout_s)
-
-
 def main(argv: list[str] | None = None) -> int:
     """Entry point: ``python -m zenslam.backend.node --session S [--config FILE] [--connect EP] ...``."""
     parser = argparse.ArgumentParser(prog="zenslam-backend", description=__doc__.splitlines()[0])

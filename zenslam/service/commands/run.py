@@ -25,7 +25,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from zenslam.backend.node import query_trajectory
+from zenslam.backend.queries import query_trajectory
 from zenslam.errors import ProcessError
 from zenslam.runtime import bus
 from zenslam.runtime.stage import log_cpu_times
