@@ -28,11 +28,12 @@ from pathlib import Path
 
 from backend_quality import ate_of
 
+from zenslam.backend.config import BackendConfig
 from zenslam.backend.node import BackendNode
+from zenslam.frontend.config import FrontendConfig
 from zenslam.frontend.node import keyframe_message
-from zenslam.frontend.pipeline import FrontendConfig, FrontendPipeline
+from zenslam.frontend.pipeline import FrontendPipeline
 from zenslam.schemas import codec
-from zenslam.service.run_config import BackendConfig
 from zenslam.service.sources.synthetic import SyntheticSource, scene_config
 
 REPO = Path(__file__).resolve().parents[1]

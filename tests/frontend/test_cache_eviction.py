@@ -178,16 +178,17 @@ def test_map_updates_naming_evicted_keyframes_and_points() -> None:
 
     assert cached_ids(lm) == [15, 16, 17, 18, 19] and lm.slot_of(4) == -1
     assert np.allclose(lm.keyframe(lm.slot_of(19)).T_world_cam, shift @ x19)  # carried with its parent 18
-    rows_of = dict(zip(points.tolist(), lm.rows_of_ids(points).tolist()))
-    assert min(rows_of.values()) >= n_points  # all three re-created (replacement semantics)
-    assert lm.p_world[rows_of[refilled_point]].tolist() == [4.0, 5.0, 6.0]
+    # The point a held keyframe observes again comes back; those no held keyframe observes stay out.
+    assert lm.rows_of_ids(points).tolist() == [-1, n_points, -1]
+    assert lm.p_world[n_points].tolist() == [4.0, 5.0, 6.0] and lm.valid[n_points]
     observed = lm.point_ids[lm.keyframe_point_rows(lm.slot_of(16))].tolist()
     assert refilled_point in observed and evicted_point not in observed
-    # The next pass drops the points that no kept keyframe observes, and keeps the re-filled one.
-    lm.retain(lm.cached_slots())
-    assert lm.rows_of_ids(np.array([evicted_point, backend_point])).tolist() == [-1, -1]
-    assert lm.rows_of_ids(np.array([refilled_point]))[0] >= 0
     assert np.array_equal(lm.rows_of_ids(lm.point_ids), np.arange(lm.n_points))
+    # A pass keeps the re-filled point; the point keyframe 16 no longer observes goes.
+    lost = int(kf16.map_point_ids[-1])
+    lm.retain(lm.cached_slots())
+    assert lm.rows_of_ids(np.array([refilled_point, lost])).tolist()[1] == -1
+    assert lm.rows_of_ids(np.array([refilled_point]))[0] >= 0
 
 
 def test_culled_points_of_kept_keyframes_keep_their_rows_and_statistics() -> None:

@@ -13,9 +13,10 @@ than the limit does not cost a pass per keyframe), one pass keeps:
 and evicts every other keyframe with the points that no kept keyframe observes.
 
 Map updates that name evicted keyframes skip them (the frontend cannot rebuild their keypoints);
-updates that list evicted points re-create them (replacement semantics), which re-fills the cache
-when a kept keyframe is associated with them again; points that no kept keyframe observes are
-dropped at the next pass.
+an evicted point listed by an update comes back only when a held keyframe of the update observes
+it (``LocalMap.apply_map_update``): the cache re-fills with what its keyframes see, and a correction
+listing the whole map does not copy it in. Points that lose their last held observer go at the
+next pass.
 """
 
 from __future__ import annotations

@@ -507,12 +507,17 @@ class LocalMap:
         """Apply the backend's correction: replace listed points (creating unknown ones), keyframe
         poses and keypoint-to-point associations, then delete removed points and keyframes.
 
-        Replacement semantics make a second application harmless. Keyframes this map never had
-        are skipped (it cannot rebuild their keypoints). Points listed by the backend are never
-        culled by ``cull_recent_points``: the backend decides about them.
+        Replacement semantics make a second application harmless. Keyframes this map does not
+        hold (never had, or evicted) are skipped: it cannot rebuild their keypoints. Unknown points
+        are created only when a held keyframe listed in the update observes them: the cache holds
+        its keyframes' points (tracking reaches points through keyframes), so an evicted point
+        comes back when a held keyframe is associated with it again, and a correction listing the
+        whole map does not copy it into the cache. Points listed by the backend are never culled
+        by ``cull_recent_points``: the backend decides about them.
         """
         moved = self._poses_of(update.keyframes)
-        self._replace_points(update)
+        held = [c.map_point_ids for c in update.keyframes if self.slot_of(c.id) >= 0]
+        self._replace_points(update, np.concatenate(held) if held else np.zeros(0, dtype=np.int64))
         self._replace_keyframes(update.keyframes)
         self._carry_unmapped_keyframes(update, moved)
         self.remove_points(update.removed_point_ids)
@@ -540,9 +545,11 @@ class LocalMap:
             rows = rows[rows >= 0]
             self._pts["p_world"][rows] = transform_points(C, self._pts["p_world"][rows])
 
-    def _replace_points(self, update: MapUpdate) -> None:
+    def _replace_points(self, update: MapUpdate, observed_ids: np.ndarray) -> None:
+        """Replace the listed points this map holds and create the unknown ones among ``observed_ids``."""
         rows = self.rows_of_ids(update.point_ids)
         unknown = np.flatnonzero(rows < 0)
+        unknown = unknown[np.isin(update.point_ids[unknown], observed_ids)]
         if len(unknown):
             start = self._n_points
             _grow(self._pts, _POINT_ARRAYS, start + len(unknown))
@@ -554,12 +561,14 @@ class LocalMap:
             self._pts["n_found"][new] = 1
             self._pts["n_observations"][new] = 0
             self._id_index.add(update.point_ids[unknown], new)
+        listed = np.flatnonzero(rows >= 0)
+        rows = rows[listed]
         pts = self._pts
-        pts["p_world"][rows] = update.p_world
-        pts["descriptors"][rows] = update.descriptors
-        pts["normals"][rows] = update.normals
-        pts["min_distance_m"][rows] = update.min_distance_m
-        pts["max_distance_m"][rows] = update.max_distance_m
+        pts["p_world"][rows] = update.p_world[listed]
+        pts["descriptors"][rows] = update.descriptors[listed]
+        pts["normals"][rows] = update.normals[listed]
+        pts["min_distance_m"][rows] = update.min_distance_m[listed]
+        pts["max_distance_m"][rows] = update.max_distance_m[listed]
         pts["valid"][rows] = True
         pts["created_serial"][rows] = np.iinfo(np.int64).min // 2  # never "recent" again
 
