@@ -13,6 +13,9 @@ configuration, so no id needs a round trip.
 
 The backend's corrections arrive as ``MapUpdate`` messages (replacement semantics, see
 ``zenslam.schemas.map_update``) and are applied with ``apply_map_update``.
+
+The map is a bounded cache: ``retain`` evicts keyframes and their points (``cache_eviction``
+decides which and when) and compacts slots and rows, so whoever holds slots or rows remaps them.
 """
 
 from __future__ import annotations
