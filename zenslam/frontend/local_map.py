@@ -60,11 +60,8 @@ class LocalMapConfig:
     cache_min_keyframes_between_evictions: int = 20  # keyframes inserted between two passes, at least
 
     def __post_init__(self) -> None:
-        problems = [
-            f"{name}={getattr(self, name)} must be at least {low}"
-            for name, low in (("cache_max_keyframes", 1), ("cache_margin_keyframes", 0), ("cache_min_keyframes_between_evictions", 1))
-            if getattr(self, name) < low
-        ]
+        lowest = {"cache_max_keyframes": 1, "cache_margin_keyframes": 0, "cache_min_keyframes_between_evictions": 1}
+        problems = [f"{k}={getattr(self, k)} must be at least {low}" for k, low in lowest.items() if getattr(self, k) < low]
         if problems:
             raise ConfigError("invalid frontend local_map configuration: " + "; ".join(problems))
 
