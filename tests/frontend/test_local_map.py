@@ -225,14 +225,20 @@ def _update(lm: LocalMap, point_ids, p_world, **kw) -> MapUpdate:
 def test_map_update_replaces_points_and_creates_backend_points() -> None:
     lm = LocalMap()
     kf0 = add_keyframe(lm, [], 20)
-    backend_ids = BACKEND_POINT_ID_BASE + np.arange(3)
-    update = _update(lm, np.concatenate([kf0.new_point_ids[:2], backend_ids]), np.arange(15.0).reshape(5, 3))
+    backend_ids = BACKEND_POINT_ID_BASE + np.arange(4)
+    associations = kf0.map_point_ids.copy()
+    associations[17:20] = backend_ids[:3]  # kf0 observes three of them; none observes the fourth
+    update = _update(
+        lm, np.concatenate([kf0.new_point_ids[:2], backend_ids]), np.arange(18.0).reshape(6, 3),
+        keyframes=(KeyframeCorrection(kf0.id, kf0.T_world_cam, associations),),
+    )  # fmt: skip
     lm.apply_map_update(update)
     rows = lm.rows_of_ids(update.point_ids)
-    assert np.all(rows >= 0) and lm.n_points == 23
-    assert np.array_equal(lm.p_world[rows], update.p_world)
-    assert np.array_equal(lm.max_distance_m[rows], np.full(5, 20.0))
-    assert lm.n_observations[rows[2:]].tolist() == [0, 0, 0]
+    assert np.all(rows[:5] >= 0) and rows[5] == -1 and lm.n_points == 23
+    assert np.array_equal(lm.p_world[rows[:5]], update.p_world[:5])
+    assert np.array_equal(lm.max_distance_m[rows[:5]], np.full(5, 20.0))
+    assert lm.n_observations[rows[2:5]].tolist() == [1, 1, 1]
+    rows = rows[:5]
     # Backend points are never culled as "recent" by the frontend.
     lm.increase_visible(rows[2:])
     lm.increase_visible(rows[2:])

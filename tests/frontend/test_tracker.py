@@ -213,3 +213,25 @@ def test_skipped_frames_are_tracked_by_the_scaled_motion_model(monkeypatch) -> N
         assert t_err < 0.02 and r_err < 0.1, (k, t_err, r_err)
     # The velocity stays per frame: about 0.2 m forward (the truth's step), not 0.8 m.
     assert np.linalg.norm(tracker.motion.velocity[:3, 3]) == pytest.approx(0.2, abs=0.02)
+
+
+def test_a_small_map_cache_evicts_and_tracking_stays_accurate() -> None:
+    """Past 4 cached keyframes the tracker evicts around its window; the slots and rows it holds
+    (reference keyframe, last frame's matches) are remapped, so tracking goes on as accurately."""
+    from zenslam.frontend.local_map import LocalMapConfig
+
+    world = PointWorld(seed=0)
+    cache = LocalMapConfig(cache_max_keyframes=4, cache_margin_keyframes=1, cache_min_keyframes_between_evictions=2)
+    tracker = Tracker(CAL, "stereo", TrackingConfig(local_map=cache), camera_fps=10.0)
+    T0 = world.pose(0)
+    for k in range(70):
+        result = tracker.track(world.frame(k))
+        assert result.state == "ok", (k, result.lost_reason)
+        t_err, r_err = pose_errors(result.T_world_cam, invert_T(T0) @ world.pose(k))
+        # The bounds of test_tracks_every_frame_accurately; rotation drifts to ~0.4 deg by frame 70.
+        assert t_err < 0.005 + 0.005 * 0.2 * k and r_err < 0.5, (k, t_err, r_err)
+        reference = tracker.map.keyframe(tracker.map.slot_of(result.reference_keyframe_id))
+        assert np.allclose(reference.T_cam_world @ result.T_world_cam, result.T_reference_cam)
+    lm = tracker.map
+    assert tracker.eviction.passes >= 3 and lm.n_cached_keyframes < lm.n_keyframes // 2
+    assert np.array_equal(lm.rows_of_ids(lm.point_ids), np.arange(lm.n_points))

@@ -21,6 +21,11 @@ class IdIndex:
     def __len__(self) -> int:
         return len(self._ids)
 
+    @property
+    def nbytes(self) -> int:
+        """Bytes held by the sorted ids and their rows."""
+        return self._ids.nbytes + self._rows.nbytes
+
     def add(self, ids: np.ndarray, rows: np.ndarray) -> None:
         """Record that each of ``ids`` (unique, not yet known, >= 0) lives in the matching row of ``rows``."""
         ids = np.asarray(ids, dtype=np.int64).ravel()

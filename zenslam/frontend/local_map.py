@@ -13,6 +13,9 @@ configuration, so no id needs a round trip.
 
 The backend's corrections arrive as ``MapUpdate`` messages (replacement semantics, see
 ``zenslam.schemas.map_update``) and are applied with ``apply_map_update``.
+
+The map is a bounded cache: ``retain`` evicts keyframes and their points (``cache_eviction``
+decides which and when) and compacts slots and rows, so whoever holds slots or rows remaps them.
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from zenslam.errors import ConfigError
 from zenslam.frontend.id_index import IdIndex
 from zenslam.frontend.keyframe import KeyFrame
 from zenslam.frontend.slot_graph import SlotGraph
@@ -48,6 +52,18 @@ class LocalMapConfig:
     cull_min_found_ratio: float = 0.25  # found / visible below this -> point removed
     cull_min_keyframe_observations: int = 2  # keyframes that must see a point 2 keyframes after its birth
     cull_window_keyframes: int = 3  # points stay "recent" (checked) for this many keyframes
+    # The map is a bounded cache of the backend's (see cache_eviction): past cache_max_keyframes,
+    # keyframes outside the tracking window and its margin are evicted with the points they alone see.
+    evict: bool = True  # False: nothing is evicted and the cache grows into a full copy of the map
+    cache_max_keyframes: int = 120  # keyframes held before an eviction pass runs
+    cache_margin_keyframes: int = 20  # keyframes kept beyond the tracking window (best covisible first)
+    cache_min_keyframes_between_evictions: int = 20  # keyframes inserted between two passes, at least
+
+    def __post_init__(self) -> None:
+        lowest = {"cache_max_keyframes": 1, "cache_margin_keyframes": 0, "cache_min_keyframes_between_evictions": 1}
+        problems = [f"{k}={getattr(self, k)} must be at least {low}" for k, low in lowest.items() if getattr(self, k) < low]
+        if problems:
+            raise ConfigError("invalid frontend local_map configuration: " + "; ".join(problems))
 
 
 class IdAllocator:
@@ -107,6 +123,16 @@ def _grow(arrays: dict[str, np.ndarray], spec: dict, needed: int) -> None:
         arrays[name] = bigger
 
 
+def _compacted(arrays: dict[str, np.ndarray], spec: dict, index: np.ndarray) -> dict[str, np.ndarray]:
+    """The rows ``index`` of ``arrays``, moved to the front of new arrays with room to grow by half."""
+    capacity = max(len(index) + len(index) // 2, 1024)
+    out = {}
+    for name, (shape, dtype) in spec.items():
+        out[name] = np.zeros((capacity, *shape), dtype=dtype)
+        out[name][: len(index)] = arrays[name][index]
+    return out
+
+
 class LocalMap:
     """Keyframes, map points and covisibility as the frontend needs them for tracking.
 
@@ -128,12 +154,23 @@ class LocalMap:
         self._kf_rows: list[np.ndarray] = []  # per slot: rows of the points the keyframe observes
         self._kf_centres = np.zeros((0, 3))
         self._graph = SlotGraph(self.config.min_covisibility_weight)
+        self._n_inserted = 0  # keyframes ever inserted: the serial of the next one
 
     # ---- sizes and accessors -------------------------------------------------------------------
     @property
     def n_keyframes(self) -> int:
-        """Keyframes inserted so far."""
+        """Keyframes inserted so far (removed and evicted ones included)."""
+        return self._n_inserted
+
+    @property
+    def n_slots(self) -> int:
+        """Keyframe slots in use (cached keyframes and the backend's removed ones until an eviction)."""
         return len(self._keyframes)
+
+    @property
+    def n_cached_keyframes(self) -> int:
+        """Keyframes held: neither removed by the backend nor evicted."""
+        return len(self._slot_of_id)
 
     @property
     def n_points(self) -> int:
@@ -203,10 +240,12 @@ class LocalMap:
         the observed points' representative descriptors and viewing directions.
         """
         slot = len(self._keyframes)
+        serial = self._n_inserted
+        self._n_inserted += 1
         self._keyframes.append(keyframe)
         self._slot_of_id[int(keyframe.id)] = slot
         self._kf_centres = np.vstack([self._kf_centres, keyframe.centre_world[None]])
-        new_rows = self._append_new_points(keyframe, slot)
+        new_rows = self._append_new_points(keyframe, serial)
         if point_rows is None:
             rows = self.rows_of_ids(keyframe.map_point_ids)
         else:
@@ -224,7 +263,7 @@ class LocalMap:
         self._graph.add(self._links(slot, observed))
         return new_rows
 
-    def _append_new_points(self, keyframe: KeyFrame, slot: int) -> np.ndarray:
+    def _append_new_points(self, keyframe: KeyFrame, serial: int) -> np.ndarray:
         n_new = len(keyframe.new_point_ids)
         start = self._n_points
         _grow(self._pts, _POINT_ARRAYS, start + n_new)
@@ -245,7 +284,7 @@ class LocalMap:
         pts["n_found"][rows] = 1
         pts["n_observations"][rows] = 0
         pts["valid"][rows] = True
-        pts["created_serial"][rows] = slot
+        pts["created_serial"][rows] = serial
         self._n_points = start + n_new
         self._id_index.add(keyframe.new_point_ids, rows)
         return rows
@@ -286,7 +325,7 @@ class LocalMap:
         in_kf = np.zeros(self._n_points, dtype=bool)
         in_kf[rows] = True
         obs_rows = self._obs["row"][: self._n_obs]
-        weights = np.bincount(self._obs["slot"][: self._n_obs][in_kf[obs_rows]], minlength=self.n_keyframes)
+        weights = np.bincount(self._obs["slot"][: self._n_obs][in_kf[obs_rows]], minlength=self.n_slots)
         weights[slot] = 0
         return {int(s): int(weights[s]) for s in np.flatnonzero(weights)}
 
@@ -324,7 +363,7 @@ class LocalMap:
         in_frame = np.zeros(self._n_points, dtype=bool)
         in_frame[rows] = True
         obs_rows = self._obs["row"][: self._n_obs]
-        votes = np.bincount(self._obs["slot"][: self._n_obs][in_frame[obs_rows]], minlength=self.n_keyframes)
+        votes = np.bincount(self._obs["slot"][: self._n_obs][in_frame[obs_rows]], minlength=self.n_slots)
         voted = np.flatnonzero(votes)
         if len(voted) == 0:
             return LocalWindow(np.zeros(0, dtype=np.int64), -1)
@@ -390,6 +429,61 @@ class LocalMap:
         self._pts["valid"][np.flatnonzero(bad)] = False
         return int(np.count_nonzero(bad))
 
+    # ---- eviction ---------------------------------------------------------------------------------
+    def cached_slots(self) -> np.ndarray:
+        """(K,) int64 slots of the keyframes held, ascending (insertion order)."""
+        return np.asarray(sorted(self._slot_of_id.values()), dtype=np.int64)
+
+    def nbytes(self) -> int:
+        """Bytes of the arrays the cache holds: point and observation arrays (their capacity), the
+        keyframes' arrays (keypoints, descriptors, depths, associations, new points) and the indexes."""
+        arrays = [*self._pts.values(), *self._obs.values(), self._kf_centres, *self._kf_rows]
+        for keyframe in self._keyframes:
+            if keyframe is not None:
+                arrays += [getattr(keyframe.features, f.name) for f in dataclasses.fields(keyframe.features)]
+                arrays += [keyframe.T_world_cam, keyframe.right_u, keyframe.depth_m, keyframe.map_point_ids]
+                arrays += [keyframe.new_point_ids, keyframe.new_point_keypoints, keyframe.new_points_world]
+        return int(sum(np.asarray(a).nbytes for a in arrays)) + self._id_index.nbytes
+
+    def retain(self, keep_slots: np.ndarray, keep_rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Evict every keyframe not in ``keep_slots`` and every point that no kept keyframe observes
+        (except ``keep_rows``, rows the caller still refers to), then compact slots and rows.
+
+        Kept keyframes and points keep their relative order, so every ranking tie-breaks as
+        before. Points keep their statistics, ``n_observations`` included (it counts the backend
+        map's keyframes, which evicted ones still are). A kept keyframe whose spanning-tree parent
+        goes hangs from its nearest kept ancestor. Returns ``(slot_map, row_map)``: the new slot
+        (resp. row) of each old one, -1 where evicted; callers holding slots or rows remap them.
+        """
+        n_obs = self._n_obs
+        kept_slot = np.zeros(self.n_slots, dtype=bool)
+        kept_slot[np.asarray(keep_slots, dtype=np.int64)] = True
+        kept_slot &= np.asarray([kf is not None for kf in self._keyframes], dtype=bool)
+        kept_obs = kept_slot[self._obs["slot"][:n_obs]]
+        kept_row = np.zeros(self._n_points, dtype=bool)
+        kept_row[self._obs["row"][:n_obs][kept_obs]] = True
+        if keep_rows is not None:
+            extra = np.asarray(keep_rows, dtype=np.int64)
+            kept_row[extra[extra >= 0]] = True
+        slot_map = np.where(kept_slot, np.cumsum(kept_slot) - 1, -1)
+        row_map = np.where(kept_row, np.cumsum(kept_row) - 1, -1)
+        rows = np.flatnonzero(kept_row)
+        self._pts = _compacted(self._pts, _POINT_ARRAYS, rows)
+        self._n_points = len(rows)
+        self._id_index = IdIndex()
+        self._id_index.add(self._pts["ids"][: self._n_points], np.arange(self._n_points, dtype=np.int64))
+        self._obs = _compacted(self._obs, _OBS_ARRAYS, np.flatnonzero(kept_obs))
+        self._n_obs = int(np.count_nonzero(kept_obs))
+        self._obs["row"][: self._n_obs] = row_map[self._obs["row"][: self._n_obs]]
+        self._obs["slot"][: self._n_obs] = slot_map[self._obs["slot"][: self._n_obs]]
+        slots = np.flatnonzero(kept_slot).tolist()
+        self._keyframes = [self._keyframes[s] for s in slots]
+        self._slot_of_id = {int(kf.id): new for new, kf in enumerate(self._keyframes)}
+        self._kf_rows = [row_map[self._kf_rows[s]] for s in slots]
+        self._kf_centres = self._kf_centres[slots]
+        self._graph.compact(slot_map.tolist())
+        return slot_map, row_map
+
     # ---- map updates from elsewhere --------------------------------------------------------------
     def set_point_positions(self, point_ids: np.ndarray, p_world: np.ndarray) -> int:
         """Move known points (ids) to new world positions (K, 3) metres; unknown ids are ignored.
@@ -413,12 +507,17 @@ class LocalMap:
         """Apply the backend's correction: replace listed points (creating unknown ones), keyframe
         poses and keypoint-to-point associations, then delete removed points and keyframes.
 
-        Replacement semantics make a second application harmless. Keyframes this map never had
-        are skipped (it cannot rebuild their keypoints). Points listed by the backend are never
-        culled by ``cull_recent_points``: the backend decides about them.
+        Replacement semantics make a second application harmless. Keyframes this map does not
+        hold (never had, or evicted) are skipped: it cannot rebuild their keypoints. Unknown points
+        are created only when a held keyframe listed in the update observes them: the cache holds
+        its keyframes' points (tracking reaches points through keyframes), so an evicted point
+        comes back when a held keyframe is associated with it again, and a correction listing the
+        whole map does not copy it into the cache. Points listed by the backend are never culled
+        by ``cull_recent_points``: the backend decides about them.
         """
         moved = self._poses_of(update.keyframes)
-        self._replace_points(update)
+        held = [c.map_point_ids for c in update.keyframes if self.slot_of(c.id) >= 0]
+        self._replace_points(update, np.concatenate(held) if held else np.zeros(0, dtype=np.int64))
         self._replace_keyframes(update.keyframes)
         self._carry_unmapped_keyframes(update, moved)
         self.remove_points(update.removed_point_ids)
@@ -446,9 +545,11 @@ class LocalMap:
             rows = rows[rows >= 0]
             self._pts["p_world"][rows] = transform_points(C, self._pts["p_world"][rows])
 
-    def _replace_points(self, update: MapUpdate) -> None:
+    def _replace_points(self, update: MapUpdate, observed_ids: np.ndarray) -> None:
+        """Replace the listed points this map holds and create the unknown ones among ``observed_ids``."""
         rows = self.rows_of_ids(update.point_ids)
         unknown = np.flatnonzero(rows < 0)
+        unknown = unknown[np.isin(update.point_ids[unknown], observed_ids)]
         if len(unknown):
             start = self._n_points
             _grow(self._pts, _POINT_ARRAYS, start + len(unknown))
@@ -460,12 +561,14 @@ class LocalMap:
             self._pts["n_found"][new] = 1
             self._pts["n_observations"][new] = 0
             self._id_index.add(update.point_ids[unknown], new)
+        listed = np.flatnonzero(rows >= 0)
+        rows = rows[listed]
         pts = self._pts
-        pts["p_world"][rows] = update.p_world
-        pts["descriptors"][rows] = update.descriptors
-        pts["normals"][rows] = update.normals
-        pts["min_distance_m"][rows] = update.min_distance_m
-        pts["max_distance_m"][rows] = update.max_distance_m
+        pts["p_world"][rows] = update.p_world[listed]
+        pts["descriptors"][rows] = update.descriptors[listed]
+        pts["normals"][rows] = update.normals[listed]
+        pts["min_distance_m"][rows] = update.min_distance_m[listed]
+        pts["max_distance_m"][rows] = update.max_distance_m[listed]
         pts["valid"][rows] = True
         pts["created_serial"][rows] = np.iinfo(np.int64).min // 2  # never "recent" again
 
@@ -503,7 +606,7 @@ class LocalMap:
         if not slots:
             return
         n = self._n_obs
-        doomed = np.zeros(self.n_keyframes, dtype=bool)
+        doomed = np.zeros(self.n_slots, dtype=bool)
         doomed[slots] = True
         mine = doomed[self._obs["slot"][:n]]
         np.subtract.at(self._pts["n_observations"], self._obs["row"][:n][mine], 1)

@@ -58,6 +58,28 @@ class SlotGraph:
             self._children[parent].remove(slot)
         self._children[slot] = []
 
+    def compact(self, new_slot: list[int]) -> None:
+        """Keep the slots whose ``new_slot`` entry is >= 0, renumbered to it (kept slots keep their
+        relative order, so rankings tie-break as before); links to dropped slots go. A kept slot
+        whose parent was dropped moves to its nearest kept ancestor (the spanning tree stays a
+        forest of the kept slots), appended after that ancestor's own kept children."""
+        kept = [s for s, n in enumerate(new_slot) if n >= 0]
+        parents = []
+        for slot in kept:
+            parent = self._parent[slot]
+            while parent >= 0 and new_slot[parent] < 0:  # parents have lower slots: this ends
+                parent = self._parent[parent]
+            parents.append(new_slot[parent] if parent >= 0 else -1)
+        children: list[list[int]] = [[new_slot[c] for c in self._children[s] if new_slot[c] >= 0] for s in kept]
+        for slot, parent in zip(kept, parents):
+            if parent >= 0 and new_slot[self._parent[slot]] < 0:
+                children[parent].append(new_slot[slot])
+        self._links = [{new_slot[o]: w for o, w in self._links[s].items() if new_slot[o] >= 0} for s in kept]
+        self._ordered = [[] for _ in kept]
+        self._unordered = set(range(len(kept)))
+        self._parent = parents
+        self._children = children
+
     def weight(self, slot_a: int, slot_b: int) -> int:
         """Points observed by both keyframes."""
         return self._links[slot_a].get(slot_b, 0)

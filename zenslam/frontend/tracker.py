@@ -26,6 +26,7 @@ import numpy as np
 
 from zenslam.camera import PinholeCalibration, SensorKind
 from zenslam.frontend.feature_matcher import match_by_descriptor, rotation_consistent, search_by_projection
+from zenslam.frontend.cache_eviction import CacheEviction
 from zenslam.frontend.frame import Frame
 from zenslam.frontend.keyframe import KeyFrame, select_new_point_keypoints, unproject_keypoints
 from zenslam.frontend.keyframe_decision import (
@@ -128,6 +129,7 @@ class Tracker:
         self.keyframe_config = keyframe_config or KeyframeDecisionConfig()
         self.camera_fps = camera_fps
         self.map = LocalMap(self.config.local_map)
+        self.eviction = CacheEviction(self.map)
         self.motion = ConstantVelocityModel()
         self.th_depth_m = close_depth_threshold_m(calibration.baseline_m or 0.0, self.keyframe_config)
         self.lost_reasons: Counter[str] = Counter()
@@ -186,6 +188,8 @@ class Tracker:
         self.motion.update(self._last.T_cam_world, T_cam_world, self._frame_gap(frame))
         self._last = _LastFrame(frame, rows, T_cam_world)
         self._lost_streak = 0
+        if keyframe is not None:
+            self._evict(keyframes_in_flight + 1)
         return TrackResult("ok", None, invert_T(T_cam_world), n_inliers, keyframe, dict(self._timers))
 
     def apply_map_update(self, update: MapUpdate) -> None:
@@ -200,6 +204,17 @@ class Tracker:
         reference = self.map.keyframe(self._reference_slot) if self._reference_slot >= 0 else None
         if T_last_ref is not None and reference is not None:
             self._last.T_cam_world = T_last_ref @ reference.T_cam_world
+
+    def _evict(self, unanswered: int) -> None:
+        """Evict the map cache when due, around the last frame's window; ``unanswered`` newest
+        keyframes (the backend's updates of them not applied yet) stay. Remaps the slots and rows
+        the tracker holds."""
+        last = self._last
+        eviction = self.eviction.maybe_evict(last.rows, self._reference_slot, unanswered, keep_rows=last.rows)
+        if eviction is None:
+            return
+        last.rows = np.where(last.rows >= 0, eviction.row_map[last.rows], -1)
+        self._reference_slot = int(eviction.slot_map[self._reference_slot]) if self._reference_slot >= 0 else -1
 
     def _add_time(self, key: str, start: float, pose_ms_at_start: float) -> None:
         """Charge the time since ``start`` to ``key``, less the pose optimisation done meanwhile."""
@@ -481,6 +496,6 @@ class Tracker:
         new_rows = self.map.insert_keyframe(keyframe, point_rows=rows)
         rows[new_kps] = new_rows
         self.map.cull_recent_points()
-        self._reference_slot = self.map.n_keyframes - 1
+        self._reference_slot = self.map.slot_of(keyframe.id)
         self._last_keyframe_index = frame.index
         return keyframe
