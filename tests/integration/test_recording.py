@@ -117,6 +117,20 @@ def _frame(i: int, rng: np.random.Generator) -> bytes:
     return codec.encode_sensor_frame(SensorFrame(i, 1_000_000 * (i + 1), left, np.roll(left, 2, axis=1)), CAL, "stereo")
 
 
+def _frames_per_chunk(frame: bytes) -> int:
+    """A chunk holds fewer frames than CHUNK_SIZE / raw size (noise does not shrink as PNG, and the viewer
+    images share the chunk): at most this many, which a kill may lose."""
+    return CHUNK_SIZE // len(frame) + 1
+
+
+def _written_frames(recording: Path, probe: Path) -> int:
+    """Frames in the finished chunks of a recording still being written."""
+    try:
+        return mcap_io.recover(recording, probe).messages.get("/sensor/frame", 0)
+    except (OSError, mcap_io.RecordingError):  # not created yet, or not past its magic bytes
+        return 0
+
+
 def test_a_killed_recorder_loses_at_most_its_open_chunk(tmp_path):
     rng = np.random.default_rng(7)
     session = "it-kill"
@@ -138,7 +152,11 @@ def test_a_killed_recorder_loses_at_most_its_open_chunk(tmp_path):
             frames = [_frame(i, rng) for i in range(published)]
             for data in frames:
                 publisher.put(data)
-            time.sleep(1.5)  # the writer thread has taken every frame: only the open chunk is unwritten
+            # Wait until the writer has taken the frames, so that only the open chunk is unwritten.
+            deadline = time.monotonic() + 60.0
+            while _written_frames(recording, tmp_path / "probe.mcap") < published - _frames_per_chunk(frames[0]):
+                assert time.monotonic() < deadline, "the recorder did not write the frames' chunks"
+                time.sleep(0.05)
             recorder.kill()
             recorder.wait(timeout=10)
         finally:
@@ -148,9 +166,7 @@ def test_a_killed_recorder_loses_at_most_its_open_chunk(tmp_path):
     report = mcap_io.recover(recording, tmp_path / "fixed.mcap")
     assert not report.complete
     kept = [m for m in mcap_io.iter_messages(tmp_path / "fixed.mcap", ["/sensor/frame"])]
-    # A chunk holds fewer frames than CHUNK_SIZE / raw size (noise does not shrink as PNG, and the
-    # viewer images share the chunk): that many may be lost.
-    per_chunk = CHUNK_SIZE // len(frames[0]) + 1
+    per_chunk = _frames_per_chunk(frames[0])
     assert published - per_chunk <= len(kept) <= published
     assert len(kept) > 0 and [m.sequence for m in kept] == list(range(len(kept)))
     for message, data in zip(kept, frames):  # in order, pixel for pixel (stored as PNG)
