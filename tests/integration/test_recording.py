@@ -18,15 +18,11 @@ from zenslam.schemas import codec, keys
 from zenslam.runtime import bus
 from zenslam.service import mcap_io
 from zenslam.service.commands.export import export_recording
-from zenslam.service.commands.run import track
 from zenslam.service.evaluation.trajectory_io import read_tum
-from zenslam.service.run_config import RunConfig, SourceConfig
-from zenslam.service.run_output import prepare_run_dir, write_config, write_outputs
-from zenslam.service.sources import SensorFrame, open_source
+from zenslam.service.sources import SensorFrame
 
 pytestmark = pytest.mark.integration
 
-FRAMES = 12
 VIEWER_SCHEMAS = {
     "/camera/left": "foxglove.CompressedImage",
     "/camera/right": "foxglove.CompressedImage",
@@ -40,16 +36,9 @@ VIEWER_SCHEMAS = {
 
 
 @pytest.fixture(scope="module")
-def recorded_run(tmp_path_factory):
-    output = tmp_path_factory.mktemp("recordings")
-    config = RunConfig(source=SourceConfig(spec="synthetic", max_frames=FRAMES))
-    run_dir = prepare_run_dir(output, "it-recording")
-    config_path = write_config(run_dir, config)
-    source = open_source(config.source.spec)
-    log, completed = track(config, "it-recording", run_dir, config_path, source, progress=False)
-    assert completed
-    write_outputs(run_dir, log, source.ground_truth(), config.evaluation)
-    return run_dir, log
+def recorded_run(tracked_run):
+    """The shared lockstep run of conftest.py, recorded with the default recorder settings."""
+    return tracked_run.run_dir, tracked_run.log, tracked_run.frames
 
 
 def _summary(path: Path):
@@ -58,17 +47,17 @@ def _summary(path: Path):
 
 
 def test_the_run_writes_an_indexed_recording_with_viewer_schemas(recorded_run):
-    run_dir, log = recorded_run
+    run_dir, log, frames = recorded_run
     summary = _summary(run_dir / "run.mcap")  # the summary and index are there: the recorder finished
     schemas = {c.topic: summary.schemas[c.schema_id].name for c in summary.channels.values()}
     assert {t: schemas.get(t) for t in VIEWER_SCHEMAS} == VIEWER_SCHEMAS
     counts = {c.topic: summary.statistics.channel_message_counts[i] for i, c in summary.channels.items()}
     tracked = sum(1 for s in log.states.values() if s.has_pose)
-    assert counts["/frontend/pose"] == tracked == len(log.poses) == FRAMES
+    assert counts["/frontend/pose"] == tracked == len(log.poses) == frames
     assert counts["/tf"] == tracked
-    assert counts["/sensor/frame"] == FRAMES + 1  # and its end of stream
-    assert counts["/camera/left"] == counts["/camera/right"] == FRAMES
-    assert counts["/frontend/state"] == FRAMES + 1
+    assert counts["/sensor/frame"] == frames + 1  # and its end of stream
+    assert counts["/camera/left"] == counts["/camera/right"] == frames
+    assert counts["/frontend/state"] == frames + 1
     assert counts["/backend/map_update"] == log.keyframe_counts()["processed"] + 1
     # The first map, the final one, and at most one per recorder.map_points_period_s (1 s) between:
     # the synthetic scene's FRAMES frames at 20 Hz span less than a second.
@@ -76,7 +65,7 @@ def test_the_run_writes_an_indexed_recording_with_viewer_schemas(recorded_run):
 
 
 def test_every_recorded_pose_is_the_one_the_run_saw(recorded_run):
-    run_dir, log = recorded_run
+    run_dir, log, _ = recorded_run
     recorded = {p.stamp_ns: p.T_world_cam for _, p in mcap_io.iter_decoded(run_dir / "run.mcap", ["/frontend/pose"])}
     assert set(recorded) == set(log.poses)
     for stamp_ns, T in log.poses.items():
@@ -84,7 +73,7 @@ def test_every_recorded_pose_is_the_one_the_run_saw(recorded_run):
 
 
 def test_export_gives_the_run_trajectory(recorded_run, tmp_path):
-    run_dir, _ = recorded_run
+    run_dir, _, _ = recorded_run
     result = export_recording(run_dir / "run.mcap", tmp_path)
     exported, written = read_tum(result.written["trajectory.tum"]), read_tum(run_dir / "trajectory.tum")
     np.testing.assert_array_equal(exported.stamps_ns, written.stamps_ns)
@@ -95,7 +84,7 @@ def test_export_gives_the_run_trajectory(recorded_run, tmp_path):
 def test_rerun_opens_the_recording_with_its_own_mcap_reader(recorded_run):
     import rerun.chunk
 
-    run_dir, _ = recorded_run
+    run_dir, _, _ = recorded_run
     columns: dict[str, set[str]] = {}
     for chunk in rerun.chunk.McapReader(run_dir / "run.mcap").stream():
         columns.setdefault(str(chunk.entity_path), set()).update(f.name for f in chunk.to_record_batch().schema)
