@@ -5,8 +5,8 @@
 run the same frames with the default configuration (recorder and rerun on), so lockstep
 determinism says they must write the same trajectories and log the same data.
 
-Every test that uses one of them is sent to one pytest-xdist worker (group ``SHARED_RUNS_GROUP``),
-where the session-scoped fixture runs once.
+The tests that use them run on one pytest-xdist worker (tests/conftest.py groups them), where each
+session-scoped run is made once.
 """
 
 from __future__ import annotations
@@ -24,8 +24,6 @@ from zenslam.service.run_output import RunResult, RunLog, prepare_run_dir, write
 from zenslam.service.sources import open_source
 
 SYNTHETIC_FRAMES = 30
-SHARED_RUNS = ("tracked_run", "command_run")
-SHARED_RUNS_GROUP = "synthetic_lockstep_runs"
 
 
 @dataclass(frozen=True)
@@ -41,12 +39,6 @@ class CommandRun:
     frames: int
     run_dir: Path
     stdout: str
-
-
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    for item in items:
-        if set(SHARED_RUNS) & set(getattr(item, "fixturenames", ())):
-            item.add_marker(pytest.mark.xdist_group(SHARED_RUNS_GROUP))
 
 
 @pytest.fixture(scope="session")

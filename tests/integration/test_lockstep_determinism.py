@@ -15,6 +15,7 @@ import pytest
 pytestmark = pytest.mark.integration
 
 
+@pytest.mark.slow(25)  # with the two shared runs it compares
 def test_two_lockstep_runs_write_identical_trajectories(command_run, tracked_run):
     first, second = command_run.run_dir, tracked_run.run_dir
     for name in ("trajectory.tum", "keyframes.tum"):

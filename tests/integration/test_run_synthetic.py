@@ -76,6 +76,7 @@ def test_the_command_prints_the_ate_and_repeats_exactly(lockstep_run, command_ru
     assert _poses(command_run.run_dir / "trajectory.tum") == _poses(run_dir / "trajectory.tum")
 
 
+@pytest.mark.slow(12)
 def test_a_pipelined_run_tracks_every_frame_and_waits_for_every_keyframe(tmp_path):
     """``--pipelined``: lockstep frames, map updates applied as they arrive; nothing dropped, nothing left unmapped."""
     command = [sys.executable, "-m", "zenslam.service.cli", "run", "synthetic", "--pipelined", "--max-frames", str(FRAMES),
