@@ -37,6 +37,7 @@ def test_ci_runs_exactly_the_readme_test_command():
     assert out.stdout.strip() == readme_command("test")
 
 
+@pytest.mark.slow(160)  # a fresh venv, pip install and the whole synthetic loop
 @pytest.mark.skipif(shutil.which("git") is None, reason="git is needed to make a fresh clone")
 def test_main_command_on_a_fresh_clone(tmp_path: Path):
     """A new user's first command: clone, install into a new venv, run SLAM on the synthetic scene."""
@@ -55,13 +56,10 @@ def test_main_command_on_a_fresh_clone(tmp_path: Path):
     assert len(runs) == 1, f"expected one run folder with metrics.json, found {runs}"
 
 
-def test_tour_commands_run_in_order(tmp_path: Path):
-    """Every line of the README's tour, run from a checkout whose ../shared/data is the real one."""
-    from conftest import shared_data_root
-
-    data = shared_data_root()
-    if not (data / "kitti_odometry").is_dir():
-        pytest.skip(f"the tour uses the KITTI clip; not found at {data}")
+@pytest.mark.slow(70)
+def test_tour_commands_run_in_order(tmp_path: Path, data_root: Path, kitti_root: Path):
+    """Every line of the README's tour (it uses the KITTI clip), run from a checkout whose ../shared/data is the real one."""
+    data = data_root
     checkout = tmp_path / "checkout"
     checkout.mkdir()
     (tmp_path / "shared").mkdir()

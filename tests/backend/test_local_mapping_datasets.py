@@ -4,7 +4,8 @@ Each frame is tracked by ``FrontendPipeline``; a keyframe goes through the bus c
 ``LocalMapper.process`` (gtsam local BA) and its map update back to the pipeline before the next
 frame, as ``zenslam run --lockstep`` orders them. Thresholds (measured, see
 ``benchmarks/backend_quality.py``): KITTI 06 clip ATE <= 3.0 cm (2.6 cm measured; 4.5 cm frontend
-alone); the synthetic scenes' first 120 frames more accurate with the backend than without.
+alone); on the synthetic scenes' first 80 frames the backend takes at least a tenth off the frontend's
+ATE (the gap grows with the path: ``benchmarks/backend_quality.py`` runs the whole scenes).
 """
 
 from __future__ import annotations
@@ -46,6 +47,7 @@ def run_lockstep(source, with_backend: bool, max_frames: int | None = None) -> t
     return evaluate(estimate, source.ground_truth()).ate.rmse_m, states, mapper
 
 
+@pytest.mark.slow(16)
 @pytest.mark.dataset
 def test_kitti_06_clip_with_the_backend_is_within_3_cm(kitti_root: Path) -> None:
     from zenslam.service.sources.kitti import KittiSource
@@ -57,6 +59,7 @@ def test_kitti_06_clip_with_the_backend_is_within_3_cm(kitti_root: Path) -> None
     assert len(mapper.map.keyframes) >= 3 and mapper.totals["points_created"] > 0
 
 
+@pytest.mark.slow(25)
 @pytest.mark.parametrize(("scene", "sensor"), [("loop", "stereo"), ("figure_eight", "rgbd")])
 def test_the_backend_beats_the_frontend_alone_on_synthetic_scenes(scene: str, sensor: str) -> None:
     from zenslam.service.sources.synthetic import SyntheticSource, scene_config
@@ -65,7 +68,7 @@ def test_the_backend_beats_the_frontend_alone_on_synthetic_scenes(scene: str, se
     frontend_m, _, _ = run_lockstep(source, with_backend=False, max_frames=FRAMES)
     backend_m, states, _ = run_lockstep(source, with_backend=True, max_frames=FRAMES)
     assert states == ["ok"] * FRAMES
-    assert backend_m < frontend_m, f"ATE {backend_m * 100:.2f} cm with the backend, {frontend_m * 100:.2f} cm without"
+    assert backend_m < 0.9 * frontend_m, f"ATE {backend_m * 100:.2f} cm with the backend, {frontend_m * 100:.2f} cm without"
 
 
-FRAMES = 120  # the scenes' first 6 s (20 Hz)
+FRAMES = 80  # the scenes' first 4 s (20 Hz)

@@ -173,10 +173,17 @@ def test_a_backlog_defers_local_mapping_but_the_last_keyframe_gets_it_before_the
         try:
             assert bus.wait_for_alive(hub, session_name, ["backend"], timeout_s=10.0) == set()
             assert bus.wait_for_subscribers(publisher, timeout_s=10.0)
+            # A second subscriber in the backend's session: once it has the end of stream, so has the inbox.
+            arrived = threading.Event()
+            watcher = peer.declare_subscriber(
+                keys.frontend_keyframe(session_name),
+                lambda sample: isinstance(codec.decode_keyframe(sample.payload.to_bytes()), codec.EndOfStream) and arrived.set(),
+            )
             for k in range(n):
                 publisher.put(codec.encode_keyframe(world.keyframe(k)))
             publisher.put(codec.encode_end_of_stream(codec.KEYFRAME, n))
-            time.sleep(0.5)  # all of it reaches the inbox while the first keyframe is held
+            assert arrived.wait(timeout=20.0), "the keyframes did not arrive"  # all in the inbox, the first one held
+            watcher.undeclare()
             node.gate.set()
             received = [updates.get(timeout_s=10.0) for _ in range(n + 1)]
             worker.join(timeout=10.0)

@@ -74,6 +74,7 @@ def test_euroc_micro_clip_stereo(euroc_micro: Path) -> None:
     assert result.ate.max_m <= 0.005, f"drift {result.ate.max_m * 1000:.1f} mm"
 
 
+@pytest.mark.slow(15)
 @pytest.mark.parametrize("sensor", ["stereo", "rgbd"])
 def test_synthetic_loop_first_10_s(sensor: str) -> None:
     from zenslam.service.sources.synthetic import SyntheticSource, scene_config

@@ -18,15 +18,11 @@ from zenslam.schemas import codec, keys
 from zenslam.runtime import bus
 from zenslam.service import mcap_io
 from zenslam.service.commands.export import export_recording
-from zenslam.service.commands.run import track
 from zenslam.service.evaluation.trajectory_io import read_tum
-from zenslam.service.run_config import RunConfig, SourceConfig
-from zenslam.service.run_output import prepare_run_dir, write_config, write_outputs
-from zenslam.service.sources import SensorFrame, open_source
+from zenslam.service.sources import SensorFrame
 
 pytestmark = pytest.mark.integration
 
-FRAMES = 12
 VIEWER_SCHEMAS = {
     "/camera/left": "foxglove.CompressedImage",
     "/camera/right": "foxglove.CompressedImage",
@@ -40,16 +36,9 @@ VIEWER_SCHEMAS = {
 
 
 @pytest.fixture(scope="module")
-def recorded_run(tmp_path_factory):
-    output = tmp_path_factory.mktemp("recordings")
-    config = RunConfig(source=SourceConfig(spec="synthetic", max_frames=FRAMES))
-    run_dir = prepare_run_dir(output, "it-recording")
-    config_path = write_config(run_dir, config)
-    source = open_source(config.source.spec)
-    log, completed = track(config, "it-recording", run_dir, config_path, source, progress=False)
-    assert completed
-    write_outputs(run_dir, log, source.ground_truth(), config.evaluation)
-    return run_dir, log
+def recorded_run(tracked_run):
+    """The shared lockstep run of conftest.py, recorded with the default recorder settings."""
+    return tracked_run.run_dir, tracked_run.log, tracked_run.frames
 
 
 def _summary(path: Path):
@@ -58,17 +47,17 @@ def _summary(path: Path):
 
 
 def test_the_run_writes_an_indexed_recording_with_viewer_schemas(recorded_run):
-    run_dir, log = recorded_run
+    run_dir, log, frames = recorded_run
     summary = _summary(run_dir / "run.mcap")  # the summary and index are there: the recorder finished
     schemas = {c.topic: summary.schemas[c.schema_id].name for c in summary.channels.values()}
     assert {t: schemas.get(t) for t in VIEWER_SCHEMAS} == VIEWER_SCHEMAS
     counts = {c.topic: summary.statistics.channel_message_counts[i] for i, c in summary.channels.items()}
     tracked = sum(1 for s in log.states.values() if s.has_pose)
-    assert counts["/frontend/pose"] == tracked == len(log.poses) == FRAMES
+    assert counts["/frontend/pose"] == tracked == len(log.poses) == frames
     assert counts["/tf"] == tracked
-    assert counts["/sensor/frame"] == FRAMES + 1  # and its end of stream
-    assert counts["/camera/left"] == counts["/camera/right"] == FRAMES
-    assert counts["/frontend/state"] == FRAMES + 1
+    assert counts["/sensor/frame"] == frames + 1  # and its end of stream
+    assert counts["/camera/left"] == counts["/camera/right"] == frames
+    assert counts["/frontend/state"] == frames + 1
     assert counts["/backend/map_update"] == log.keyframe_counts()["processed"] + 1
     # The first map, the final one, and at most one per recorder.map_points_period_s (1 s) between:
     # the synthetic scene's FRAMES frames at 20 Hz span less than a second.
@@ -76,7 +65,7 @@ def test_the_run_writes_an_indexed_recording_with_viewer_schemas(recorded_run):
 
 
 def test_every_recorded_pose_is_the_one_the_run_saw(recorded_run):
-    run_dir, log = recorded_run
+    run_dir, log, _ = recorded_run
     recorded = {p.stamp_ns: p.T_world_cam for _, p in mcap_io.iter_decoded(run_dir / "run.mcap", ["/frontend/pose"])}
     assert set(recorded) == set(log.poses)
     for stamp_ns, T in log.poses.items():
@@ -84,7 +73,7 @@ def test_every_recorded_pose_is_the_one_the_run_saw(recorded_run):
 
 
 def test_export_gives_the_run_trajectory(recorded_run, tmp_path):
-    run_dir, _ = recorded_run
+    run_dir, _, _ = recorded_run
     result = export_recording(run_dir / "run.mcap", tmp_path)
     exported, written = read_tum(result.written["trajectory.tum"]), read_tum(run_dir / "trajectory.tum")
     np.testing.assert_array_equal(exported.stamps_ns, written.stamps_ns)
@@ -95,7 +84,7 @@ def test_export_gives_the_run_trajectory(recorded_run, tmp_path):
 def test_rerun_opens_the_recording_with_its_own_mcap_reader(recorded_run):
     import rerun.chunk
 
-    run_dir, _ = recorded_run
+    run_dir, _, _ = recorded_run
     columns: dict[str, set[str]] = {}
     for chunk in rerun.chunk.McapReader(run_dir / "run.mcap").stream():
         columns.setdefault(str(chunk.entity_path), set()).update(f.name for f in chunk.to_record_batch().schema)
@@ -115,6 +104,20 @@ CHUNK_SIZE = 64 * 1024  # bytes
 def _frame(i: int, rng: np.random.Generator) -> bytes:
     left = rng.integers(0, 256, (48, 64), dtype=np.uint8)  # noise: neither PNG nor zstd shrinks it
     return codec.encode_sensor_frame(SensorFrame(i, 1_000_000 * (i + 1), left, np.roll(left, 2, axis=1)), CAL, "stereo")
+
+
+def _frames_per_chunk(frame: bytes) -> int:
+    """A chunk holds fewer frames than CHUNK_SIZE / raw size (noise does not shrink as PNG, and the viewer
+    images share the chunk): at most this many, which a kill may lose."""
+    return CHUNK_SIZE // len(frame) + 1
+
+
+def _written_frames(recording: Path, probe: Path) -> int:
+    """Frames in the finished chunks of a recording still being written."""
+    try:
+        return mcap_io.recover(recording, probe).messages.get("/sensor/frame", 0)
+    except (OSError, mcap_io.RecordingError):  # not created yet, or not past its magic bytes
+        return 0
 
 
 def test_a_killed_recorder_loses_at_most_its_open_chunk(tmp_path):
@@ -138,7 +141,11 @@ def test_a_killed_recorder_loses_at_most_its_open_chunk(tmp_path):
             frames = [_frame(i, rng) for i in range(published)]
             for data in frames:
                 publisher.put(data)
-            time.sleep(1.5)  # the writer thread has taken every frame: only the open chunk is unwritten
+            # Wait until the writer has taken the frames, so that only the open chunk is unwritten.
+            deadline = time.monotonic() + 60.0
+            while _written_frames(recording, tmp_path / "probe.mcap") < published - _frames_per_chunk(frames[0]):
+                assert time.monotonic() < deadline, "the recorder did not write the frames' chunks"
+                time.sleep(0.05)
             recorder.kill()
             recorder.wait(timeout=10)
         finally:
@@ -148,9 +155,7 @@ def test_a_killed_recorder_loses_at_most_its_open_chunk(tmp_path):
     report = mcap_io.recover(recording, tmp_path / "fixed.mcap")
     assert not report.complete
     kept = [m for m in mcap_io.iter_messages(tmp_path / "fixed.mcap", ["/sensor/frame"])]
-    # A chunk holds fewer frames than CHUNK_SIZE / raw size (noise does not shrink as PNG, and the
-    # viewer images share the chunk): that many may be lost.
-    per_chunk = CHUNK_SIZE // len(frames[0]) + 1
+    per_chunk = _frames_per_chunk(frames[0])
     assert published - per_chunk <= len(kept) <= published
     assert len(kept) > 0 and [m.sequence for m in kept] == list(range(len(kept)))
     for message, data in zip(kept, frames):  # in order, pixel for pixel (stored as PNG)

@@ -97,6 +97,7 @@ def kitti_recording(kitti_root: Path, tmp_path_factory) -> Path:
     return output / "kitti" / "run.mcap"
 
 
+@pytest.mark.slow(50)  # with the recording it replays
 @pytest.mark.dataset
 def test_a_kitti_run_replays_identically_through_the_whole_pipeline(kitti_recording, tmp_path):
     result = _zenslam("replay", str(kitti_recording), "--output", str(tmp_path), "--run-id", "again", "--no-progress", cwd=tmp_path)

@@ -1,7 +1,8 @@
 """A lockstep run writes one .rrd per stage process, all of one recording, and two runs log the same data.
 
-Two ``zenslam run --lockstep`` commands on a short synthetic sequence. Each run folder must hold
-source.rrd, frontend.rrd and backend.rrd with the run id as recording id, the documented entity
+Two lockstep runs of a short synthetic sequence (the ``zenslam run --lockstep`` command, and the same
+run followed by this process; both shared with other modules by conftest.py). Each run folder must
+hold source.rrd, frontend.rrd and backend.rrd with the run id as recording id, the documented entity
 paths, every frame on the frame timeline (the source's images, the frontend's poses) and the
 backend's entries at its keyframes' frames. On the frame timeline both runs must log identical
 values, measured timings (and the backend's queue depth, which depends on when the inbox is
@@ -11,8 +12,6 @@ looked at) aside.
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -20,8 +19,6 @@ import pytest
 from zenslam.runtime.rerun_log import read_rrd, recording_ids
 
 pytestmark = pytest.mark.integration
-
-FRAMES = 12
 
 ENTITIES = {
     "source": {"/source/camera/left"},
@@ -33,18 +30,9 @@ ENTITIES = {
 }  # fmt: skip
 
 
-def _run(output: Path, run_id: str) -> Path:
-    command = [sys.executable, "-m", "zenslam.service.cli", "run", "synthetic", "--lockstep", "--max-frames", str(FRAMES),
-               "--output", str(output), "--run-id", run_id, "--no-progress"]  # fmt: skip
-    result = subprocess.run(command, capture_output=True, text=True, timeout=600)
-    assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-3000:]
-    return output / run_id
-
-
 @pytest.fixture(scope="module")
-def runs(tmp_path_factory) -> tuple[Path, Path]:
-    output = tmp_path_factory.mktemp("recordings")
-    return _run(output, "rerun-a"), _run(output, "rerun-b")
+def runs(command_run, tracked_run) -> tuple[Path, Path]:
+    return command_run.run_dir, tracked_run.run_dir
 
 
 def _frames(data: dict, entity: str) -> set[int | None]:
@@ -58,24 +46,25 @@ def _comparable(data: dict) -> dict:
 
 def test_each_stage_writes_its_rrd_of_the_run_recording(runs):
     run_dir = runs[0]
+    run_id = run_dir.name
     assert sorted(p.name for p in run_dir.glob("*.rrd")) == ["backend.rrd", "frontend.rrd", "source.rrd"]
     for stage, entities in ENTITIES.items():
         path = run_dir / f"{stage}.rrd"
-        assert recording_ids(path) == [("zenslam", "rerun-a")]
+        assert recording_ids(path) == [("zenslam", run_id)]
         logged = {key[0] for key in read_rrd(path)}
         assert entities <= logged, f"{path} lacks {sorted(entities - logged)}"
 
 
-def test_every_frame_is_on_the_frame_timeline(runs):
-    run_dir = runs[0]
+def test_every_frame_is_on_the_frame_timeline(runs, command_run):
+    run_dir, frames = runs[0], command_run.frames
     metrics = json.loads((run_dir / "metrics.json").read_text())
     source, frontend, backend = (read_rrd(run_dir / f"{stage}.rrd") for stage in ("source", "frontend", "backend"))
-    assert _frames(source, "/source/camera/left") == set(range(FRAMES))
-    assert _frames(frontend, "/frontend/pose") == set(range(FRAMES))  # the synthetic loop tracks every frame
-    assert _frames(frontend, "/frontend/keypoints") == set(range(FRAMES))
+    assert _frames(source, "/source/camera/left") == set(range(frames))
+    assert _frames(frontend, "/frontend/pose") == set(range(frames))  # the synthetic loop tracks every frame
+    assert _frames(frontend, "/frontend/keypoints") == set(range(frames))
     keyframe_frames = _frames(backend, "/backend/keyframes")
     assert len(keyframe_frames) == metrics["keyframes"]["processed"] >= 3
-    assert keyframe_frames <= set(range(FRAMES)) and 0 in keyframe_frames
+    assert keyframe_frames <= set(range(frames)) and 0 in keyframe_frames
     assert _frames(backend, "/backend/local_ba/after") <= keyframe_frames
 
 

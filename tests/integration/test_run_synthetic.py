@@ -1,8 +1,8 @@
 """End to end: the real source and frontend processes over zenoh on loopback, on a short synthetic sequence.
 
-The first test follows the run the way the ``zenslam run`` process does (it is a bus consumer) and
-checks the states and poses that arrive; the second runs the command itself and checks what it
-printed and wrote, and that lockstep runs repeat exactly.
+The first tests follow the run the way the ``zenslam run`` process does (it is a bus consumer) and
+check the states and poses that arrive; then the command itself: what it prints and writes, and that
+lockstep runs repeat exactly. Both runs are the shared ones of conftest.py.
 """
 
 from __future__ import annotations
@@ -15,15 +15,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from zenslam.service.commands.run import track
 from zenslam.service.evaluation.metrics import evaluate
-from zenslam.service.run_config import RunConfig, SourceConfig
-from zenslam.service.run_output import prepare_run_dir, write_config, write_outputs
 from zenslam.service.sources import open_source
 
 pytestmark = pytest.mark.integration
 
-FRAMES = 30
+FRAMES = 30  # of each run, the shared ones and the pipelined one
+
 ATE_BOUND_M = 0.02  # the synthetic loop tracks to ~3 mm over its first 30 frames (0.5 m of path)
 
 
@@ -33,16 +31,9 @@ def _poses(path: Path) -> list[str]:
 
 
 @pytest.fixture(scope="module")
-def lockstep_run(tmp_path_factory) -> tuple[Path, object]:
-    output = tmp_path_factory.mktemp("recordings")
-    config = RunConfig(source=SourceConfig(spec="synthetic", max_frames=FRAMES))
-    run_dir = prepare_run_dir(output, "it-lockstep")
-    config_path = write_config(run_dir, config)
-    source = open_source(config.source.spec)
-    log, completed = track(config, "it-lockstep", run_dir, config_path, source, progress=False)
-    assert completed
-    result = write_outputs(run_dir, log, source.ground_truth(), config.evaluation)
-    return run_dir, log, result
+def lockstep_run(tracked_run) -> tuple[Path, object, object]:
+    assert tracked_run.frames == FRAMES
+    return tracked_run.run_dir, tracked_run.log, tracked_run.result
 
 
 def test_every_frame_is_tracked_and_its_pose_arrives(lockstep_run):
@@ -76,20 +67,16 @@ def test_the_run_folder(lockstep_run):
     assert len(_poses(run_dir / "trajectory.tum")) == FRAMES
 
 
-def test_the_command_prints_the_ate_and_repeats_exactly(lockstep_run, tmp_path):
+def test_the_command_prints_the_ate_and_repeats_exactly(lockstep_run, command_run):
     run_dir, _, _ = lockstep_run
-    frames = 15
-    command = [sys.executable, "-m", "zenslam.service.cli", "run", "synthetic", "--lockstep", "--max-frames", str(frames),
-               "--output", str(tmp_path), "--run-id", "it-cli", "--no-progress"]
-    result = subprocess.run(command, capture_output=True, text=True, timeout=300)
-    assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-3000:]
-    assert "ATE RMSE" in result.stdout
-    metrics = json.loads((tmp_path / "it-cli" / "metrics.json").read_text())
-    assert metrics["frames"] == frames and metrics["ate"]["rmse_m"] < ATE_BOUND_M
-    # Lockstep runs are deterministic: the first frames of both runs give the same bytes.
-    assert _poses(tmp_path / "it-cli" / "trajectory.tum") == _poses(run_dir / "trajectory.tum")[:frames]
+    assert "ATE RMSE" in command_run.stdout
+    metrics = json.loads((command_run.run_dir / "metrics.json").read_text())
+    assert metrics["frames"] == command_run.frames == FRAMES and metrics["ate"]["rmse_m"] < ATE_BOUND_M
+    # Lockstep runs are deterministic: the command and the run followed in this process give the same bytes.
+    assert _poses(command_run.run_dir / "trajectory.tum") == _poses(run_dir / "trajectory.tum")
 
 
+@pytest.mark.slow(12)
 def test_a_pipelined_run_tracks_every_frame_and_waits_for_every_keyframe(tmp_path):
     """``--pipelined``: lockstep frames, map updates applied as they arrive; nothing dropped, nothing left unmapped."""
     command = [sys.executable, "-m", "zenslam.service.cli", "run", "synthetic", "--pipelined", "--max-frames", str(FRAMES),

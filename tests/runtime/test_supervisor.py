@@ -20,7 +20,8 @@ STAGE_CHILD = """
 import argparse, sys, time
 from pathlib import Path
 from zenslam.runtime import bus
-from zenslam.runtime.stage import StopFlag, add_process_arguments, bus_config_with
+from zenslam.runtime.stage import StopFlag, add_process_arguments, bus_config_with, setup_process_logging
+setup_process_logging(False, "dummy")  # the stop flag logs the signal that set it
 parser = argparse.ArgumentParser()
 add_process_arguments(parser)
 parser.add_argument("--name", required=True)
@@ -109,10 +110,10 @@ def test_stage_comes_up_on_the_bus_and_stops_cleanly_on_sigint(tmp_path, modules
             supervisor.start(ProcessSpec("dummy", "stage_child", ("--name", "dummy", "--marker", str(marker))))
             supervisor.wait_until_alive(session, ["dummy"], timeout_s=30.0)
             assert supervisor.returncode("dummy") is None
-            started = time.monotonic()
-            supervisor.stop(grace_s=10.0)
-            assert time.monotonic() - started < 5.0
+            supervisor.stop(grace_s=60.0)
             assert supervisor.returncode("dummy") == 0
+            assert "received SIGINT" in supervisor.log_tail("dummy")  # it stopped within the grace, before any SIGTERM
+            assert "SIGTERM" not in supervisor.log_tail("dummy")
         assert marker.read_text() == "stopped cleanly"
         assert bus.alive_processes(session, "sup-test") == set()
 
@@ -147,8 +148,9 @@ def test_waiting_for_a_child_that_crashes_fails_fast(tmp_path, modules):
         supervisor.start(ProcessSpec("frontend", "crashing_child"))
         started = time.monotonic()
         with pytest.raises(ProcessError, match="status 3"):
-            supervisor.wait_until_alive(session, ["frontend"], timeout_s=60.0)
-        assert time.monotonic() - started < 20.0
+            supervisor.wait_until_alive(session, ["frontend"], timeout_s=300.0)
+        # The crash ends the wait, not the timeout: a generous deadline, far below the 300 s.
+        assert time.monotonic() - started < 150.0
 
 
 def test_stubborn_children_and_their_children_are_killed(tmp_path, modules):

@@ -217,10 +217,17 @@ def test_record_a_session_until_stopped(tmp_path):
         assert not bus.wait_for_alive(peer, SESSION, ["recorder"], timeout_s=10.0)
         publisher = bus.declare_publisher(peer, keys.frontend_state(SESSION), codec.TRACKING_STATE, "lossless")
         assert bus.wait_for_subscribers(publisher, timeout_s=5.0)
+        # A second subscriber in the recorder's session: once it has the end of stream, so has the recorder.
+        arrived = threading.Event()
+        watcher = hub.declare_subscriber(
+            keys.frontend_state(SESSION),
+            lambda sample: isinstance(codec.decode_tracking_state(sample.payload.to_bytes()), codec.EndOfStream) and arrived.set(),
+        )
         for i in range(50):
             publisher.put(codec.encode_tracking_state(codec.TrackingStateMessage(i, 10 * (i + 1), "ok")))
         publisher.put(codec.encode_end_of_stream(codec.TRACKING_STATE, 50))
-        time.sleep(0.1)
+        assert arrived.wait(timeout=20.0), "the end of stream did not arrive"
+        watcher.undeclare()
         stop.set()
         thread.join(timeout=20)
         assert not thread.is_alive()
@@ -242,6 +249,8 @@ def test_recording_ends_by_itself_once_the_followed_stages_have_come_and_gone(tm
         publisher = bus.declare_publisher(peer, keys.status(SESSION, "source"), codec.STAGE_STATUS, "lossless")
         assert bus.wait_for_subscribers(publisher, timeout_s=5.0)
         publisher.put(codec.encode_stage_status(codec.StageStatusMessage("source", "finished", 3)))
+        # Nothing to wait for: the recorder must not end. A pause lets a wrong recorder end (on a busy
+        # machine it may hide that, never fail a right one).
         time.sleep(0.2)
         assert thread.is_alive()  # the source is still there
         token.undeclare()

@@ -11,6 +11,7 @@ from zenslam.camera import PinholeCalibration
 from zenslam.schemas import codec, keys
 from zenslam.runtime import bus
 from zenslam.service.run_config import SourceConfig
+from zenslam.service import source_node
 from zenslam.service.source_node import play
 from zenslam.service.sources.frame import SensorFrame
 
@@ -27,9 +28,45 @@ def session():
         yield s
 
 
+class FakeClock:
+    """Seconds that pass only when someone sleeps: the pacer's schedule, free of the machine's load."""
+
+    def __init__(self) -> None:
+        self.now_s = 1000.0
+        self.slept_s: list[float] = []
+
+    def monotonic(self) -> float:
+        return self.now_s
+
+    def sleep(self, seconds: float) -> None:
+        self.slept_s.append(seconds)
+        self.now_s += seconds
+
+
+@pytest.fixture
+def release_times(monkeypatch) -> tuple[FakeClock, list[float]]:
+    """play() paces on a fake clock; the list gets each frame's release time (fake clock s)."""
+    clock, released = FakeClock(), []
+
+    class FakeClockPacer(source_node._Pacer):
+        def __init__(self, rate, should_stop):
+            super().__init__(rate, should_stop, clock=clock.monotonic, sleep=clock.sleep)
+
+        def wait_for(self, stamp_ns: int) -> None:
+            super().wait_for(stamp_ns)
+            released.append(clock.now_s)
+
+    monkeypatch.setattr(source_node, "_Pacer", FakeClockPacer)
+    return clock, released
+
+
+def _offsets(released: list[float]) -> list[float]:
+    return [t - released[0] for t in released]
+
+
 def _collect(inbox: bus.Inbox) -> list:
     out = []
-    while not isinstance(message := inbox.get(timeout_s=2.0), codec.EndOfStream):
+    while not isinstance(message := inbox.get(timeout_s=10.0), codec.EndOfStream):
         assert message is not None, "the stream did not end"
         out.append(message.frame.index)
     return out + [message]
@@ -38,30 +75,46 @@ def _collect(inbox: bus.Inbox) -> list:
 def _play(session, name: str, frames, config: SourceConfig, should_stop=lambda: False, mode="live"):
     # Lossless on the receiving side, so the test sees everything the source sent.
     inbox = bus.subscribe(session, keys.sensor_frame(name), codec.decode_sensor_frame, "lossless", 64)
-    started = time.monotonic()
     sent = play(session, name, frames, CAL, "mono", config, should_stop, "test", mode=mode)
-    elapsed = time.monotonic() - started
     received = _collect(inbox)
     inbox.close()
-    return sent, received, elapsed
+    return sent, received
 
 
-def test_live_playback_keeps_the_recorded_rate(session):
-    sent, received, elapsed = _play(session, "paced", _frames(6, 40_000_000), SourceConfig(rate=1.0))
+def test_live_playback_keeps_the_recorded_rate(session, release_times):
+    clock, released = release_times
+    sent, received = _play(session, "paced", _frames(6, 40_000_000), SourceConfig(rate=1.0))
     assert sent == 6 and received == [0, 1, 2, 3, 4, 5, codec.EndOfStream(6)]
-    assert 0.19 <= elapsed < 1.0  # five 40 ms gaps
+    assert _offsets(released) == pytest.approx([0.0, 0.04, 0.08, 0.12, 0.16, 0.20], abs=1e-9)  # five 40 ms gaps
 
 
-def test_rate_scales_the_pace_and_zero_means_as_fast_as_possible(session):
+def test_rate_scales_the_pace_and_zero_means_as_fast_as_possible(session, release_times):
+    clock, released = release_times
     frames = _frames(6, 100_000_000)  # 0.5 s of recording
-    _, _, doubled = _play(session, "fast", frames, SourceConfig(rate=2.0))
-    _, _, unpaced = _play(session, "fastest", frames, SourceConfig(rate=0.0))
-    assert 0.24 <= doubled < 0.5  # 0.25 s at twice the speed; 0.5 s would be the recorded rate
-    assert unpaced < 0.24
+    _play(session, "fast", frames, SourceConfig(rate=2.0))
+    assert _offsets(released) == pytest.approx([0.0, 0.05, 0.10, 0.15, 0.20, 0.25], abs=1e-9)  # 0.25 s at twice the speed
+    released.clear()
+    clock.slept_s.clear()
+    _play(session, "fastest", frames, SourceConfig(rate=0.0))
+    assert len(released) == 6 and clock.slept_s == []  # never waits
+
+
+def test_the_pacer_sleeps_in_short_steps_and_stops_waiting_on_request():
+    """Sleeps of at most 50 ms, so a stop request ends a long wait for a far frame at once."""
+    clock, stop = FakeClock(), {"now": False}
+
+    def sleep(seconds: float) -> None:
+        clock.sleep(seconds)
+        stop["now"] = len(clock.slept_s) == 3
+
+    pacer = source_node._Pacer(1.0, lambda: stop["now"], clock=clock.monotonic, sleep=sleep)
+    pacer.wait_for(0)
+    pacer.wait_for(10_000_000_000)  # due 10 s later
+    assert clock.slept_s == pytest.approx([0.05] * 3)
 
 
 def test_max_frames_stops_early_and_still_ends_the_stream(session):
-    sent, received, _ = _play(session, "limited", _frames(10, 1), SourceConfig(rate=0.0, max_frames=3))
+    sent, received = _play(session, "limited", _frames(10, 1), SourceConfig(rate=0.0, max_frames=3))
     assert sent == 3 and received == [0, 1, 2, codec.EndOfStream(3)]
 
 
@@ -74,7 +127,7 @@ def test_a_stop_request_still_ends_the_stream(session):
                 stop["now"] = True  # as if SIGINT arrived while frame 2 was being read
             yield frame
 
-    sent, received, _ = _play(session, "stopped", frames(), SourceConfig(rate=0.0), lambda: stop["now"])
+    sent, received = _play(session, "stopped", frames(), SourceConfig(rate=0.0), lambda: stop["now"])
     assert sent == 2 and received == [0, 1, codec.EndOfStream(2)]
 
 

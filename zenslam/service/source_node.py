@@ -56,25 +56,36 @@ _STOPPED_SUBSCRIBER_WAIT_S = 5.0  # stopped at start-up: seconds to wait for the
 
 
 class _Pacer:
-    """Sleeps until each frame's recorded time, scaled by ``rate`` (0: never sleeps)."""
+    """Sleeps until each frame's recorded time, scaled by ``rate`` (0: never sleeps).
 
-    def __init__(self, rate: float, should_stop: Callable[[], bool]):
+    ``clock`` (seconds, monotonic) and ``sleep`` are the time module's unless a test plays on a fake clock.
+    """
+
+    def __init__(
+        self,
+        rate: float,
+        should_stop: Callable[[], bool],
+        clock: Callable[[], float] = time.monotonic,
+        sleep: Callable[[float], None] = time.sleep,
+    ):
         self._rate = rate
         self._should_stop = should_stop
-        self._origin: tuple[float, int] | None = None  # (monotonic s, stamp ns) of the first frame
+        self._clock = clock
+        self._sleep = sleep
+        self._origin: tuple[float, int] | None = None  # (clock s, stamp ns) of the first frame
 
     def wait_for(self, stamp_ns: int) -> None:
         if self._rate == 0:
             return
         if self._origin is None:
-            self._origin = (time.monotonic(), stamp_ns)
+            self._origin = (self._clock(), stamp_ns)
             return
         due = self._origin[0] + (stamp_ns - self._origin[1]) * 1e-9 / self._rate
         while not self._should_stop():
-            remaining = due - time.monotonic()
+            remaining = due - self._clock()
             if remaining <= 0:
                 return
-            time.sleep(min(remaining, 0.05))
+            self._sleep(min(remaining, 0.05))
 
 
 def _wait_for_answer(states: bus.Inbox, index: int, timeout_s: float, should_stop: Callable[[], bool]) -> bool:
