@@ -59,6 +59,7 @@ def _metrics(result: subprocess.CompletedProcess, run_dir: Path) -> dict:
     return json.loads((run_dir / "metrics.json").read_text())
 
 
+@pytest.mark.slow(90)
 def test_a_truncated_frame_is_skipped_and_the_run_keeps_its_accuracy(kitti_root: Path, bad_clip: Path, tmp_path: Path):
     bad = _metrics(_run(bad_clip, tmp_path, "bad"), tmp_path / "bad")
     clean = _metrics(_run(kitti_root / "sequences" / "06", tmp_path, "clean"), tmp_path / "clean")
@@ -73,6 +74,7 @@ def test_a_truncated_frame_is_skipped_and_the_run_keeps_its_accuracy(kitti_root:
     assert f"skipping frame {BAD_FRAME}: image {bad_clip / 'image_0' / '000010.png'} could not be decoded" in warnings[0]
 
 
+@pytest.mark.slow(25)
 def test_strict_fails_at_the_truncated_frame_naming_it(bad_clip: Path, tmp_path: Path):
     result = _run(bad_clip, tmp_path, "strict", "--strict")
     assert result.returncode == 2
