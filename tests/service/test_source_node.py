@@ -250,7 +250,7 @@ def test_strict_stops_at_the_first_bad_frame_with_a_failed_status_naming_it(sess
 
 
 def test_strict_still_lets_injected_drops_pass(session):
-    sent, received, _ = _play(session, "strict-drop", _with_skips(4, {1: "drop"}), SourceConfig(rate=0.0, strict=True))
+    sent, received = _play(session, "strict-drop", _with_skips(4, {1: "drop"}), SourceConfig(rate=0.0, strict=True))
     assert sent == 3 and received == [0, 2, 3, codec.EndOfStream(3)]
 
 
