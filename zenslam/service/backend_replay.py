@@ -20,7 +20,6 @@ from pathlib import Path
 from typing import Protocol
 
 from zenslam.backend.config import BackendConfig
-from zenslam.backend.node import BackendNode
 from zenslam.runtime.stage import add_process_arguments, load_section, setup_process_logging
 from zenslam.runtime.stop import EXIT_INTERRUPTED, StopFlag
 from zenslam.runtime.supervisor import ProcessSpec, Supervisor
@@ -97,6 +96,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     setup_process_logging(args.verbose, PROCESS_NAME)
     stop = StopFlag(args.parent_pid).install()  # the supervisor starts it with SIGINT/SIGTERM held back
+    # Imported here: the CLI imports this module to build its parser, and only this child needs gtsam.
+    from zenslam.backend.node import BackendNode
+
     backend = BackendNode.from_config(load_section(args.config, "backend", BackendConfig))
     keyframes = read_topics(args.recording, (KEYFRAME_TOPIC,))[KEYFRAME_TOPIC]
     with mcap_io.RecordingWriter(args.output) as writer:
