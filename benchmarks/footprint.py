@@ -83,8 +83,9 @@ def run_sampled(command: list[str], interval_s: float) -> tuple[dict[str, int], 
                 if hwm is None:
                     continue
                 peaks[proc.pid] = max(peaks.get(proc.pid, 0), hwm)
-                if proc.pid not in names or names[proc.pid].startswith("python"):
-                    names[proc.pid] = process_name(proc)
+                # Named at every sample: a stage sampled between the supervisor's fork and its exec
+                # still shows the hub's command line.
+                names[proc.pid] = process_name(proc)
             time.sleep(interval_s)
         wall_s = time.perf_counter() - start
         out.seek(0)
