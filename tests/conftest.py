@@ -6,7 +6,8 @@ Rules for tests (pyproject runs ``-n auto --dist loadgroup``, one worker per cor
   fixtures it brings included); slow tests start first, longest first.
 - Tests that use a module-scoped fixture of their module, or a session-scoped fixture of a
   conftest.py below this one, run on one worker, so that the fixture runs once: make an expensive
-  run that several tests check such a fixture, not a copy per test.
+  run that several tests check such a fixture, not a copy per test (a run that tests in several
+  modules check goes in the folder's conftest.py, as tests/integration/conftest.py does).
 - Integration tests run in parallel with others: each uses its own hub endpoint
   (``bus.free_tcp_endpoint()``), run id and tmp_path, never fixed ports or shared output folders.
 """
@@ -65,20 +66,40 @@ def _schedule_tier(item: pytest.Item) -> tuple[int, float]:
     return 2, 0.0
 
 
-def _shared_fixture_group(item: pytest.Item, root_baseid: str) -> str | None:
-    """The xdist group of a test that shares an expensive fixture, so that the fixture runs once: the
-    session-scoped fixtures of a conftest.py below this one (one group per conftest), else the
-    module-scoped fixtures of a test module (one group per module)."""
+def _shared_fixtures(item: pytest.Item, root_baseid: str) -> tuple[list[str], bool]:
+    """(the session-scoped fixtures of a conftest.py below this one that ``item`` uses, whether it uses a
+    module-scoped fixture of its module)."""
     fixture_info = getattr(item, "_fixtureinfo", None)
     if fixture_info is None:
-        return None
+        return [], False
     fixtures = [defs[-1] for defs in fixture_info.name2fixturedefs.values() if defs]
-    for fixture in fixtures:
-        if fixture.scope == "session" and fixture.baseid not in ("", root_baseid):
-            return fixture.baseid
-    if any(fixture.scope == "module" for fixture in fixtures):
-        return item.nodeid.split("::")[0]
-    return None
+    shared = sorted(f"{f.baseid}::{f.argname}" for f in fixtures if f.scope == "session" and f.baseid not in ("", root_baseid))
+    return shared, any(f.scope == "module" for f in fixtures)
+
+
+def _group_tests_that_share_fixtures(items: list[pytest.Item], root_baseid: str) -> None:
+    """Mark the tests that share an expensive fixture with one xdist group, so that it runs once: tests
+    that use session-scoped fixtures of a conftest.py below this one, linked through the fixtures they
+    use (a test using two joins their groups); else the tests of a module that use a module-scoped
+    fixture of it."""
+    uses = {id(item): _shared_fixtures(item, root_baseid) for item in items}
+    parent: dict[str, str] = {}
+
+    def root(name: str) -> str:
+        while parent.setdefault(name, name) != name:
+            name = parent[name]
+        return name
+
+    for shared, _ in uses.values():
+        for a, b in zip(shared, shared[1:]):
+            first, second = sorted((root(a), root(b)))
+            parent[second] = first
+    for item in items:
+        shared, module_fixture = uses[id(item)]
+        if shared:
+            item.add_marker(pytest.mark.xdist_group(root(shared[0])))
+        elif module_fixture:
+            item.add_marker(pytest.mark.xdist_group(item.nodeid.split("::")[0]))
 
 
 @pytest.hookimpl(wrapper=True)
@@ -94,10 +115,7 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         root_baseid = Path(__file__).parent.relative_to(config.rootpath).as_posix()
     except ValueError:  # a rootdir that does not hold this folder: no conftest is below this one
         root_baseid = ""
-    for item in items:
-        group = _shared_fixture_group(item, root_baseid)
-        if group is not None:
-            item.add_marker(pytest.mark.xdist_group(group))
+    _group_tests_that_share_fixtures(items, root_baseid)
     result = yield  # the other hooks run here, xdist's (group names into node ids) among them
     if getattr(config.option, "loadgroup", False):
         ungrouped = [item.nodeid for item in items if item.get_closest_marker("xdist_group") and "@" not in item.nodeid]

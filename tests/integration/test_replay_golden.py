@@ -18,10 +18,8 @@ from pathlib import Path
 
 import pytest
 
-from zenslam.runtime.rerun_config import RerunConfig
 from zenslam.runtime import cpu_kernels
 from zenslam.service import backend_replay, replay
-from zenslam.service.run_config import RecorderConfig, RunConfig, run_config_to_yaml
 from zenslam.service.sources.mcap_source import McapSource
 
 pytestmark = pytest.mark.integration
@@ -85,17 +83,10 @@ def test_golden_replays_identically_through_the_backend_alone(tmp_path, kernels)
     assert recorded == replayed >= 1 + 3
 
 
-@pytest.fixture(scope="module")
-def kitti_recording(kitti_root: Path, tmp_path_factory) -> Path:
-    """A fresh lockstep run of the KITTI 06 clip (rerun off: replay compares the MCAP only)."""
-    output = tmp_path_factory.mktemp("kitti")
-    config = output / "config.yaml"
-    config.write_text(run_config_to_yaml(RunConfig(rerun=RerunConfig(enabled=False), recorder=RecorderConfig(image_format="jpeg"))))
-    spec = f"kitti:{kitti_root / 'sequences' / '06'}"
-    result = _zenslam("run", spec, "--lockstep", "--config", str(config), "--output", str(output), "--run-id", "kitti",
-                      "--no-progress", cwd=output)  # fmt: skip
-    assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-3000:]
-    return output / "kitti" / "run.mcap"
+@pytest.fixture
+def kitti_recording(kitti_lockstep_run: Path) -> Path:
+    """A fresh lockstep run of the KITTI 06 clip (conftest.py; rerun off: replay compares the MCAP only)."""
+    return kitti_lockstep_run / "run.mcap"
 
 
 @pytest.mark.slow(50)  # with the recording it replays
