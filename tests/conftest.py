@@ -2,8 +2,10 @@
 tests are spread over pytest-xdist workers.
 
 Rules for tests (pyproject runs ``-n auto --dist loadgroup``, one worker per core):
-- A test that takes more than ~10 s of CPU carries ``@pytest.mark.slow(seconds)`` (roughly how many,
-  fixtures it brings included); slow tests start first, longest first.
+- A test that takes more than ~10 s of CPU carries ``@pytest.mark.slow(seconds)``: roughly how many
+  CPU seconds it and the processes it starts use, fixtures it brings included (not its wall time on
+  a busy machine: the numbers only order the tests against each other). Slow tests start first,
+  longest first.
 - Tests that use a module-scoped fixture of their module, or a session-scoped fixture of a
   conftest.py below this one, run on one worker, so that the fixture runs once: make an expensive
   run that several tests check such a fixture, not a copy per test (a run that tests in several

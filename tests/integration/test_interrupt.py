@@ -166,7 +166,6 @@ def _interrupt(run: _Run, whom: str) -> None:
                 pass
 
 
-@pytest.mark.slow(20)
 @pytest.mark.skipif(not Path("/proc/self/maps").exists(), reason="needs /proc to see the command's imports")
 def test_ctrl_c_during_the_imports(tmp_path):
     run = _Run(tmp_path, "synthetic", "--max-frames", "200")
@@ -176,7 +175,6 @@ def test_ctrl_c_during_the_imports(tmp_path):
     assert metrics["frames"] == 0
 
 
-@pytest.mark.slow(25)
 def test_ctrl_c_while_the_stages_start(tmp_path):
     """The recorder is up and the backend is importing: it gets the stop held until its handler is in."""
     run = _Run(tmp_path, "synthetic", "--max-frames", "200")
@@ -187,7 +185,6 @@ def test_ctrl_c_while_the_stages_start(tmp_path):
     assert not (run.run_dir / "logs" / "source.log").exists()  # no stage is started after the interrupt
 
 
-@pytest.mark.slow(40)
 @pytest.mark.parametrize("whom", ["group", "command", "every process"])
 def test_ctrl_c_mid_stream(tmp_path, whom):
     run = _Run(tmp_path, "synthetic", "--max-frames", "200")
@@ -197,7 +194,7 @@ def test_ctrl_c_mid_stream(tmp_path, whom):
     assert 5 <= metrics["frames"] < 200
 
 
-@pytest.mark.slow(45)
+@pytest.mark.slow(11)
 def test_ctrl_c_while_the_backend_drains(tmp_path):
     config = tmp_path / "slow_backend.yaml"
     config.write_text(SLOW_BACKEND_YAML)
@@ -212,7 +209,6 @@ def test_ctrl_c_while_the_backend_drains(tmp_path):
     assert metrics["keyframes"]["processed"] < metrics["keyframes"]["sent"]
 
 
-@pytest.mark.slow(45)
 @pytest.mark.parametrize("moment", ["start-up", "mid-stream"])
 def test_ctrl_c_on_the_kitti_clip(tmp_path, kitti_root, moment):
     run = _Run(tmp_path, f"kitti:{kitti_root / 'sequences' / '06'}")

@@ -74,7 +74,6 @@ def test_a_truncated_frame_is_skipped_and_the_run_keeps_its_accuracy(kitti_locks
     assert f"skipping frame {BAD_FRAME}: image {bad_clip / 'image_0' / '000010.png'} could not be decoded" in warnings[0]
 
 
-@pytest.mark.slow(25)
 def test_strict_fails_at_the_truncated_frame_naming_it(bad_clip: Path, tmp_path: Path):
     result = _run(bad_clip, tmp_path, "strict", "--strict")
     assert result.returncode == 2

@@ -60,7 +60,6 @@ def test_the_golden_is_a_small_lockstep_recording():
     assert counts[replay.POSE_TOPIC] == 20 and counts[replay.KEYFRAME_TOPIC] >= 1 + 3  # 3 keyframes and the end
 
 
-@pytest.mark.slow(15)
 @pytest.mark.parametrize("kernels", KERNEL_CHOICES.values(), ids=KERNEL_CHOICES)
 def test_golden_replays_identically_through_the_whole_pipeline(tmp_path, kernels):
     result = _zenslam(

@@ -34,7 +34,7 @@ def _small_loop(path: Path) -> None:
     write_frames(path, frames, source.calibration, source.sensor, source.name, ground_truth=source.ground_truth())
 
 
-@pytest.mark.slow(60)
+@pytest.mark.slow(10)
 def test_a_recorded_synthetic_run_replays_with_its_ate(tmp_path):
     _small_loop(tmp_path / "input.mcap")
     config = RunConfig(

@@ -18,7 +18,7 @@ FRAMES = 40
 ATE_BOUND_M = 0.02  # as test_run_synthetic: the loop tracks to a few mm over its first frames
 
 
-@pytest.mark.slow(45)
+@pytest.mark.slow(12)
 def test_dropped_frames_and_repeated_stamps_are_skipped_and_counted(tmp_path: Path):
     config = tmp_path / "faults.yaml"
     config.write_text(
