@@ -180,3 +180,23 @@ def test_a_corridor_scene_is_refused_for_a_room_config() -> None:
     SyntheticSource(config, scene=scene)
     with pytest.raises(ConfigError, match="world=corridor"):
         SyntheticSource(scene_config("loop", **SMALL), scene=scene)
+
+
+def test_depth_noise_grows_with_depth_squared_and_depth_range_blanks_far_pixels() -> None:
+    small = {**SMALL, "texels_per_m": 16.0, "duration_s": 0.5, "photometric": {}}
+    exact = SyntheticSource(scene_config("corridor", sensor="rgbd", depth_noise_per_m=0.0, **small))
+    k = 0.01
+    noisy = SyntheticSource(scene_config("corridor", sensor="rgbd", depth_noise_per_m=k, **small), scene=exact.scene)
+    truth, depth = exact.frame(3).depth_m, noisy.frame(3).depth_m
+    assert depth.dtype == np.float32
+    assert depth.tobytes() == noisy.frame(3).depth_m.tobytes()  # deterministic
+    normalised = (depth - truth) / (k * truth**2)
+    assert np.std(normalised) == pytest.approx(1.0, rel=0.1) and abs(np.mean(normalised)) < 0.05
+    ranged = SyntheticSource(
+        scene_config("corridor", sensor="rgbd", depth_noise_per_m=0.0, depth_range_m=4.0, **small), scene=exact.scene
+    )
+    blanked = ranged.frame(3).depth_m
+    np.testing.assert_array_equal(blanked[truth <= 4.0], truth[truth <= 4.0])
+    assert np.all(blanked[truth > 4.0] == 0.0) and np.any(truth > 4.0)
+    with pytest.raises(ConfigError, match="depth_noise_per_m"):
+        scene_config("corridor", depth_noise_per_m=-1.0)

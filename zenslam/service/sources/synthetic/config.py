@@ -106,6 +106,8 @@ class SceneConfig:
     accel_noise_std_m_s2: float = 0.0  # m/s^2: std of white noise added to each accelerometer sample
     gyro_bias_rad_s: tuple[float, float, float] = (0.0, 0.0, 0.0)  # rad/s: constant gyro bias (IMU frame)
     accel_bias_m_s2: tuple[float, float, float] = (0.0, 0.0, 0.0)  # m/s^2: constant accelerometer bias (IMU frame)
+    depth_noise_per_m: float = 0.0  # 1/m: RGB-D depth noise std = this * depth^2 (a Kinect's ~0.0014); 0 = off
+    depth_range_m: float = 0.0  # metres: RGB-D depth beyond this reads 0 (no measurement), as a sensor's range; 0 = unlimited
     texture: TextureConfig = field(default_factory=TextureConfig)  # surface textures (all over, full contrast)
     photometric: PhotometricConfig = field(default_factory=PhotometricConfig)  # image degradations (off)
 
@@ -118,7 +120,7 @@ class SceneConfig:
                 problems.append(f"{name}={value} must be positive")
         if self.laps < 1:
             problems.append(f"laps={self.laps} must be at least 1")
-        for name in ("gyro_noise_std_rad_s", "accel_noise_std_m_s2"):
+        for name in ("gyro_noise_std_rad_s", "accel_noise_std_m_s2", "depth_noise_per_m", "depth_range_m"):
             if not getattr(self, name) >= 0:
                 problems.append(f"{name}={getattr(self, name)} must be >= 0")
         if problems:
@@ -150,14 +152,18 @@ class SceneConfig:
 def _preset(name: str) -> dict[str, Any]:
     """Defaults of a named scene; a closed loop takes 30 s, a figure-eight two 30 s laps, the corridor
     two 45 s laps of 68 m at 10 Hz (the aliased corridor's wall textures repeat every 6 m)."""
-    # The corridor scenes test loop closing: stereo odometry must drift there, which it hardly does on
-    # densely textured surfaces, so textured panels cover 15% of each surface at 35% contrast.
+    # The corridor scenes test loop closing, so odometry must drift there, which it hardly does on densely
+    # textured surfaces with exact images and depth: textured panels cover 10% of each surface at 35%
+    # contrast, images carry noise of 4 grey levels, and RGB-D depth noise grows with depth squared as a
+    # low-cost depth camera's does (std 0.008 z^2: 3 cm at 2 m).
     corridor: dict[str, Any] = {
         "trajectory": "corridor",
         "duration_s": 90.0,
         "laps": 2,
         "frame_rate_hz": 10.0,
-        "texture": {"coverage": 0.15, "contrast": 0.35},
+        "texture": {"coverage": 0.10, "contrast": 0.35},
+        "photometric": {"noise_sigma": 4.0},
+        "depth_noise_per_m": 0.008,
     }
     presets: dict[str, dict[str, Any]] = {
         "loop": {"trajectory": "loop", "duration_s": 30.0, "laps": 1},

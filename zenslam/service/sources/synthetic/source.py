@@ -131,12 +131,24 @@ class SyntheticSource:
             right = self.render(T_world_cam @ self._T_cam_right)
             return SensorFrame(index, stamp, grey_left, right=self._degrade(right.grey, index, 1, t_s, flow))
         if self.sensor == "rgbd":
-            return SensorFrame(index, stamp, grey_left, depth_m=left.depth_m())
+            return SensorFrame(index, stamp, grey_left, depth_m=self._sensed_depth(left.depth_m(), index))
         return SensorFrame(index, stamp, grey_left)
 
     def _degrade(self, grey: np.ndarray, index: int, camera: int, t_s: float, flow: tuple[float, float]) -> np.ndarray:
         rng = np.random.default_rng([self._config.seed, 0xF4A3E, index, camera])
         return apply_photometric(grey, self._config.photometric, t_s, flow, rng)
+
+    def _sensed_depth(self, depth_m: np.ndarray, index: int) -> np.ndarray:
+        """``depth_m`` as the configured RGB-D sensor reads it: Gaussian noise of std depth_noise_per_m * depth^2
+        (metres), then 0 beyond depth_range_m; as is when both are off."""
+        k, range_m = self._config.depth_noise_per_m, self._config.depth_range_m
+        if k > 0:
+            rng = np.random.default_rng([self._config.seed, 0xDE9, index])
+            noise = rng.standard_normal(depth_m.shape, dtype=np.float32) * np.float32(k) * depth_m * depth_m
+            depth_m = np.where(depth_m > 0, depth_m + noise, np.float32(0.0)).astype(np.float32)
+        if range_m > 0:
+            depth_m = np.where(depth_m <= range_m, depth_m, np.float32(0.0)).astype(np.float32)
+        return depth_m
 
     def _blur_flow_px(self, T_world_cam: np.ndarray, t_s: float, view: Rendering) -> tuple[float, float]:
         """Image motion (pixels) of the principal point's scene point during the exposure; (0, 0) when off."""
