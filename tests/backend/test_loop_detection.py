@@ -8,7 +8,8 @@ import numpy as np
 
 from zenslam.backend.covisibility import CovisibilityGraph
 from zenslam.backend.keyframe_database import KeyframeDatabase
-from zenslam.backend.loop_detection import LoopDetectionConfig, LoopDetector
+from zenslam.backend.loop_closing_config import LoopDetectionConfig
+from zenslam.backend.loop_detection import LoopDetector
 
 
 @dataclass(frozen=True)

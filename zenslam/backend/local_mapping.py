@@ -27,7 +27,7 @@ from zenslam.backend.point_fusion import FusionConfig, fuse_with_neighbours
 from zenslam.backend.triangulation import TriangulationConfig, create_new_points
 from zenslam.errors import ConfigError
 from zenslam.schemas.codec import KeyframeMessage
-from zenslam.schemas.map_update import KeyframeCorrection, MapUpdate
+from zenslam.schemas.map_update import KeyframeCorrection, MapUpdate, MapUpdateKind
 
 logger = logging.getLogger(__name__)
 
@@ -166,7 +166,7 @@ class LocalMapper:
             if not deferred:
                 culled_kfs, touched = cull_redundant_keyframes(self.map, kf_id, self.config.keyframe_culling)
                 self.map.remove_weak_points(touched, self.config.min_keyframes_per_point)
-        update = _map_update(self.map, kf_id, keyframe.stamp_ns, self.map.take_changes())
+        update = map_update_from_changes(self.map, kf_id, keyframe.stamp_ns, self.map.take_changes())
         timings["total"] = (time.perf_counter() - started) * 1e3
         counts.update(points_created=len(created), points_culled=len(culled), keyframes_culled=len(culled_kfs))
         counts["deferred"] = int(deferred)
@@ -374,9 +374,11 @@ def apply_ba_result(
     return {"ba_outliers": len(outliers), "points_removed_after_ba": len(removed) + len(weak)}
 
 
-def _map_update(bmap: BackendMap, kf_id: int, stamp_ns: int, changes: MapChanges) -> MapUpdate:
-    """The replacement-semantics update of ``changes``; backend points born and removed in the same
-    step never reach the frontend, so they are not listed as removed."""
+def map_update_from_changes(
+    bmap: BackendMap, kf_id: int, stamp_ns: int, changes: MapChanges, kind: MapUpdateKind = "keyframe"
+) -> MapUpdate:
+    """The replacement-semantics update of ``changes``, of ``kind``; backend points born and removed in
+    the same step never reach the frontend, so they are not listed as removed."""
     kf_ids = sorted(k for k in changes.keyframes if k in bmap.keyframes)
     point_ids = sorted(p for p in changes.points if p in bmap.points)
     points = [bmap.points[p] for p in point_ids]
@@ -395,4 +397,5 @@ def _map_update(bmap: BackendMap, kf_id: int, stamp_ns: int, changes: MapChanges
         max_distance_m=np.array([p.max_distance_m for p in points], dtype=float),
         removed_point_ids=np.asarray(sorted(changes.removed_points - changes.created_points), dtype=np.int64),
         removed_keyframe_ids=np.asarray(sorted(changes.removed_keyframes), dtype=np.int64),
+        kind=kind,
     )

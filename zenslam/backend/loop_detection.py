@@ -17,17 +17,9 @@ from dataclasses import dataclass
 
 from zenslam.backend.covisibility import CovisibilityGraph
 from zenslam.backend.keyframe_database import BagOfWords, Candidate, KeyframeDatabase
+from zenslam.backend.loop_closing_config import LoopDetectionConfig
 
 logger = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class LoopDetectionConfig:
-    """When a keyframe's database candidates become loops to verify (ORB-SLAM2's values)."""
-
-    min_keyframes: int = 10  # keyframes in the map before any detection
-    keyframes_after_loop: int = 10  # keyframes inserted after a closed loop before detecting again
-    min_consistency: int = 3  # consecutive keyframes whose candidate groups overlap
 
 
 @dataclass(frozen=True)

@@ -15,11 +15,14 @@ and keeps answering queries for ``BackendConfig.linger_s`` seconds or until stop
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import os
 import sys
 import time
+from collections import Counter
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -27,7 +30,8 @@ import zenoh
 
 from zenslam.backend.config import BackendConfig
 from zenslam.backend.local_ba import LocalBundleAdjuster
-from zenslam.backend.local_mapping import LocalMapper, new_backend_map
+from zenslam.backend.local_mapping import LocalMapper, map_update_from_changes, new_backend_map
+from zenslam.backend.loop_messages import loop_messages
 from zenslam.backend.map import BackendMap
 from zenslam.errors import ZenslamError
 from zenslam.runtime import bus
@@ -45,6 +49,7 @@ from zenslam.schemas import codec, keys
 from zenslam.schemas.map_update import MapUpdate
 
 if TYPE_CHECKING:
+    from zenslam.backend.loop_closing import LoopCloser
     from zenslam.runtime.rerun_log import BackendLog
 
 logger = logging.getLogger(__name__)
@@ -53,33 +58,77 @@ STAGE = "backend"
 _POLL_S = 0.02  # seconds the loop waits for a keyframe before answering queries again
 
 
-class BackendNode:
-    """The owner of the backend map: local mapping on decoded keyframes, and the map and trajectory
-    replies; no transport in here."""
+@dataclass(frozen=True)
+class StepOutput:
+    """What one keyframe produced: its answer, then any corrections (a closed loop), and the loop
+    candidates that reached verification."""
 
-    def __init__(self, mapper: LocalMapper, rerun: BackendLog | None = None) -> None:
+    updates: list[MapUpdate]  # the answer (kind keyframe) first, then corrections in order
+    loops: list[codec.LoopMessage] = field(default_factory=list)
+
+
+class BackendNode:
+    """The owner of the backend map: local mapping and loop closing on decoded keyframes, and the map
+    and trajectory replies; no transport in here."""
+
+    def __init__(self, mapper: LocalMapper, loop_closer: LoopCloser | None = None, rerun: BackendLog | None = None) -> None:
         self.mapper = mapper
-        self.map: BackendMap = mapper.map  # the node's map, lent to local mapping (and loop closing)
+        self.map: BackendMap = mapper.map  # the node's map, lent to local mapping and loop closing
+        self.loop_closer = loop_closer  # None: loop closing off
         self.rerun = rerun  # logs the map, graphs and timings after each keyframe to the stage's .rrd
         self.processed = 0  # keyframes processed
         self.finished = False  # the input's end of stream has been processed
+        self.loop_counts: Counter[str] = Counter()  # candidates verified, accepted, rejected
 
     @classmethod
     def from_config(cls, config: BackendConfig) -> BackendNode:
-        """The node with the real local mapper and gtsam local bundle adjuster."""
+        """The node with the real local mapper, gtsam local bundle adjuster and, when enabled, loop closer."""
         bmap = new_backend_map(config.local_mapping)
-        return cls(LocalMapper(bmap, config.local_mapping, LocalBundleAdjuster(config.local_ba)))
+        mapper = LocalMapper(bmap, config.local_mapping, LocalBundleAdjuster(config.local_ba))
+        loop_closer = None
+        if config.loop_closing.enabled:
+            from zenslam.backend.loop_closing import LoopCloser
+            from zenslam.vocabulary import load_vocabulary
 
-    def step(self, keyframe: codec.KeyframeMessage, queued: int = 0) -> MapUpdate:
-        """Insert one keyframe and run local mapping on it; the update lists everything that changed.
+            loop_closer = LoopCloser(bmap, load_vocabulary(config.vocabulary or None), config.loop_closing)
+        return cls(mapper, loop_closer)
+
+    def step(self, keyframe: codec.KeyframeMessage, queued: int = 0) -> StepOutput:
+        """Insert one keyframe, run local mapping, then loop closing on it.
 
         ``queued``: keyframes waiting behind this one (0 in lockstep); see ``LocalMapper.process``.
+        The answer says how many corrections follow it, so a lockstep frontend applies them before
+        its next frame.
         """
         update = self.mapper.process(keyframe, queued=queued)
         self.processed += 1
+        corrections: list[MapUpdate] = []
+        loops: list[codec.LoopMessage] = []
+        if self.loop_closer is not None:
+            corrections, loops = self._close_loops(int(keyframe.id), update)
         if self.rerun is not None:
             self.rerun.log_keyframe(keyframe, self.mapper)
-        return update
+        answer = dataclasses.replace(update, corrections_following=len(corrections))
+        return StepOutput([answer, *corrections], loops)
+
+    def _close_loops(self, kf_id: int, update: MapUpdate) -> tuple[list[MapUpdate], list[codec.LoopMessage]]:
+        closer = self.loop_closer
+        closer.remove_keyframes(np.asarray(update.removed_keyframe_ids).tolist())
+        if kf_id not in self.map.keyframes:
+            return [], []
+        T_before = self.map.keyframe(kf_id).T_world_cam.copy()
+        started = time.perf_counter()
+        closer.add_keyframe(kf_id)
+        outcome = closer.process(kf_id)
+        self.mapper.last_timings_ms["loop_closing"] = (time.perf_counter() - started) * 1e3
+        loops = loop_messages(self.map, outcome, T_before)
+        self.loop_counts["candidates"] += len(loops)
+        self.loop_counts["rejected"] += len(outcome.rejections)
+        if not outcome.accepted:
+            return [], loops
+        self.loop_counts["accepted"] += 1
+        correction = map_update_from_changes(self.map, kf_id, update.stamp_ns, self.map.take_changes(), kind="correction")
+        return [correction], loops
 
     @property
     def last_timings_ms(self) -> dict[str, float]:
@@ -145,6 +194,14 @@ class _Outputs:
     def __init__(self, session: zenoh.Session, session_name: str) -> None:
         self.update = bus.declare_publisher(session, keys.backend_map_update(session_name), codec.MAP_UPDATE, "lossless")
         self.status = bus.declare_publisher(session, keys.status(session_name, STAGE), codec.STAGE_STATUS, "lossless")
+        self.loop = bus.declare_publisher(session, keys.backend_loop(session_name), codec.LOOP, "lossless")
+
+    def send_step(self, output: StepOutput) -> None:
+        """The loop messages, then the answer and its corrections, in order."""
+        for loop in output.loops:
+            self.loop.put(codec.encode_loop(loop))
+        for update in output.updates:
+            self.update.put(codec.encode_map_update(update))
 
     def send_status(self, status: codec.StageStatusMessage) -> None:
         self.status.put(codec.encode_stage_status(status))
@@ -200,11 +257,11 @@ def _process(outputs: _Outputs, inbox: bus.Inbox, queryables: _Queryables, node:
         started = time.perf_counter()
         queued = inbox.count_waiting(_is_keyframe)  # the end of stream is no keyframe to wait for
         try:
-            update = node.step(message, queued)
+            output = node.step(message, queued)
         except Exception as exc:
             outputs.send_status(codec.StageStatusMessage(STAGE, "failed", node.processed, detail=f"{type(exc).__name__}: {exc}"))
             raise
-        outputs.update.put(codec.encode_map_update(update))
+        outputs.send_step(output)
         step_ms = (time.perf_counter() - started) * 1e3
         depth = inbox.depth
         if node.rerun is not None:

@@ -31,6 +31,7 @@ MAP_UPDATE = "zenslam.MapUpdate"
 STAGE_STATUS = "zenslam.StageStatus"
 KEYFRAME_TRAJECTORY = "zenslam.KeyframeTrajectory"
 MAP_SNAPSHOT = "zenslam.MapSnapshot"
+LOOP = "zenslam.Loop"
 POSE_IN_FRAME = "foxglove.PoseInFrame"
 
 MESSAGE_CLASSES: dict[str, type[Message]] = {
@@ -41,6 +42,7 @@ MESSAGE_CLASSES: dict[str, type[Message]] = {
     STAGE_STATUS: pb.StageStatus,
     KEYFRAME_TRAJECTORY: pb.KeyframeTrajectory,
     MAP_SNAPSHOT: pb.MapSnapshot,
+    LOOP: pb.Loop,
     POSE_IN_FRAME: PoseInFrame,
 }
 
@@ -173,6 +175,24 @@ class KeyframeTrajectoryMessage:
     T_world_cam: np.ndarray  # (K, 4, 4) camera -> world
     keyframes_processed: int = 0  # keyframes the backend had processed when it answered
     finished: bool = False  # the backend had processed its input's end of stream
+
+
+@dataclass(frozen=True)
+class LoopMessage:
+    """A loop candidate that reached verification (backend/loop): accepted, or rejected with a reason."""
+
+    keyframe_id: int
+    stamp_ns: int
+    loop_keyframe_id: int
+    loop_stamp_ns: int
+    accepted: bool
+    reason: str  # why it was rejected; "" when accepted
+    T_world_cur_before: np.ndarray  # (4, 4) the current keyframe's pose before any correction
+    T_world_loop: np.ndarray  # (4, 4) the loop keyframe's pose
+    T_cur_loop: np.ndarray = field(default_factory=lambda: np.eye(4))  # (4, 4) rigid part: loop camera -> current camera
+    scale: float = 1.0  # the transform's scale (1 for stereo/RGB-D)
+    inliers: int = 0
+    T_world_cur_after: np.ndarray = field(default_factory=lambda: np.eye(4))  # (4, 4) after the correction
 
 
 @dataclass(frozen=True)
@@ -482,7 +502,7 @@ def encode_map_update(update: MapUpdate) -> bytes:
     """Encode a backend/map_update message."""
     msg = pb.MapUpdate(
         keyframe_id=update.keyframe_id, stamp_ns=update.stamp_ns, num_points=len(update.point_ids),
-        kind=_MAP_UPDATE_KIND_TO_PB[update.kind],
+        kind=_MAP_UPDATE_KIND_TO_PB[update.kind], corrections_following=update.corrections_following,
     )
     for kf in update.keyframes:
         correction = msg.keyframes.add(id=kf.id, num_keypoints=len(kf.map_point_ids))
@@ -516,6 +536,7 @@ def decode_map_update(data: bytes) -> MapUpdate | EndOfStream:
     )
     return MapUpdate(
         kind=_MAP_UPDATE_KIND_FROM_PB[msg.kind],
+        corrections_following=msg.corrections_following,
         keyframe_id=msg.keyframe_id,
         stamp_ns=msg.stamp_ns,
         keyframes=keyframes,
@@ -529,6 +550,34 @@ def decode_map_update(data: bytes) -> MapUpdate | EndOfStream:
         removed_keyframe_ids=_unpack(
             msg.removed_keyframe_ids, "<i8", (len(msg.removed_keyframe_ids) // 8,), f"{where} removed_keyframe_ids"
         ),
+    )
+
+
+def encode_loop(loop: LoopMessage) -> bytes:
+    """Encode a backend/loop message."""
+    msg = pb.Loop(
+        keyframe_id=loop.keyframe_id, stamp_ns=loop.stamp_ns, loop_keyframe_id=loop.loop_keyframe_id,
+        loop_stamp_ns=loop.loop_stamp_ns, accepted=loop.accepted, reason=loop.reason, scale=loop.scale, inliers=loop.inliers,
+    )
+    _transform_to_pb(loop.T_world_cur_before, msg.T_world_cur_before)
+    _transform_to_pb(loop.T_world_loop, msg.T_world_loop)
+    if loop.accepted:
+        _transform_to_pb(loop.T_cur_loop, msg.T_cur_loop)
+        _transform_to_pb(loop.T_world_cur_after, msg.T_world_cur_after)
+    return msg.SerializeToString()
+
+
+def decode_loop(data: bytes) -> LoopMessage:
+    """Decode a backend/loop message (an unaccepted loop's transforms after the correction are identities)."""
+    msg = _parse(pb.Loop, data)
+    accepted = bool(msg.accepted)
+    return LoopMessage(
+        keyframe_id=msg.keyframe_id, stamp_ns=msg.stamp_ns, loop_keyframe_id=msg.loop_keyframe_id,
+        loop_stamp_ns=msg.loop_stamp_ns, accepted=accepted, reason=msg.reason,
+        T_world_cur_before=_transform_from_pb(msg.T_world_cur_before), T_world_loop=_transform_from_pb(msg.T_world_loop),
+        T_cur_loop=_transform_from_pb(msg.T_cur_loop) if accepted else np.eye(4),
+        scale=msg.scale if accepted else 1.0, inliers=msg.inliers,
+        T_world_cur_after=_transform_from_pb(msg.T_world_cur_after) if accepted else np.eye(4),
     )
 
 

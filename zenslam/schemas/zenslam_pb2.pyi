@@ -227,7 +227,7 @@ class KeyframeCorrection(_message.Message):
     def __init__(self, id: _Optional[int] = ..., T_world_cam: _Optional[_Union[RigidTransform, _Mapping]] = ..., num_keypoints: _Optional[int] = ..., map_point_ids: _Optional[bytes] = ...) -> None: ...
 
 class MapUpdate(_message.Message):
-    __slots__ = ("keyframe_id", "stamp_ns", "keyframes", "num_points", "point_ids", "p_world", "descriptors", "normals", "min_distance_m", "max_distance_m", "removed_point_ids", "removed_keyframe_ids", "end_of_stream", "count", "kind")
+    __slots__ = ("keyframe_id", "stamp_ns", "keyframes", "num_points", "point_ids", "p_world", "descriptors", "normals", "min_distance_m", "max_distance_m", "removed_point_ids", "removed_keyframe_ids", "end_of_stream", "count", "kind", "corrections_following")
     KEYFRAME_ID_FIELD_NUMBER: _ClassVar[int]
     STAMP_NS_FIELD_NUMBER: _ClassVar[int]
     KEYFRAMES_FIELD_NUMBER: _ClassVar[int]
@@ -243,6 +243,7 @@ class MapUpdate(_message.Message):
     END_OF_STREAM_FIELD_NUMBER: _ClassVar[int]
     COUNT_FIELD_NUMBER: _ClassVar[int]
     KIND_FIELD_NUMBER: _ClassVar[int]
+    CORRECTIONS_FOLLOWING_FIELD_NUMBER: _ClassVar[int]
     keyframe_id: int
     stamp_ns: int
     keyframes: _containers.RepeatedCompositeFieldContainer[KeyframeCorrection]
@@ -258,7 +259,36 @@ class MapUpdate(_message.Message):
     end_of_stream: bool
     count: int
     kind: MapUpdateKind
-    def __init__(self, keyframe_id: _Optional[int] = ..., stamp_ns: _Optional[int] = ..., keyframes: _Optional[_Iterable[_Union[KeyframeCorrection, _Mapping]]] = ..., num_points: _Optional[int] = ..., point_ids: _Optional[bytes] = ..., p_world: _Optional[bytes] = ..., descriptors: _Optional[bytes] = ..., normals: _Optional[bytes] = ..., min_distance_m: _Optional[bytes] = ..., max_distance_m: _Optional[bytes] = ..., removed_point_ids: _Optional[bytes] = ..., removed_keyframe_ids: _Optional[bytes] = ..., end_of_stream: _Optional[bool] = ..., count: _Optional[int] = ..., kind: _Optional[_Union[MapUpdateKind, str]] = ...) -> None: ...
+    corrections_following: int
+    def __init__(self, keyframe_id: _Optional[int] = ..., stamp_ns: _Optional[int] = ..., keyframes: _Optional[_Iterable[_Union[KeyframeCorrection, _Mapping]]] = ..., num_points: _Optional[int] = ..., point_ids: _Optional[bytes] = ..., p_world: _Optional[bytes] = ..., descriptors: _Optional[bytes] = ..., normals: _Optional[bytes] = ..., min_distance_m: _Optional[bytes] = ..., max_distance_m: _Optional[bytes] = ..., removed_point_ids: _Optional[bytes] = ..., removed_keyframe_ids: _Optional[bytes] = ..., end_of_stream: _Optional[bool] = ..., count: _Optional[int] = ..., kind: _Optional[_Union[MapUpdateKind, str]] = ..., corrections_following: _Optional[int] = ...) -> None: ...
+
+class Loop(_message.Message):
+    __slots__ = ("keyframe_id", "stamp_ns", "loop_keyframe_id", "loop_stamp_ns", "accepted", "reason", "T_cur_loop", "scale", "inliers", "T_world_cur_before", "T_world_cur_after", "T_world_loop")
+    KEYFRAME_ID_FIELD_NUMBER: _ClassVar[int]
+    STAMP_NS_FIELD_NUMBER: _ClassVar[int]
+    LOOP_KEYFRAME_ID_FIELD_NUMBER: _ClassVar[int]
+    LOOP_STAMP_NS_FIELD_NUMBER: _ClassVar[int]
+    ACCEPTED_FIELD_NUMBER: _ClassVar[int]
+    REASON_FIELD_NUMBER: _ClassVar[int]
+    T_CUR_LOOP_FIELD_NUMBER: _ClassVar[int]
+    SCALE_FIELD_NUMBER: _ClassVar[int]
+    INLIERS_FIELD_NUMBER: _ClassVar[int]
+    T_WORLD_CUR_BEFORE_FIELD_NUMBER: _ClassVar[int]
+    T_WORLD_CUR_AFTER_FIELD_NUMBER: _ClassVar[int]
+    T_WORLD_LOOP_FIELD_NUMBER: _ClassVar[int]
+    keyframe_id: int
+    stamp_ns: int
+    loop_keyframe_id: int
+    loop_stamp_ns: int
+    accepted: bool
+    reason: str
+    T_cur_loop: RigidTransform
+    scale: float
+    inliers: int
+    T_world_cur_before: RigidTransform
+    T_world_cur_after: RigidTransform
+    T_world_loop: RigidTransform
+    def __init__(self, keyframe_id: _Optional[int] = ..., stamp_ns: _Optional[int] = ..., loop_keyframe_id: _Optional[int] = ..., loop_stamp_ns: _Optional[int] = ..., accepted: _Optional[bool] = ..., reason: _Optional[str] = ..., T_cur_loop: _Optional[_Union[RigidTransform, _Mapping]] = ..., scale: _Optional[float] = ..., inliers: _Optional[int] = ..., T_world_cur_before: _Optional[_Union[RigidTransform, _Mapping]] = ..., T_world_cur_after: _Optional[_Union[RigidTransform, _Mapping]] = ..., T_world_loop: _Optional[_Union[RigidTransform, _Mapping]] = ...) -> None: ...
 
 class StageStatus(_message.Message):
     __slots__ = ("stage", "state", "processed", "step_ms", "queue_depth", "dropped", "detail", "timings_ms", "skipped")

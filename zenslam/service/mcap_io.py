@@ -59,6 +59,7 @@ DECODERS: dict[str, Callable[[bytes], Any]] = {
     codec.STAGE_STATUS: codec.decode_stage_status,
     codec.KEYFRAME_TRAJECTORY: codec.decode_keyframe_trajectory,
     codec.MAP_SNAPSHOT: codec.decode_map_snapshot,
+    codec.LOOP: codec.decode_loop,
     codec.POSE_IN_FRAME: codec.decode_pose_in_frame,
 }
 
