@@ -267,26 +267,32 @@ class _MapUpdates:
             self._apply(node, update)
 
     def wait_for(self, node: FrontendNode, keyframe_id: int, should_stop: Callable[[], bool]) -> None:
-        """Lockstep: apply updates until the one for ``keyframe_id`` has been applied, the backend has
-        ended its stream (``ended``: it was stopped) or ``should_stop()``."""
+        """Lockstep: apply updates until the one for ``keyframe_id`` and the corrections it announces
+        have been applied, the backend has ended its stream (``ended``: it was stopped) or ``should_stop()``."""
         deadline = time.monotonic() + self.timeout_s
+        corrections_due = -1  # unknown until the answer arrives
         while not should_stop() and not self.ended:
             update = self.inbox.get(timeout_s=0.1)
-            if update is not None and self._apply(node, update) >= keyframe_id:
-                return
+            if update is not None:
+                self._apply(node, update)
+                if isinstance(update, MapUpdate) and update.answers_keyframe and update.keyframe_id >= keyframe_id:
+                    corrections_due = update.corrections_following
+                elif isinstance(update, MapUpdate) and corrections_due > 0:
+                    corrections_due -= 1
+                if corrections_due == 0:
+                    return
             if update is None and time.monotonic() > deadline:
                 raise bus.BusError(
                     f"lockstep: no map update for keyframe {keyframe_id} from the backend within {self.timeout_s:.0f} s "
                     "(frontend.update_timeout_s); check the backend's log"
                 )
 
-    def _apply(self, node: FrontendNode, update: MapUpdate | codec.EndOfStream) -> int:
-        """Apply one update; the keyframe id it answers (-1 for the end of stream or a correction)."""
+    def _apply(self, node: FrontendNode, update: MapUpdate | codec.EndOfStream) -> None:
+        """Apply one update; the end of stream marks the stream ended."""
         if isinstance(update, codec.EndOfStream):
             self.ended = True
-            return -1
+            return
         node.apply_map_update(update)
-        return update.keyframe_id if update.answers_keyframe else -1
 
 
 def serve(

@@ -29,6 +29,7 @@ import numpy as np
 from zenslam.errors import ConfigError, TrajectoryError
 from zenslam.runtime.stop import STOPPED
 from zenslam.schemas import codec, keys
+from zenslam.service.evaluation.loop_metrics import loop_section
 from zenslam.service.evaluation.metrics import Evaluation, EvaluationConfig, evaluate
 from zenslam.service.evaluation.plot import Plane, save_evaluation_plot
 from zenslam.service.evaluation.report import METRICS_FILENAME, write_metrics
@@ -99,6 +100,7 @@ class RunLog:
         self.source_skipped: dict[str, int] = {}  # frames the source did not send, by reason (its latest count)
         self.source_failure: str | None = None  # what the source said when it failed (e.g. strict and a bad frame)
         self.stopped_stages: list[str] = []  # stages whose last status says they stopped before their input's end
+        self.loops: list[codec.LoopMessage] = []  # backend/loop: every verified loop candidate, in order
 
     def add_map_update(self, update: object) -> None:
         """Count a backend/map_update message (a MapUpdate, or the stream's end)."""
@@ -278,6 +280,7 @@ def write_outputs(
     sections["keyframes_from"] = "backend" if log.backend_keyframes is not None else "frontend"
     sections["backend_timing"] = log.backend_timing()
     sections["backend_queue_depth_max"] = log.backend_queue_max
+    sections["loops"] = loop_section(log.loops, ground_truth)
     if final_ate is not None:
         sections["ate_final"] = final_ate
     sections.update(extra or {})
