@@ -63,6 +63,7 @@ _MATCH_RGB = (40, 220, 60)
 _KEYFRAME_RGB = (60, 120, 255)
 _MAP_POINT_RGB = (230, 230, 230)
 _COVISIBILITY_RGB = (255, 170, 0)
+_LOOP_RGB = (255, 64, 200)  # loop edges: magenta, drawn thicker than covisibility
 _TRAJECTORY_RGB = (255, 60, 60)
 
 
@@ -303,6 +304,8 @@ class BackendLog:
         rec.log("backend/map_points", rr.Points3D(p_world, radii=0.02, colors=_MAP_POINT_RGB))
         edges = [(centres[a], centres[b]) for a, b, _ in bmap.covisibility.edges() if a in centres and b in centres]
         rec.log("backend/covisibility", rr.LineStrips3D(np.array(edges, dtype=float).reshape(-1, 2, 3), colors=_COVISIBILITY_RGB))
+        loops = [(centres[a], centres[b]) for a, b in bmap.essential_graph.loop_edges() if a in centres and b in centres]
+        rec.log("backend/loops", rr.LineStrips3D(np.array(loops, dtype=float).reshape(-1, 2, 3), colors=_LOOP_RGB, radii=0.03))
         ba = getattr(mapper, "last_ba_stats", {}) or {}
         if "initial_error" in ba and "final_error" in ba:
             rec.log("backend/local_ba/before", rr.Scalars(float(ba["initial_error"])))
