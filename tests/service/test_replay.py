@@ -74,7 +74,7 @@ def _run_streams(frames: int = 4) -> dict[str, list[tuple[str, bytes, int]]]:
 
 
 def test_compared_topics_are_the_deterministic_ones():
-    assert replay.COMPARED_TOPICS == ("/frontend/pose", "/frontend/state", "/frontend/keyframe", "/backend/map_update")
+    assert replay.COMPARED_TOPICS == ("/frontend/pose", "/frontend/state", "/frontend/keyframe", "/backend/map_update", "/backend/loop")
 
 
 def _difference(schema: str, a: bytes, b: bytes, tolerance: float | None = None) -> tuple[str, str, str] | None:
