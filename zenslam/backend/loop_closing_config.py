@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from zenslam.backend.pose_graph_config import PoseGraphConfig
-from zenslam.backend.similarity import SimilarityRansacConfig
+from zenslam.backend.similarity import SimilarityOptimizationConfig, SimilarityRansacConfig
 
 
 @dataclass(frozen=True)
@@ -24,6 +24,7 @@ class LoopVerificationConfig:
     min_bow_matches: int = 20  # map-point matches by BoW to try a candidate
     bow_ratio: float = 0.75  # best / second-best descriptor distance in SearchByBoW
     ransac: SimilarityRansacConfig = field(default_factory=SimilarityRansacConfig)
+    optimization: SimilarityOptimizationConfig = field(default_factory=SimilarityOptimizationConfig)
     sim3_search_radius_px: float = 7.5  # SearchBySim3 window at level 0 (x the level's scale)
     min_optimised_inliers: int = 20  # inliers after the transform's optimisation
     projection_radius_px: float = 10.0  # SearchByProjection window for the loop neighbourhood's points

@@ -20,8 +20,8 @@ import numpy as np
 from zenslam.backend.map import BackendKeyframe, BackendMap
 from zenslam.backend.point_fusion import FusionConfig, match_by_projection
 from zenslam.backend.loop_closing_config import LoopVerificationConfig
-from zenslam.backend.similarity import SimilarityMatches, optimize_similarity, ransac_similarity
-from zenslam.geometry import invert_T, transform_points
+from zenslam.backend.similarity import SimilarityMatches, find_similarity, optimize_similarity
+from zenslam.geometry import transform_points
 from zenslam.vocabulary import FeatureVector
 from zenslam.vocabulary.bow_matching import search_by_bow
 
@@ -34,7 +34,7 @@ class LoopMatch:
 
     keyframe_id: int
     loop_keyframe_id: int
-    T_cur_loop: np.ndarray  # (4, 4) maps the loop keyframe's camera coordinates into the current one's
+    T_cur_loop: np.ndarray  # (4, 4) rigid: with ``scale``, p_cur = scale R p_loop + t
     scale: float  # 1 for rigid (stereo/RGB-D) loops
     T_world_cur_corrected: np.ndarray  # (4, 4) the current keyframe's pose in the loop keyframe's map
     inliers: int  # matches kept by the transform's optimisation
@@ -92,24 +92,23 @@ def _verify_one(
     if len(idx_cur) < config.min_bow_matches:
         return None, f"{len(idx_cur)} BoW matches < {config.min_bow_matches}"
     matches = _similarity_matches(bmap, current, candidate, idx_cur, idx_cand)
-    estimate = ransac_similarity(matches, with_scale, config.ransac, np.random.default_rng(seed))
+    estimate = find_similarity(matches, with_scale, config.ransac, np.random.default_rng(seed))
     if estimate is None:
-        return None, "no transform from RANSAC"
-    idx_cur, idx_cand = _search_by_transform(bmap, current, candidate, idx_cur, idx_cand, estimate.T_12, config)
+        return None, f"no transform with {config.ransac.min_inliers} inliers among {len(idx_cur)} BoW matches"
+    idx_cur, idx_cand = _search_by_transform(bmap, current, candidate, idx_cur, idx_cand, estimate.S_12, config)
     matches = _similarity_matches(bmap, current, candidate, idx_cur, idx_cand)
-    refined = optimize_similarity(matches, estimate.T_12, estimate.scale, with_scale)
-    if refined.inliers < config.min_optimised_inliers:
-        return None, f"{refined.inliers} inliers after optimisation < {config.min_optimised_inliers}"
-    T_cur_loop = refined.T_12
-    T_world_cur = candidate.T_world_cam @ _inverse_similarity(T_cur_loop)
+    refined = optimize_similarity(matches, estimate.T_12, estimate.scale, with_scale, config.optimization)
+    inliers = 0 if refined is None else refined.n_inliers
+    if refined is None or inliers < config.min_optimised_inliers:
+        return None, f"{inliers} inliers after optimisation < {config.min_optimised_inliers}"
+    T_world_cur = candidate.T_world_cam @ _inverse_similarity(refined.S_12)
     loop_points = _neighbourhood_points(bmap, candidate.id)
     keypoints, point_ids = _match_loop_points(bmap, current, T_world_cur, loop_points, config)
     if len(keypoints) < config.min_total_matches:
         return None, f"{len(keypoints)} loop points matched by projection < {config.min_total_matches}"
     return (
         LoopMatch(
-            current.id, candidate.id, T_cur_loop, refined.scale, T_world_cur, refined.inliers,
-            loop_points, keypoints, point_ids,
+            current.id, candidate.id, refined.T_12, refined.scale, T_world_cur, inliers, loop_points, keypoints, point_ids,
         ),
         "",
     )
@@ -132,14 +131,14 @@ def _similarity_matches(
     p_world_1 = np.array([bmap.points[int(p)].p_world for p in current.map_point_ids[idx_cur]]).reshape(-1, 3)
     p_world_2 = np.array([bmap.points[int(p)].p_world for p in candidate.map_point_ids[idx_cand]]).reshape(-1, 3)
     return SimilarityMatches(
-        p_cam_1=transform_points(current.T_cam_world, p_world_1),
-        p_cam_2=transform_points(candidate.T_cam_world, p_world_2),
-        px_1=current.keypoints_px[idx_cur],
-        px_2=candidate.keypoints_px[idx_cand],
+        p1_cam=transform_points(current.T_cam_world, p_world_1),
+        p2_cam=transform_points(candidate.T_cam_world, p_world_2),
+        px1=current.keypoints_px[idx_cur],
+        px2=candidate.keypoints_px[idx_cand],
         sigma2_1=current.level_sigma2[current.levels[idx_cur]],
         sigma2_2=candidate.level_sigma2[candidate.levels[idx_cand]],
-        calibration_1=current.calibration,
-        calibration_2=candidate.calibration,
+        calibration1=current.calibration,
+        calibration2=candidate.calibration,
     )
 
 
@@ -149,19 +148,20 @@ def _search_by_transform(
     candidate: BackendKeyframe,
     idx_cur: np.ndarray,
     idx_cand: np.ndarray,
-    T_12: np.ndarray,
+    S_12: np.ndarray,
     config: LoopVerificationConfig,
 ) -> tuple[np.ndarray, np.ndarray]:
     """SearchBySim3: the BoW matches plus those found by projecting each side's unmatched points into
-    the other keyframe through ``T_12``; a pair is added only when found from both sides."""
+    the other keyframe through ``S_12`` (4x4 similarity, candidate camera -> current camera); a pair
+    is added only when found from both sides."""
     fusion = dataclasses.replace(FusionConfig(), search_radius_px=config.sim3_search_radius_px)
     matched_cur = set(idx_cur.tolist())
     matched_cand = set(idx_cand.tolist())
     cand_free = [k for k in np.flatnonzero(candidate.map_point_ids >= 0).tolist() if k not in matched_cand]
     cur_free = [k for k in np.flatnonzero(current.map_point_ids >= 0).tolist() if k not in matched_cur]
     # The current keyframe seen from where the transform puts it in the candidate's map, and back.
-    cur_virtual = dataclasses.replace(current, T_world_cam=candidate.T_world_cam @ _inverse_similarity(T_12))
-    cand_virtual = dataclasses.replace(candidate, T_world_cam=current.T_world_cam @ T_12)
+    cur_virtual = dataclasses.replace(current, T_world_cam=candidate.T_world_cam @ _inverse_similarity(S_12))
+    cand_virtual = dataclasses.replace(candidate, T_world_cam=current.T_world_cam @ S_12)
     cand_points = [bmap.points[int(candidate.map_point_ids[k])] for k in cand_free]
     cur_points = [bmap.points[int(current.map_point_ids[k])] for k in cur_free]
     rows_12, kps_in_cur = match_by_projection(cur_virtual, cand_points, fusion)
