@@ -125,7 +125,7 @@ class LoopCloser:
             with_scale=with_scale,
             config=self.config.pose_graph,
         )
-        correct_points_after_pose_graph(bmap, poses_before | corrected, result)
+        correct_points_after_pose_graph(bmap, result)  # from the initial values: the corrected neighbourhood
         bmap.essential_graph.add_loop_edge(cur, match.loop_keyframe_id)
         bmap.refresh_points()
         return fused, len(connections), dict(result.stats)

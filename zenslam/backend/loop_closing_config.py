@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from zenslam.backend.pose_graph_config import PoseGraphConfig
+from zenslam.backend.pose_graph import PoseGraphConfig
 from zenslam.backend.similarity import SimilarityOptimizationConfig, SimilarityRansacConfig
 
 
