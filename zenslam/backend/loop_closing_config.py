@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from zenslam.backend.global_ba import GlobalBAConfig
 from zenslam.backend.pose_graph import PoseGraphConfig
 from zenslam.backend.similarity import SimilarityOptimizationConfig, SimilarityRansacConfig
 
@@ -41,6 +42,7 @@ class LoopClosingConfig:
     fusion_radius_px: float = 4.0  # window for fusing loop points into the corrected neighbourhood (ORB-SLAM: 4)
     pose_graph: PoseGraphConfig = field(default_factory=PoseGraphConfig)
     global_ba: bool = True  # a global bundle adjustment after each closed loop
+    global_ba_settings: GlobalBAConfig = field(default_factory=GlobalBAConfig)
     seed: int = 0  # seeds the verification's RANSAC (with the keyframe id, so each keyframe draws its own)
 
 

@@ -40,6 +40,7 @@ from zenslam.runtime.stage import (
     StopFlag,
     add_process_arguments,
     bus_config_with,
+    load_mode,
     load_section,
     log_cpu_times,
     setup_process_logging,
@@ -49,6 +50,7 @@ from zenslam.schemas import codec, keys
 from zenslam.schemas.map_update import MapUpdate
 
 if TYPE_CHECKING:
+    from zenslam.backend.global_ba_runner import GlobalBARunner
     from zenslam.backend.loop_closing import LoopCloser
     from zenslam.runtime.rerun_log import BackendLog
 
@@ -71,27 +73,42 @@ class BackendNode:
     """The owner of the backend map: local mapping and loop closing on decoded keyframes, and the map
     and trajectory replies; no transport in here."""
 
-    def __init__(self, mapper: LocalMapper, loop_closer: LoopCloser | None = None, rerun: BackendLog | None = None) -> None:
+    def __init__(
+        self,
+        mapper: LocalMapper,
+        loop_closer: LoopCloser | None = None,
+        global_ba: GlobalBARunner | None = None,
+        rerun: BackendLog | None = None,
+    ) -> None:
         self.mapper = mapper
         self.map: BackendMap = mapper.map  # the node's map, lent to local mapping and loop closing
         self.loop_closer = loop_closer  # None: loop closing off
+        self.global_ba = global_ba  # None: no global BA after a loop
+        self._newest: tuple[int, int] = (-1, 0)  # id and stamp of the newest keyframe processed
         self.rerun = rerun  # logs the map, graphs and timings after each keyframe to the stage's .rrd
         self.processed = 0  # keyframes processed
         self.finished = False  # the input's end of stream has been processed
         self.loop_counts: Counter[str] = Counter()  # candidates verified, accepted, rejected
 
     @classmethod
-    def from_config(cls, config: BackendConfig) -> BackendNode:
-        """The node with the real local mapper, gtsam local bundle adjuster and, when enabled, loop closer."""
+    def from_config(cls, config: BackendConfig, global_ba_in_background: bool = False) -> BackendNode:
+        """The node with the real local mapper, gtsam local bundle adjuster and, when enabled, loop
+        closer and global BA (in a helper process when ``global_ba_in_background``: pipelined and
+        live runs; in place in lockstep, so its result lands at a deterministic point)."""
         bmap = new_backend_map(config.local_mapping)
         mapper = LocalMapper(bmap, config.local_mapping, LocalBundleAdjuster(config.local_ba))
-        loop_closer = None
+        loop_closer, global_ba = None, None
         if config.loop_closing.enabled:
+            from zenslam.backend.global_ba_runner import GlobalBARunner
             from zenslam.backend.loop_closing import LoopCloser
             from zenslam.vocabulary import load_vocabulary
 
             loop_closer = LoopCloser(bmap, load_vocabulary(config.vocabulary or None), config.loop_closing)
-        return cls(mapper, loop_closer)
+            if config.loop_closing.global_ba:
+                global_ba = GlobalBARunner(
+                    bmap, config.loop_closing.global_ba_settings, config.local_mapping.ba_window, global_ba_in_background
+                )
+        return cls(mapper, loop_closer, global_ba)
 
     def step(self, keyframe: codec.KeyframeMessage, queued: int = 0) -> StepOutput:
         """Insert one keyframe, run local mapping, then loop closing on it.
@@ -102,6 +119,7 @@ class BackendNode:
         """
         update = self.mapper.process(keyframe, queued=queued)
         self.processed += 1
+        self._newest = (int(keyframe.id), int(keyframe.stamp_ns))
         corrections: list[MapUpdate] = []
         loops: list[codec.LoopMessage] = []
         if self.loop_closer is not None:
@@ -127,8 +145,24 @@ class BackendNode:
         if not outcome.accepted:
             return [], loops
         self.loop_counts["accepted"] += 1
+        if self.global_ba is not None:
+            started = time.perf_counter()
+            if self.global_ba.start():
+                self.mapper.last_timings_ms["global_ba"] = (time.perf_counter() - started) * 1e3
         correction = map_update_from_changes(self.map, kf_id, update.stamp_ns, self.map.take_changes(), kind="correction")
         return [correction], loops
+
+    def poll_global_ba(self) -> MapUpdate | None:
+        """The correction of a background global BA that has finished (applied to the map now), or None."""
+        if self.global_ba is None or not self.global_ba.poll():
+            return None
+        kf_id, stamp_ns = self._newest
+        return map_update_from_changes(self.map, kf_id, stamp_ns, self.map.take_changes(), kind="correction")
+
+    def close(self) -> None:
+        """Stop the global BA helper process, if any."""
+        if self.global_ba is not None:
+            self.global_ba.close()
 
     @property
     def last_timings_ms(self) -> dict[str, float]:
@@ -244,6 +278,8 @@ def _process(outputs: _Outputs, inbox: bus.Inbox, queryables: _Queryables, node:
     """The worker loop: answer queries, take a keyframe, map it, publish; True at the end of stream."""
     while not should_stop():
         queryables.answer(node)
+        if (correction := node.poll_global_ba()) is not None:
+            outputs.update.put(codec.encode_map_update(correction))
         message = inbox.get(timeout_s=_POLL_S)
         if message is None:
             continue
@@ -310,7 +346,7 @@ def main(argv: list[str] | None = None) -> int:
         rerun_config = load_section(args.config, "rerun", rerun_log.RerunConfig)
         if config.nice:
             os.nice(config.nice)
-        node = BackendNode.from_config(config)
+        node = BackendNode.from_config(config, global_ba_in_background=load_mode(args.config) != "lockstep")
         if stopped_before_joining(stop):
             return 0
 
@@ -320,7 +356,10 @@ def main(argv: list[str] | None = None) -> int:
         ):
             node.rerun = rerun_log.BackendLog(recording) if recording is not None else None
             bus.require_alive(session, args.session, args.wait_for, bus_config.start_timeout_s, stop.keep_going)
-            serve(session, args.session, node, config, stop)
+            try:
+                serve(session, args.session, node, config, stop)
+            finally:
+                node.close()
     except ZenslamError as exc:
         logger.error("%s", exc)
         return 2
