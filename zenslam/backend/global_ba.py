@@ -52,12 +52,11 @@ class GlobalBAConfig:
 
     def local_ba_config(self) -> LocalBAConfig:
         """The solver settings: local BA's thresholds with this schedule."""
-        two_passes = self.robust_iterations > 0 and self.iterations > 0
         return dataclasses.replace(
             LocalBAConfig(),
             robust_iterations=self.robust_iterations,
             refine_iterations=self.iterations,
-            two_passes=two_passes or self.robust_iterations == 0,
+            two_passes=True,
             ordering=self.ordering,
             relative_error_tolerance=self.relative_error_tolerance,
         )
