@@ -42,6 +42,7 @@ logger = logging.getLogger(__name__)
 class GlobalBAConfig:
     """Schedule of global BA (ORB-SLAM: 10 iterations after a loop, no robust kernel)."""
 
+    enabled: bool = True  # a global BA after each closed loop
     robust_iterations: int = 5  # first pass, Huber kernel on every observation (count; 0 = none)
     iterations: int = 10  # second pass, outliers of the first dropped, no kernel (count)
     # Elimination ordering (see LocalBAConfig.ordering): landmarks first leaves the keyframes' reduced

@@ -41,8 +41,7 @@ class LoopClosingConfig:
     verification: LoopVerificationConfig = field(default_factory=LoopVerificationConfig)
     fusion_radius_px: float = 4.0  # window for fusing loop points into the corrected neighbourhood (ORB-SLAM: 4)
     pose_graph: PoseGraphConfig = field(default_factory=PoseGraphConfig)
-    global_ba: bool = True  # a global bundle adjustment after each closed loop
-    global_ba_settings: GlobalBAConfig = field(default_factory=GlobalBAConfig)
+    global_ba: GlobalBAConfig = field(default_factory=GlobalBAConfig)  # after each closed loop
     seed: int = 0  # seeds the verification's RANSAC (with the keyframe id, so each keyframe draws its own)
 
 

@@ -104,10 +104,8 @@ class BackendNode:
             from zenslam.vocabulary import load_vocabulary
 
             loop_closer = LoopCloser(bmap, load_vocabulary(config.vocabulary or None), config.loop_closing)
-            if config.loop_closing.global_ba:
-                global_ba = GlobalBARunner(
-                    bmap, config.loop_closing.global_ba_settings, config.local_mapping.ba_window, global_ba_in_background
-                )
+            if config.loop_closing.global_ba.enabled:
+                global_ba = GlobalBARunner(bmap, config.loop_closing.global_ba, config.local_mapping.ba_window, global_ba_in_background)
         return cls(mapper, loop_closer, global_ba)
 
     def step(self, keyframe: codec.KeyframeMessage, queued: int = 0) -> StepOutput:
