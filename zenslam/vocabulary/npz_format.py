@@ -44,7 +44,7 @@ def write_npz(vocabulary: Vocabulary, path: Path) -> None:
     with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=9) as archive:
         for name, array in arrays.items():
             buffer = io.BytesIO()
-            np.lib.format.write_array(buffer, np.ascontiguousarray(array), allow_pickle=False)
+            np.lib.format.write_array(buffer, np.require(array, requirements='C'), allow_pickle=False)
             archive.writestr(zipfile.ZipInfo(f"{name}.npy", date_time=_ZIP_TIME), buffer.getvalue(),
                              compress_type=zipfile.ZIP_DEFLATED, compresslevel=9)
 
@@ -54,7 +54,7 @@ def read_npz(data: bytes, source: str) -> Vocabulary:
     try:
         with np.load(io.BytesIO(data), allow_pickle=False) as npz:
             missing = [name for name in _ARRAYS if name not in npz.files]
-            if "format" in missing or (not missing and str(npz["format"]) != FORMAT_NAME):
+            if "format" in missing or str(_scalar(npz["format"])) != FORMAT_NAME:
                 raise VocabularyError(
                     f"vocabulary {source}: a .npz file but not a zenslam vocabulary (it holds {sorted(npz.files)[:8]}): "
                     "give a file written by 'zenslam vocab train'"
@@ -69,13 +69,16 @@ def read_npz(data: bytes, source: str) -> Vocabulary:
             f"vocabulary {source}: cannot be read as a .npz ({exc}): the file is truncated or corrupt; get a complete "
             "copy or train it again with 'zenslam vocab train'"
         ) from None
-    version = int(arrays["version"])
+    header = {name: _scalar(arrays[name]) for name in ("version", "branching", "depth", "scoring", "weighting")}
+    if not all(isinstance(value, int) for value in header.values()):
+        raise VocabularyError(f"vocabulary {source}: header values {header} are not single integers: the file is corrupt")
+    version = header["version"]
     if version != FORMAT_VERSION:
         raise VocabularyError(
             f"vocabulary {source}: format version {version}, this zenslam reads version {FORMAT_VERSION}: "
             "train it again with this version's 'zenslam vocab train'"
         )
-    scoring, weighting = int(arrays["scoring"]), int(arrays["weighting"])
+    scoring, weighting = header["scoring"], header["weighting"]
     if scoring != L1_NORM or weighting != TF_IDF:
         raise VocabularyError(
             f"vocabulary {source}: scoring code {scoring} and weighting code {weighting}; zenslam uses "
@@ -89,6 +92,11 @@ def read_npz(data: bytes, source: str) -> Vocabulary:
         )
     metadata = dict(zip(arrays["metadata_keys"].tolist(), arrays["metadata_values"].tolist()))
     return Vocabulary(
-        int(arrays["branching"]), int(arrays["depth"]), arrays["parents"].astype(np.int64), descriptors,
+        header["branching"], header["depth"], arrays["parents"].astype(np.int64), descriptors,
         arrays["weights"], metadata, source=source,
     )
+
+
+def _scalar(array: np.ndarray) -> object:
+    """The one value of a header array (None when it holds more or fewer; callers then see a wrong value)."""
+    return array.reshape(-1)[0].item() if array.size == 1 else None

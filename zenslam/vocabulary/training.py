@@ -145,6 +145,7 @@ def _split_large(descriptors, rows, group_of, groups, seg, sizes, k, rng, config
     members = np.flatnonzero(np.isin(group_of, groups, assume_unique=False)) if groups.size < seg.size else np.arange(rows.size)
     starts = np.concatenate(([0], np.cumsum(sizes[groups])))
     result = k_majority(descriptors[rows[members]], starts, k, rng, config.max_iterations)
+    logger.debug("k-majority on %d nodes of %d descriptors: %d passes", groups.size, members.size, result.iterations)
     rank = np.cumsum(result.present, axis=1) - 1
     local_group = np.repeat(np.arange(groups.size), sizes[groups])
     child_in_group[members] = rank[local_group, result.labels]
