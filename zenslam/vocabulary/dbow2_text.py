@@ -49,10 +49,9 @@ def parse_dbow2_text(data: bytes, source: str) -> Vocabulary:
             f"vocabulary {source}, line {node + 1}: node {node} names parent {int(parents[node])}, which is not an "
             "earlier node: the file is corrupt"
         )
-    vocabulary = Vocabulary(
-        branching, depth, parents, table[:, 2 : 2 + DESCRIPTOR_BYTES].astype(np.uint8).reshape(-1, DESCRIPTOR_BYTES),
-        np.concatenate(([0.0], table[:, -1])), source=source,
-    )
+    descriptors = np.zeros((n, DESCRIPTOR_BYTES), dtype=np.uint8)  # the root's is not in the file
+    descriptors[1:] = table[:, 2 : 2 + DESCRIPTOR_BYTES]
+    vocabulary = Vocabulary(branching, depth, parents, descriptors, np.concatenate(([0.0], table[:, -1])), source=source)
     marked_leaf = np.concatenate(([False], table[:, 1] == 1))
     wrong = np.flatnonzero(marked_leaf != vocabulary.is_leaf)
     if wrong.size:

@@ -43,11 +43,14 @@ class Vocabulary:
         self._source = source
         self._branching = int(branching)
         self._depth = int(depth)
-        self._parents = _frozen(np.asarray(parents, dtype=np.int64))
-        self._descriptors = _frozen(np.ascontiguousarray(descriptors, dtype=np.uint8))
-        self._weights = _frozen(np.asarray(weights, dtype=np.float64))
+        self._parents = _frozen(np.array(parents, dtype=np.int64))
+        self._descriptors = np.array(descriptors, dtype=np.uint8, order="C")
+        self._weights = np.array(weights, dtype=np.float64)
         self.metadata: dict[str, str] = dict(metadata or {})
         self._check()
+        self._descriptors[0] = 0  # the root's descriptor and weight are never used: kept at 0, as no file stores them
+        self._weights[0] = 0.0
+        self._descriptors, self._weights = _frozen(self._descriptors), _frozen(self._weights)
         self._build_tables()
 
     # ---- structure -------------------------------------------------------------------------------

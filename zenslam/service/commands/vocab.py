@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import logging
 import shlex
-import sys
 import time
 from pathlib import Path
 
@@ -86,7 +85,7 @@ def run_train(args: argparse.Namespace) -> int:
             images, config, on_level=lambda *_: bar.update(),
             metadata={
                 "corpus": "\n".join(part.describe() for part in parts),
-                "command": shlex.join(["zenslam", *sys.argv[1:]]) if sys.argv[1:2] == ["vocab"] else "",
+                "command": _train_command(args, config),
                 "training": f"k={config.branching} L={config.depth} seed={config.seed} "
                 f"max_iterations={config.max_iterations}; zenslam {__version__}",
             },
@@ -101,6 +100,18 @@ def run_train(args: argparse.Namespace) -> int:
         f"descriptors; extraction {extracted - start:.0f} s, clustering {time.perf_counter() - extracted:.0f} s"
     )
     return 0
+
+
+def _train_command(args: argparse.Namespace, config) -> str:
+    """The command line that trains this vocabulary again (every setting spelled out)."""
+    words = ["zenslam", "vocab", "train", *args.sources]
+    if args.synthetic_seeds:
+        words += ["--synthetic-seeds", args.synthetic_seeds]
+    if args.max_frames_per_source is not None:
+        words += ["--max-frames-per-source", str(args.max_frames_per_source)]
+    words += ["--branching", str(config.branching), "--depth", str(config.depth), "--seed", str(config.seed),
+              "--max-iterations", str(config.max_iterations), "--output", str(args.output)]
+    return shlex.join(words)
 
 
 def run_score(args: argparse.Namespace) -> int:
