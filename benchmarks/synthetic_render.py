@@ -1,7 +1,8 @@
 """Benchmark: synthetic scene rendering speed (stereo and RGB-D frames per second at 640x480).
 
-Usage: python benchmarks/synthetic_render.py [--frames 100] [--warmup 5]
-Prints frames/s and ms per frame (mean, median, max) and writes benchmarks/results/synthetic_render.json.
+Usage: python benchmarks/synthetic_render.py [--scene loop] [--frames 100] [--warmup 5]
+Prints frames/s and ms per frame (mean, median, max) and writes benchmarks/results/synthetic_render.json
+(synthetic_render_<scene>.json for a scene other than loop).
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import statistics
 import time
 from pathlib import Path
 
-from zenslam.service.sources.synthetic import SyntheticSource, scene_config
+from zenslam.service.sources.synthetic import SCENE_NAMES, SyntheticSource, scene_config
 
 RESULTS = Path(__file__).resolve().parent / "results" / "synthetic_render.json"
 
@@ -47,15 +48,16 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=100, help="frames timed per sensor")
     parser.add_argument("--warmup", type=int, default=5, help="frames rendered before timing")
+    parser.add_argument("--scene", default="loop", choices=SCENE_NAMES, help="synthetic scene to render")
     args = parser.parse_args()
 
-    stereo = SyntheticSource(scene_config("loop", sensor="stereo"))
+    stereo = SyntheticSource(scene_config(args.scene, sensor="stereo"))
     start = time.perf_counter()
     scene = stereo.scene
     build_s = time.perf_counter() - start
-    rgbd = SyntheticSource(scene_config("loop", sensor="rgbd"), scene=scene)
+    rgbd = SyntheticSource(scene_config(args.scene, sensor="rgbd"), scene=scene)
     results = {
-        "scene": "loop",
+        "scene": args.scene,
         "image": "640x480",
         "scene_build_s": build_s,
         "tiles": len(scene.tiles),
@@ -70,9 +72,10 @@ def main() -> None:
             f"{sensor:>6}: {r['frames_per_s']:6.1f} frames/s   ms/frame mean {r['ms_mean']:.1f}  "
             f"median {r['ms_median']:.1f}  max {r['ms_max']:.1f}  ({r['frames']} frames)"
         )
-    RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    RESULTS.write_text(json.dumps(results, indent=2) + "\n")
-    print(f"wrote {RESULTS}")
+    path = RESULTS if args.scene == "loop" else RESULTS.with_name(f"synthetic_render_{args.scene}.json")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(results, indent=2) + "\n")
+    print(f"wrote {path}")
 
 
 if __name__ == "__main__":

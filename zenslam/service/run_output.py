@@ -8,7 +8,8 @@ frontend/pose got), ``trajectory_final.tum`` (ORB-SLAM's saved trajectory: each 
 kept relative to its reference keyframe and composed with that keyframe's final pose, so mapping's
 later corrections reach every frame), ``keyframes.tum`` (the backend's final keyframe poses; the
 frontend's when no backend answered), ``metrics.json`` (ATE/RPE of the tracked trajectory, ATE of
-the final one as ``ate_final``, when there is ground truth; tracking and backend timing, frame and
+the final one as ``ate_final``, when there is ground truth; ``loops``: the error where the path
+returns to its start, see ``evaluation.loops``; tracking and backend timing, frame and
 keyframe counts, ``skipped_frames``: ``{"total": N, "reasons": {"corrupt": n, ...}}``) and
 ``trajectory_top.png``.
 """
@@ -29,7 +30,8 @@ import numpy as np
 from zenslam.errors import ConfigError, TrajectoryError
 from zenslam.runtime.stop import STOPPED
 from zenslam.schemas import codec, keys
-from zenslam.service.evaluation.loop_metrics import loop_section
+from zenslam.service.evaluation.loop_acceptance import acceptance_counts
+from zenslam.service.evaluation.loops import loops_section
 from zenslam.service.evaluation.metrics import Evaluation, EvaluationConfig, evaluate
 from zenslam.service.evaluation.plot import Plane, save_evaluation_plot
 from zenslam.service.evaluation.report import METRICS_FILENAME, write_metrics
@@ -264,11 +266,11 @@ def write_outputs(
         # Every file is written, without a pose when there is none (a run stopped before its first frame).
         files.append(write_tum(run_dir / name, _NO_POSE if trajectory is None else trajectory))
     evaluation, error = None, None
-    final_ate = None
+    final_evaluation = None
     if ground_truth is not None and estimate is not None:
         try:
             evaluation = evaluate(estimate, ground_truth, evaluation_config)
-            final_ate = evaluate(final, ground_truth, evaluation_config).to_json()["ate"]
+            final_evaluation = evaluate(final, ground_truth, evaluation_config)
         except TrajectoryError as exc:
             error = str(exc)
             logger.warning("no ATE for this run: %s", exc)
@@ -280,9 +282,9 @@ def write_outputs(
     sections["keyframes_from"] = "backend" if log.backend_keyframes is not None else "frontend"
     sections["backend_timing"] = log.backend_timing()
     sections["backend_queue_depth_max"] = log.backend_queue_max
-    sections["loops"] = loop_section(log.loops, ground_truth)
-    if final_ate is not None:
-        sections["ate_final"] = final_ate
+    if final_evaluation is not None:
+        sections["ate_final"] = final_evaluation.to_json()["ate"]
+    sections["loops"] = {**acceptance_counts(log.loops, ground_truth), **loops_section(evaluation, final_evaluation)}
     sections.update(extra or {})
     if error is not None:
         sections["evaluation_error"] = error

@@ -18,8 +18,9 @@ from zenslam.service.sources.synthetic.scene import build_scene
 
 
 def test_presets_and_defaults() -> None:
-    assert set(SCENE_NAMES) == {"loop", "figure_eight", "still"}
+    assert set(SCENE_NAMES) == {"loop", "figure_eight", "still", "corridor", "corridor_aliased"}
     loop = scene_config("loop")
+    assert loop.texture.default and loop.world == "room"
     assert (loop.width, loop.height, loop.fx, loop.cx, loop.cy) == (640, 480, 460.0, 319.5, 239.5)
     assert (loop.frame_rate_hz, loop.duration_s, loop.baseline_m, loop.imu_rate_hz) == (20.0, 30.0, 0.10, 200.0)
     assert not loop.photometric.enabled

@@ -6,6 +6,7 @@ import argparse
 import logging
 from pathlib import Path
 
+from zenslam.service.evaluation.loops import loops_section
 from zenslam.service.evaluation.metrics import EvaluationConfig, evaluate
 from zenslam.service.evaluation.plot import PLANES, save_evaluation_plot
 from zenslam.service.evaluation.report import METRICS_FILENAME, format_summary, write_metrics
@@ -74,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
     )
     evaluation = evaluate(estimate, ground_truth, config)
     output = args.output if args.output is not None else args.estimate.resolve().parent
-    metrics_path = write_metrics(output / METRICS_FILENAME, evaluation)
+    metrics_path = write_metrics(output / METRICS_FILENAME, evaluation, loops=loops_section(evaluation))
     plot_path = save_evaluation_plot(output / PLOT_FILENAME, evaluation, plane=args.plane)
     print(f"estimate      {args.estimate} ({fmt_est})")
     print(f"ground truth  {args.ground_truth} ({fmt_gt})")

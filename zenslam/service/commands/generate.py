@@ -20,7 +20,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Render synthetic[:<scene>] as RGB-D and write it in TUM RGB-D layout "
         "(rgb/, depth/, rgb.txt, depth.txt, groundtruth.txt, calibration.yaml), readable with tum:<OUT>.",
     )
-    parser.add_argument("scene", help="synthetic, synthetic:loop, synthetic:figure_eight or synthetic:still")
+    parser.add_argument("scene", help="synthetic or synthetic:<scene> (loop, figure_eight, still, corridor, corridor_aliased)")
     parser.add_argument("output", type=Path, help="folder to write (created)")
     parser.add_argument("--frames", type=int, default=None, help="write only the first N frames")
     parser.set_defaults(handler=run)

@@ -78,6 +78,7 @@ class Evaluation:
     S_gt_est: np.ndarray  # (4, 4) the similarity applied to the estimate: [scale * R, t; 0, 1]
     T_world_cam_gt: np.ndarray  # (M, 4, 4) matched ground-truth poses
     T_world_cam_est_aligned: np.ndarray  # (M, 4, 4) matched estimate poses after alignment (in the gt world)
+    stamps_ns: np.ndarray  # (M,) int64 stamps of the matched ground-truth poses, nanoseconds
 
     @property
     def p_world_gt(self) -> np.ndarray:
@@ -122,6 +123,7 @@ def evaluate(estimate: Trajectory, ground_truth: Trajectory, config: EvaluationC
     """
     config = config or EvaluationConfig()
     ref, est = associate(estimate, ground_truth, config)
+    t0_ns = _common_origin_ns(estimate, ground_truth)
     est, S_gt_est, scale = _align(ref, est, config.alignment)
     ape = metrics.APE(metrics.PoseRelation.translation_part)
     ape.process_data((ref, est))
@@ -147,6 +149,7 @@ def evaluate(estimate: Trajectory, ground_truth: Trajectory, config: EvaluationC
         S_gt_est=S_gt_est,
         T_world_cam_gt=np.array(ref.poses_se3),
         T_world_cam_est_aligned=np.array(est.poses_se3),
+        stamps_ns=t0_ns + np.round(np.asarray(ref.timestamps) * 1e9).astype(np.int64),
     )
 
 
@@ -161,8 +164,7 @@ def associate(
     for name, trajectory in (("estimate", estimate), ("ground truth", ground_truth)):
         if len(trajectory) == 0:
             raise TrajectoryError(f"the {name} trajectory has no poses; nothing to compare")
-    # A common origin keeps ns resolution in evo's float64 seconds (1.4e18 ns would not).
-    t0_ns = int(min(estimate.stamps_ns[0], ground_truth.stamps_ns[0]))
+    t0_ns = _common_origin_ns(estimate, ground_truth)
     est = _to_evo(estimate, t0_ns, "estimate")
     ref = _to_evo(ground_truth, t0_ns, "ground truth")
     max_diff_s = 0.0 if config.association == "index" else config.max_time_diff_ns * 1e-9
@@ -181,6 +183,12 @@ def associate(
         )
     logger.info("associated %d of %d estimate poses with ground truth", matched, len(estimate))
     return ref, est
+
+
+def _common_origin_ns(estimate: Trajectory, ground_truth: Trajectory) -> int:
+    """The stamp (ns) that evo's seconds count from: a common origin keeps ns resolution in float64
+    seconds (1.4e18 ns would not)."""
+    return int(min(estimate.stamps_ns[0], ground_truth.stamps_ns[0]))
 
 
 def _to_evo(trajectory: Trajectory, t0_ns: int, name: str) -> PoseTrajectory3D:

@@ -23,6 +23,11 @@ Format (a UTF-8 JSON object; keys are stable, new keys may be added, none rename
         "pairs": int
       },
       "path_length_m": float,         # length of the matched ground truth, metres
+      "loops": {                      # zenslam run and zenslam eval; see zenslam.service.evaluation.loops
+        "revisit_error_m": float | null,   # relative pose error (translation) from the first pose to where
+                                      # the ground truth first comes back to it; null: no return / no truth
+        ...
+      },
       ...                             # extra top-level sections from the caller, e.g. zenslam run's
                                       # "timing", "frames", "lost_frames"
     }

@@ -3,7 +3,8 @@
 Spec strings (what ``zenslam run SOURCE`` and ``zenslam inspect SOURCE`` take):
 ``kitti:<root>/sequences/NN``, ``euroc:<sequence folder holding mav0/>``, ``tum:<sequence folder>``,
 ``synthetic`` (the loop scene) or ``synthetic:<scene>`` with scene one of loop, figure_eight, still,
-optionally followed by ``/<sensor>`` (stereo, rgbd, mono), e.g. ``synthetic:figure_eight/rgbd``;
+corridor, corridor_aliased, optionally followed by ``/<sensor>`` (stereo, rgbd, mono), e.g.
+``synthetic:figure_eight/rgbd``;
 ``mcap:<recording>`` replays the sensor frames of a run's ``run.mcap``.
 """
 

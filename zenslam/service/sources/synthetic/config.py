@@ -11,9 +11,10 @@ from zenslam.camera import PinholeCalibration, SensorKind
 from zenslam.errors import ConfigError
 from zenslam.config import from_mapping, to_mapping
 
-TrajectoryKind = Literal["loop", "figure_eight", "still"]
+TrajectoryKind = Literal["loop", "figure_eight", "still", "corridor"]
+World = Literal["room", "corridor"]
 
-SCENE_NAMES: tuple[str, ...] = ("loop", "figure_eight", "still")
+SCENE_NAMES: tuple[str, ...] = ("loop", "figure_eight", "still", "corridor", "corridor_aliased")
 
 
 @dataclass(frozen=True)
@@ -48,10 +49,40 @@ class PhotometricConfig:
 
 
 @dataclass(frozen=True)
-class SceneConfig:
-    """A synthetic sequence: a textured room seen along an analytic trajectory, with exact truth."""
+class TextureConfig:
+    """How surfaces are textured; at the defaults every surface is textured all over at full contrast."""
 
-    trajectory: TrajectoryKind = "loop"  # camera path: closed loop, figure-eight laps, or a still camera
+    coverage: float = 1.0  # fraction in (0, 1]: share of each surface under textured panels on a plain background
+    contrast: float = 1.0  # fraction in (0, 1]: contrast of the panels relative to the full procedural texture
+    wall_repeat_m: float = 0.0  # metres: wall textures repeat every this many metres along the wall; 0 = never
+
+    def __post_init__(self) -> None:
+        problems = [
+            f"{name}={getattr(self, name)} must be a fraction in (0, 1]"
+            for name in ("coverage", "contrast")
+            if not (math.isfinite(getattr(self, name)) and 0.0 < getattr(self, name) <= 1.0)
+        ]
+        if not (math.isfinite(self.wall_repeat_m) and self.wall_repeat_m >= 0):
+            problems.append(f"wall_repeat_m={self.wall_repeat_m} must be >= 0 metres (0 = never repeat)")
+        if problems:
+            raise ConfigError("invalid texture configuration: " + "; ".join(problems))
+
+    @property
+    def sparse(self) -> bool:
+        """True when surfaces carry panels on a plain background, or panels of reduced contrast."""
+        return self.coverage < 1.0 or self.contrast < 1.0
+
+    @property
+    def default(self) -> bool:
+        """True when textures are the plain procedural ones (all over, full contrast, nothing repeated)."""
+        return not self.sparse and self.wall_repeat_m == 0.0
+
+
+@dataclass(frozen=True)
+class SceneConfig:
+    """A synthetic sequence: a textured room or corridor seen along an analytic trajectory, with exact truth."""
+
+    trajectory: TrajectoryKind = "loop"  # camera path: closed loop, figure-eight laps, still camera (room); corridor laps
     sensor: SensorKind = "stereo"  # which images each frame carries: mono (left), stereo (left+right), rgbd
     seed: int = 0  # seeds the textures and every noise draw; same seed -> byte-identical output
     duration_s: float = 30.0  # seconds of sequence; frames run from t=0 to t=duration_s inclusive
@@ -75,6 +106,7 @@ class SceneConfig:
     accel_noise_std_m_s2: float = 0.0  # m/s^2: std of white noise added to each accelerometer sample
     gyro_bias_rad_s: tuple[float, float, float] = (0.0, 0.0, 0.0)  # rad/s: constant gyro bias (IMU frame)
     accel_bias_m_s2: tuple[float, float, float] = (0.0, 0.0, 0.0)  # m/s^2: constant accelerometer bias (IMU frame)
+    texture: TextureConfig = field(default_factory=TextureConfig)  # surface textures (all over, full contrast)
     photometric: PhotometricConfig = field(default_factory=PhotometricConfig)  # image degradations (off)
 
     def __post_init__(self) -> None:
@@ -93,6 +125,18 @@ class SceneConfig:
             raise ConfigError("invalid synthetic scene configuration: " + "; ".join(problems))
         self.calibration()  # raises CalibrationError naming bad intrinsics
 
+    @property
+    def world(self) -> World:
+        """The geometry the trajectory runs in: the corridor ring for corridor laps, else the room."""
+        return "corridor" if self.trajectory == "corridor" else "room"
+
+    @property
+    def scene_name(self) -> str:
+        """The scene's name in source specs: the trajectory's, ``corridor_aliased`` for a corridor with repeated walls."""
+        if self.trajectory == "corridor" and self.texture.wall_repeat_m > 0:
+            return "corridor_aliased"
+        return self.trajectory
+
     def calibration(self) -> PinholeCalibration:
         """The rectified left-camera calibration; baseline set for stereo and rgbd (virtual for rgbd)."""
         baseline = None if self.sensor == "mono" else self.baseline_m
@@ -104,11 +148,23 @@ class SceneConfig:
 
 
 def _preset(name: str) -> dict[str, Any]:
-    """Defaults of a named scene; a closed loop takes 30 s, a figure-eight two 30 s laps."""
+    """Defaults of a named scene; a closed loop takes 30 s, a figure-eight two 30 s laps, the corridor
+    two 45 s laps of 68 m at 10 Hz (the aliased corridor's wall textures repeat every 6 m)."""
+    # The corridor scenes test loop closing: stereo odometry must drift there, which it hardly does on
+    # densely textured surfaces, so textured panels cover 15% of each surface at 35% contrast.
+    corridor: dict[str, Any] = {
+        "trajectory": "corridor",
+        "duration_s": 90.0,
+        "laps": 2,
+        "frame_rate_hz": 10.0,
+        "texture": {"coverage": 0.15, "contrast": 0.35},
+    }
     presets: dict[str, dict[str, Any]] = {
         "loop": {"trajectory": "loop", "duration_s": 30.0, "laps": 1},
         "figure_eight": {"trajectory": "figure_eight", "duration_s": 60.0, "laps": 2},
         "still": {"trajectory": "still", "duration_s": 5.0, "laps": 1},
+        "corridor": corridor,
+        "corridor_aliased": {**corridor, "texture": {**corridor["texture"], "wall_repeat_m": 6.0}},
     }
     if name not in presets:
         raise ConfigError(f"unknown synthetic scene {name!r}: choose one of {list(SCENE_NAMES)}")
@@ -116,7 +172,7 @@ def _preset(name: str) -> dict[str, Any]:
 
 
 def scene_config(name: str, **overrides: Any) -> SceneConfig:
-    """The named preset ("loop", "figure_eight", "still") with ``overrides`` (field names of SceneConfig).
+    """The named preset (one of SCENE_NAMES) with ``overrides`` (field names of SceneConfig).
 
     Overrides are checked like YAML keys: unknown names or wrong types raise ConfigError.
     """

@@ -1,45 +1,24 @@
-"""The synthetic room: floor, ceiling, walls, boxes and pillars as textured planar rectangles, split into tiles.
+"""The synthetic worlds as textured planar rectangles split into tiles: the room, or the corridor ring.
 
-World frame: z up, floor at z = 0; the room spans x in [-5, 5], y in [-4, 4], z in [0, 3] metres.
-Every trajectory keeps at least 1 m from every surface.
+The room: floor, ceiling, walls, boxes and pillars; world frame z up, floor at z = 0; the room spans
+x in [-5, 5], y in [-4, 4], z in [0, 3] metres. The corridor: see ``corridor``. Every trajectory
+keeps at least 1 m from every surface.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
 
-from zenslam.service.sources.synthetic.textures import procedural_texture, texture_pyramid
+from zenslam.service.sources.synthetic.config import TextureConfig, World
+from zenslam.service.sources.synthetic.corridor import CorridorLayout, corridor_surfaces
+from zenslam.service.sources.synthetic.quad import Quad
+from zenslam.service.sources.synthetic.textures import panel_texture, procedural_texture, texture_pyramid
 
-@dataclass(frozen=True, eq=False)
-class Quad:
-    """A planar rectangle {origin + s * axis_s + t * axis_t : 0 <= s <= size_s, 0 <= t <= size_t} (metres).
-
-    Its visible side faces ``normal = axis_s x axis_t``; axes are unit vectors in the world frame.
-    """
-
-    origin_world: np.ndarray  # (3,) metres
-    axis_s: np.ndarray  # (3,) unit
-    axis_t: np.ndarray  # (3,) unit
-    size_m: tuple[float, float]
-
-    @property
-    def normal(self) -> np.ndarray:
-        """Unit normal of the visible side, world frame."""
-        return np.cross(self.axis_s, self.axis_t)
-
-    def corners_world(self) -> np.ndarray:
-        """The 4 corners (4, 3) in metres, in order around the rectangle."""
-        s, t = self.size_m
-        a, b = self.axis_s * s, self.axis_t * t
-        o = self.origin_world
-        return np.stack([o, o + a, o + a + b, o + b])
-
-    def point(self, s_m: np.ndarray, t_m: np.ndarray) -> np.ndarray:
-        """World points (N, 3) at plane coordinates s, t (metres)."""
-        return self.origin_world + np.outer(s_m, self.axis_s) + np.outer(t_m, self.axis_t)
+__all__ = ["Quad", "Scene", "Tile", "build_scene", "room_surfaces", "surface_textures", "world_surfaces"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -60,13 +39,15 @@ class Tile:
 
 @dataclass(frozen=True, eq=False)
 class Scene:
-    """All surfaces and their tiles; built once per (seed, texture resolution, tile size)."""
+    """All surfaces and their tiles; built once per (seed, texture resolution, tile size, world, texture style)."""
 
     surfaces: tuple[Quad, ...]
     tiles: tuple[Tile, ...]
     seed: int
     texels_per_m: float
     tile_m: float
+    world: World = "room"
+    texture: TextureConfig = TextureConfig()
 
 
 def _axis_face(lo: np.ndarray, hi: np.ndarray, axis: int, at_high: bool, facing: int) -> Quad:
@@ -139,14 +120,79 @@ def _tiles_of(
     return tiles
 
 
-def build_scene(seed: int, texels_per_m: float, tile_m: float) -> Scene:
-    """Generate every surface's texture (deterministic from ``seed``) and cut the surfaces into tiles."""
-    surfaces = room_surfaces()
-    tiles: list[Tile] = []
+def world_surfaces(world: World) -> tuple[Quad, ...]:
+    """The fixed surfaces of ``world``: the room's, or the corridor ring's (default layout)."""
+    return room_surfaces() if world == "room" else corridor_surfaces(CorridorLayout())
+
+
+def _texture_shape(surface: Quad, texels_per_m: float) -> tuple[int, int]:
+    size_s, size_t = surface.size_m
+    return (max(1, math.ceil(size_t * texels_per_m)), max(1, math.ceil(size_s * texels_per_m)))
+
+
+def _styled_texture(
+    shape: tuple[int, int], texels_per_m: float, texture: TextureConfig, rng: np.random.Generator
+) -> np.ndarray:
+    if texture.sparse:
+        return panel_texture(shape, texels_per_m, texture.coverage, texture.contrast, rng)
+    return procedural_texture(shape, texels_per_m, rng)
+
+
+def _is_wall(surface: Quad) -> bool:
+    return abs(float(surface.normal[2])) < 1e-9
+
+
+def _runs_up(surface: Quad) -> bool:
+    """True when the wall's s axis (texture columns) runs up it, so its texture rows run along it."""
+    return abs(float(surface.axis_s[2])) > 0.5
+
+
+def _wall_strip_key(surface: Quad) -> int:
+    """0 for walls facing the vertical axis through the origin (the corridor's outer walls), 1 for the others."""
+    centre = surface.corners_world().mean(axis=0)
+    return 0 if float(surface.normal[:2] @ centre[:2]) < 0 else 1
+
+
+def _repeated_wall(surface: Quad, shape: tuple[int, int], strip: np.ndarray) -> np.ndarray:
+    """The wall's texture of ``shape`` as ``strip`` (rows up from the wall's foot, columns along it) end to end."""
+    rows, cols = (shape[1], shape[0]) if _runs_up(surface) else shape
+    wall = np.tile(strip[:rows], (1, math.ceil(cols / strip.shape[1])))[:, :cols]
+    return np.ascontiguousarray(wall.T if _runs_up(surface) else wall)
+
+
+def surface_textures(
+    surfaces: tuple[Quad, ...], seed: int, texels_per_m: float, texture: TextureConfig
+) -> Iterator[np.ndarray]:
+    """Each surface's texture in turn (uint8, rows along axis_t, columns along axis_s), deterministic from ``seed``.
+
+    With ``texture.wall_repeat_m`` every wall (vertical surface) is one strip of that length laid end
+    to end from the wall's start; walls facing the vertical axis through the origin share one strip,
+    the others another, so a stretch of wall looks like every other one a whole number of strips
+    away. Floors and ceilings stay unique.
+    """
+    strips: dict[int, np.ndarray] = {}
+    walls = [q for q in surfaces if _is_wall(q)]
+    if texture.wall_repeat_m > 0 and walls:
+        height_m = max(q.size_m[0] if _runs_up(q) else q.size_m[1] for q in walls)
+        strip_shape = (math.ceil(height_m * texels_per_m), max(1, round(texture.wall_repeat_m * texels_per_m)))
+        for key in sorted({_wall_strip_key(q) for q in walls}):
+            strips[key] = _styled_texture(strip_shape, texels_per_m, texture, np.random.default_rng([seed, 0x57, key]))
     for index, surface in enumerate(surfaces):
-        size_s, size_t = surface.size_m
-        shape = (max(1, math.ceil(size_t * texels_per_m)), max(1, math.ceil(size_s * texels_per_m)))
-        rng = np.random.default_rng([seed, index])
-        texture = procedural_texture(shape, texels_per_m, rng)
-        tiles.extend(_tiles_of(surface, index, texture, texels_per_m, tile_m))
-    return Scene(surfaces, tuple(tiles), seed, texels_per_m, tile_m)
+        shape = _texture_shape(surface, texels_per_m)
+        if strips and _is_wall(surface):
+            yield _repeated_wall(surface, shape, strips[_wall_strip_key(surface)])
+        else:
+            yield _styled_texture(shape, texels_per_m, texture, np.random.default_rng([seed, index]))
+
+
+def build_scene(
+    seed: int, texels_per_m: float, tile_m: float, world: World = "room", texture: TextureConfig = TextureConfig()
+) -> Scene:
+    """Generate every surface's texture (deterministic from ``seed``) and cut the surfaces into tiles."""
+    surfaces = world_surfaces(world)
+    tiles: list[Tile] = []
+    for index, (surface, surface_texture) in enumerate(
+        zip(surfaces, surface_textures(surfaces, seed, texels_per_m, texture), strict=True)
+    ):
+        tiles.extend(_tiles_of(surface, index, surface_texture, texels_per_m, tile_m))
+    return Scene(surfaces, tuple(tiles), seed, texels_per_m, tile_m, world, texture)

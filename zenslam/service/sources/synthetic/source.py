@@ -1,4 +1,4 @@
-"""SyntheticSource: the textured room seen along an analytic trajectory, rendered lazily frame by frame.
+"""SyntheticSource: the textured room or corridor seen along an analytic trajectory, rendered lazily frame by frame.
 
 World frame z up (floor z = 0, gravity (0, 0, -9.81) m/s^2); camera frame x right, y down, z forward.
 Ground truth is the exact pose of the left camera; the right camera is the left one shifted by the
@@ -36,16 +36,16 @@ class SyntheticSource:
     def __init__(self, config: SceneConfig, scene: Scene | None = None):
         """``scene`` reuses geometry and textures built for another source with the same seed,
         texels_per_m and tile_m (they take most of the start-up time); None builds them on first use."""
-        if scene is not None and (scene.seed, scene.texels_per_m, scene.tile_m) != (
-            config.seed,
-            config.texels_per_m,
-            config.tile_m,
-        ):
-            raise ConfigError(
-                f"the scene passed in was built with seed={scene.seed}, texels_per_m={scene.texels_per_m}, "
-                f"tile_m={scene.tile_m} but the config asks for seed={config.seed}, "
-                f"texels_per_m={config.texels_per_m}, tile_m={config.tile_m}; pass scene=None to build a new one"
-            )
+        if scene is not None:
+            built = (scene.seed, scene.texels_per_m, scene.tile_m, scene.world, scene.texture)
+            wanted = (config.seed, config.texels_per_m, config.tile_m, config.world, config.texture)
+            if built != wanted:
+                raise ConfigError(
+                    f"the scene passed in was built with seed={scene.seed}, texels_per_m={scene.texels_per_m}, "
+                    f"tile_m={scene.tile_m}, world={scene.world}, texture={scene.texture} but the config asks for "
+                    f"seed={config.seed}, texels_per_m={config.texels_per_m}, tile_m={config.tile_m}, "
+                    f"world={config.world}, texture={config.texture}; pass scene=None to build a new one"
+                )
         self._config = config
         self._prebuilt_scene = scene
         self._trajectory = make_trajectory(config)
@@ -61,7 +61,7 @@ class SyntheticSource:
 
     @property
     def name(self) -> str:
-        return f"synthetic:{self._config.trajectory}"
+        return f"synthetic:{self._config.scene_name}"
 
     @property
     def sensor(self) -> SensorKind:
@@ -82,7 +82,8 @@ class SyntheticSource:
         if self._prebuilt_scene is not None:
             return self._prebuilt_scene
         start = time.perf_counter()
-        scene = build_scene(self._config.seed, self._config.texels_per_m, self._config.tile_m)
+        c = self._config
+        scene = build_scene(c.seed, c.texels_per_m, c.tile_m, c.world, c.texture)
         logger.debug("built synthetic scene: %d tiles in %.2f s", len(scene.tiles), time.perf_counter() - start)
         return scene
 

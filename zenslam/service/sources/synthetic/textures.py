@@ -1,4 +1,8 @@
-"""Procedural, corner-rich, non-repeating surface textures (deterministic from a seeded generator) and mip pyramids."""
+"""Procedural surface textures (deterministic from a seeded generator) and mip pyramids.
+
+Corner-rich textures all over a surface (the room), or sparse ones: textured panels of reduced
+contrast on a plain background (the corridor, where odometry must drift).
+"""
 
 from __future__ import annotations
 
@@ -68,6 +72,48 @@ def procedural_texture(shape: tuple[int, int], texels_per_m: float, rng: np.rand
     _draw_blobs(img, max(1, round(12 * area_m2)), texels_per_m, rng)
     # Soften the hard edges a little: bilinear sampling of a step edge aliases when minified.
     return cv2.GaussianBlur(img, (0, 0), 0.6)
+
+
+def _plain_background(shape: tuple[int, int], texels_per_m: float, rng: np.random.Generator) -> np.ndarray:
+    """A plain surface (float32 grey) softly shaded by +-10 grey levels around 128 over ~60 cm: no corners."""
+    field = _smooth_field(shape, 0.6 * texels_per_m, rng).astype(np.float32)  # 50..200
+    return np.float32(128.0) + (field - np.float32(125.0)) * np.float32(10.0 / 75.0)
+
+
+def panel_texture(
+    shape: tuple[int, int],
+    texels_per_m: float,
+    coverage: float,
+    contrast: float,
+    rng: np.random.Generator,
+    pitch_m: float = 1.5,
+) -> np.ndarray:
+    """A grey uint8 texture of ``shape`` (rows, cols): textured panels on a plain background.
+
+    The surface is cut into square cells of ``pitch_m``; each holds one axis-aligned panel of
+    ``coverage`` of the cell's area (aspect ratio between 1:2 and 2:1, placed at random inside the
+    cell), so panels are spread evenly and every layout is unique. A panel carries the procedural
+    texture with its grey levels scaled by ``contrast`` around the background.
+    """
+    h, w = shape
+    img = _plain_background(shape, texels_per_m, rng)
+    pitch = pitch_m * texels_per_m
+    for row0 in np.arange(0.0, h, pitch):
+        for col0 in np.arange(0.0, w, pitch):
+            aspect = math.exp(rng.uniform(math.log(0.5), math.log(2.0)))
+            panel_w = min(pitch, math.sqrt(coverage * aspect) * pitch)
+            panel_h = min(pitch, coverage * pitch * pitch / panel_w)
+            x0 = col0 + rng.uniform(0.0, pitch - panel_w)
+            y0 = row0 + rng.uniform(0.0, pitch - panel_h)
+            c0, r0 = round(x0), round(y0)
+            c1, r1 = min(w, round(x0 + panel_w)), min(h, round(y0 + panel_h))
+            if c1 <= c0 or r1 <= r0:
+                continue  # the cell's panel lies past the surface's edge
+            panel = procedural_texture((r1 - r0, c1 - c0), texels_per_m, rng).astype(np.float32)
+            img[r0:r1, c0:c1] += np.float32(contrast) * (panel - np.float32(128.0))
+    # Soften the panels' borders as procedural_texture softens its edges.
+    img = cv2.GaussianBlur(img, (0, 0), 0.6)
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
 
 
 def texture_pyramid(texture: np.ndarray, min_size: int = 8) -> tuple[np.ndarray, ...]:

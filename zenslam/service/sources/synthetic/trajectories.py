@@ -1,4 +1,4 @@
-"""Smooth analytic camera trajectories (loop, figure-eight, still) with exact derivatives for IMU synthesis.
+"""Smooth analytic camera trajectories (loop, figure-eight, still, corridor laps) with exact derivatives for IMU synthesis.
 
 World frame: z up, the room floor at z = 0, gravity (0, 0, -9.81) m/s^2. Camera frame: x right,
 y down, z forward. Orientation is built from yaw (heading about world z, from +x towards +y),
@@ -10,10 +10,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
 from zenslam.service.sources.synthetic.config import SceneConfig
+from zenslam.service.sources.synthetic.corridor import CorridorLayout, CorridorPath
 
 # Camera axes in the forward-left-up body frame: x_cam = -y_body, y_cam = -z_body, z_cam = x_body.
 _R_BODY_CAM = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
@@ -35,6 +37,28 @@ class Harmonic:
         for amp, omega, phase in zip(self.amps, self.omegas_rad_s, self.phases_rad, strict=True):
             out = out + amp * omega**order * np.sin(omega * t_s + phase + order * (math.pi / 2))
         return out
+
+
+class ScalarOfTime(Protocol):
+    """A scalar function of time with exact derivatives (Harmonic, PathCoordinate)."""
+
+    def derivative(self, t_s: np.ndarray, order: int) -> np.ndarray:
+        """The ``order``-th time derivative (order 0 is the value) at times ``t_s`` (seconds)."""
+        ...
+
+
+@dataclass(frozen=True)
+class PathCoordinate:
+    """World x (axis 0) or y (axis 1) of a position moving along ``path`` at constant speed from its start."""
+
+    path: CorridorPath
+    axis: int
+    speed_m_s: float
+
+    def derivative(self, t_s: np.ndarray, order: int) -> np.ndarray:
+        """The ``order``-th time derivative (0..3) at times ``t_s`` (seconds): metres, m/s, m/s^2, m/s^3."""
+        arc_m = self.speed_m_s * np.asarray(t_s, dtype=float)
+        return self.path.derivatives(np.atleast_1d(arc_m), order)[:, self.axis] * self.speed_m_s**order
 
 
 def constant(value: float) -> Harmonic:
@@ -85,8 +109,8 @@ class AnalyticTrajectory:
     ``yaw`` alone. The horizontal velocity must not vanish when following the tangent.
     """
 
-    x: Harmonic
-    y: Harmonic
+    x: ScalarOfTime
+    y: ScalarOfTime
     z: Harmonic
     yaw: Harmonic
     pitch: Harmonic
@@ -175,6 +199,23 @@ def _still() -> AnalyticTrajectory:
     )
 
 
+def _corridor(period_s: float) -> AnalyticTrajectory:
+    """Laps of the corridor's centre line at constant speed, ~1.4 m high, looking along the corridor with
+    small lap-periodic sways of height, heading, pitch and roll (so the motion is not planar)."""
+    path = CorridorPath(CorridorLayout())
+    speed = path.layout.lap_m / period_s
+    w = 2.0 * math.pi / period_s
+    return AnalyticTrajectory(
+        x=PathCoordinate(path, 0, speed),
+        y=PathCoordinate(path, 1, speed),
+        z=Harmonic(1.4, (0.1,), (4 * w,), (0.0,)),
+        yaw=Harmonic(0.0, (0.05,), (5 * w,), (0.3,)),
+        pitch=Harmonic(-0.03, (0.02,), (3 * w,), (0.5,)),
+        roll=Harmonic(0.0, (0.02,), (2 * w,), (1.0,)),
+        follow_tangent=True,
+    )
+
+
 def make_trajectory(config: SceneConfig) -> AnalyticTrajectory:
     """The trajectory of ``config``: ``laps`` laps of the closed path within ``duration_s``."""
     period_s = config.duration_s / config.laps
@@ -182,4 +223,6 @@ def make_trajectory(config: SceneConfig) -> AnalyticTrajectory:
         return _loop(period_s)
     if config.trajectory == "figure_eight":
         return _figure_eight(period_s)
+    if config.trajectory == "corridor":
+        return _corridor(period_s)
     return _still()

@@ -6,7 +6,7 @@ import numpy as np
 
 from zenslam.geometry import invert_T, make_T, so3_exp
 from zenslam.schemas import codec
-from zenslam.service.evaluation.loop_metrics import loop_section
+from zenslam.service.evaluation.loop_acceptance import acceptance_counts
 from zenslam.trajectory import Trajectory
 
 STEP_NS = 100_000_000
@@ -30,11 +30,11 @@ def test_a_loop_matching_the_truth_is_true_and_one_off_by_half_a_metre_is_false(
     off = invert_T(gt.T_world_cam[16]) @ gt.T_world_cam[3]
     off[:3, 3] += [0.5, 0.0, 0.0]
     loops = [loop(15, 2, T_true), loop(16, 3, off), loop(17, 4, np.eye(4), accepted=False)]
-    section = loop_section(loops, gt)
+    section = acceptance_counts(loops, gt)
     assert (section["candidates"], section["accepted"], section["rejected"]) == (3, 2, 1)
     assert section["false_accepted"] == 1
     assert section["accepted_loops"][0]["error_m"] < 1e-9 and abs(section["accepted_loops"][1]["error_m"] - 0.5) < 1e-9
 
 
 def test_without_ground_truth_only_counts_are_reported() -> None:
-    assert loop_section([loop(15, 2, np.eye(4))], None) == {"candidates": 1, "accepted": 1, "rejected": 0}
+    assert acceptance_counts([loop(15, 2, np.eye(4))], None) == {"candidates": 1, "accepted": 1, "rejected": 0}

@@ -1,4 +1,4 @@
-"""The ``loops`` section of metrics.json: loop candidates verified, accepted and rejected, judged by ground truth.
+"""The loop counts of metrics.json's ``loops`` section: candidates verified, accepted, rejected, judged by ground truth.
 
 An accepted loop says where the current keyframe is relative to the loop keyframe
 (``T_cur_loop``). With ground truth at both keyframes' stamps, the loop is a false accept when
@@ -40,7 +40,7 @@ def loop_error(loop: codec.LoopMessage, ground_truth: Trajectory) -> tuple[float
     return float(np.linalg.norm(T_error[:3, 3])), float(np.degrees(np.linalg.norm(so3_log(T_error[:3, :3]))))
 
 
-def loop_section(loops: list[codec.LoopMessage], ground_truth: Trajectory | None) -> dict[str, object]:
+def acceptance_counts(loops: list[codec.LoopMessage], ground_truth: Trajectory | None) -> dict[str, object]:
     """Counts of verified candidates, accepted and rejected loops; with ground truth, the accepted
     loops that are false (``false_accepted``) and each accepted loop's error."""
     accepted = [loop for loop in loops if loop.accepted]
