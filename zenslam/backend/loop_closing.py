@@ -1,9 +1,9 @@
 """Loop closing as ORB-SLAM2's ``LoopClosing``: place recognition, verification, correction, on the backend map.
 
-``LoopCloser`` is lent the backend node's map. For each keyframe local mapping has inserted, it
-computes the keyframe's bag-of-words and feature vectors once, indexes them in the keyframe
-database, detects consistent candidates, verifies them (``loop_verification``) and, for an
-accepted loop, corrects the map (ORB-SLAM's ``CorrectLoop``):
+``LoopCloser`` is lent the backend node's map and place recognition (the keyframe database, where
+the node has indexed the keyframe already). For each keyframe local mapping has inserted, it
+detects consistent candidates, verifies them (``loop_verification``) and, for an accepted loop,
+corrects the map (ORB-SLAM's ``CorrectLoop``):
 
 1. the current keyframe's covisible neighbourhood is moved rigidly (with scale for monocular) to
    where the loop puts the current keyframe, with the points they observe;
@@ -12,7 +12,9 @@ accepted loop, corrects the map (ORB-SLAM's ``CorrectLoop``):
 3. the essential graph (spanning tree, strong covisibility, loop edges, and the new links the
    fusion made across the loop) is optimised with the loop keyframe fixed, and every other point
    follows its reference keyframe;
-4. the loop edge is recorded in the essential graph, so neither end is ever culled.
+4. the loop edge is recorded in the essential graph, so neither end is ever culled -- unless the
+   pose graph's robust kernel rejected every edge of the loop: then the poses are back where
+   they were and the loop counts as rejected.
 
 Global bundle adjustment after the loop is the node's business (it decides when it runs and when
 its result is applied); this module only says that one is due.
@@ -26,15 +28,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from zenslam.backend.keyframe_database import KeyframeDatabase
 from zenslam.backend.loop_closing_config import LoopClosingConfig
 from zenslam.backend.loop_detection import Detection, LoopDetector
 from zenslam.backend.loop_verification import LoopMatch, Rejection, verify_candidates
 from zenslam.backend.map import BackendMap
+from zenslam.backend.place_recognition import PlaceRecognition
 from zenslam.backend.point_fusion import FusionConfig, fuse_into_keyframe
 from zenslam.backend.pose_graph import correct_points_after_pose_graph, optimize_essential_graph
 from zenslam.geometry import invert_T, transform_points
-from zenslam.vocabulary import FeatureVector, Vocabulary
 
 logger = logging.getLogger(__name__)
 
@@ -56,46 +57,35 @@ class LoopOutcome:
 
 
 class LoopCloser:
-    """Keyframe database, loop detector and correction over the map lent by the backend node."""
+    """Loop detector and correction over the map and place recognition lent by the backend node."""
 
-    def __init__(self, bmap: BackendMap, vocabulary: Vocabulary, config: LoopClosingConfig) -> None:
+    def __init__(self, bmap: BackendMap, places: PlaceRecognition, config: LoopClosingConfig) -> None:
         self.map = bmap
-        self.vocabulary = vocabulary
+        self.places = places
         self.config = config
-        self.database = KeyframeDatabase()
         self.detector = LoopDetector(config.detection)
-        self.feature_vectors: dict[int, FeatureVector] = {}
         self.loops: list[LoopMatch] = []
-
-    def add_keyframe(self, kf_id: int) -> None:
-        """Bag-of-words and feature vectors of a keyframe just inserted, into the database."""
-        bow, features = self.vocabulary.transform(self.map.keyframe(kf_id).descriptors)
-        self.database.add(kf_id, bow)
-        self.feature_vectors[kf_id] = features
-
-    def remove_keyframes(self, kf_ids: list[int]) -> None:
-        """Forget culled keyframes."""
-        for kf_id in kf_ids:
-            if kf_id in self.database:
-                self.database.remove(kf_id)
-                self.feature_vectors.pop(kf_id, None)
 
     def process(self, kf_id: int) -> LoopOutcome:
         """Detect, verify and, when accepted, correct a loop at keyframe ``kf_id`` (in the database)."""
         kf = self.map.keyframe(kf_id)
-        detection = self.detector.detect(
-            kf_id, kf.serial, self.database.bow(kf_id), self.database, self.map.covisibility, self.vocabulary.score
-        )
+        places = self.places
+        detection = self.detector.detect(kf_id, kf.serial, places.bow(kf_id), places.database, self.map.covisibility, places.score)
         if not detection.consistent:
             return LoopOutcome(detection)
         with_scale = kf.sensor == "mono"
         match, rejections = verify_candidates(
-            self.map, kf_id, list(detection.consistent), self.feature_vectors, with_scale,
+            self.map, kf_id, list(detection.consistent), places.feature_vectors, with_scale,
             self.config.verification, seed=self.config.seed * 1_000_003 + kf_id,
         )
         if match is None:
             return LoopOutcome(detection, tuple(rejections))
         fused, connections, stats = self._correct(match, with_scale)
+        if stats.get("loop_rejected"):
+            logger.warning("keyframe %d: loop to %d rejected by the pose graph (its edges disagree with the map)", kf_id, match.loop_keyframe_id)
+            rejection = Rejection(match.loop_keyframe_id, "pose graph: every loop edge down-weighted")
+            return LoopOutcome(detection, (*rejections, rejection), None, fused, connections, stats)
+        self.map.essential_graph.add_loop_edge(kf_id, match.loop_keyframe_id)
         self.detector.loop_closed(kf.serial)
         self.loops.append(match)
         logger.info(
@@ -126,7 +116,6 @@ class LoopCloser:
             config=self.config.pose_graph,
         )
         correct_points_after_pose_graph(bmap, result)  # from the initial values: the corrected neighbourhood
-        bmap.essential_graph.add_loop_edge(cur, match.loop_keyframe_id)
         bmap.refresh_points()
         return fused, len(connections), dict(result.stats)
 

@@ -52,6 +52,7 @@ from zenslam.schemas.map_update import MapUpdate
 if TYPE_CHECKING:
     from zenslam.backend.global_ba_runner import GlobalBARunner
     from zenslam.backend.loop_closing import LoopCloser
+    from zenslam.backend.place_recognition import PlaceRecognition
     from zenslam.runtime.rerun_log import BackendLog
 
 logger = logging.getLogger(__name__)
@@ -76,12 +77,14 @@ class BackendNode:
     def __init__(
         self,
         mapper: LocalMapper,
+        places: PlaceRecognition | None = None,
         loop_closer: LoopCloser | None = None,
         global_ba: GlobalBARunner | None = None,
         rerun: BackendLog | None = None,
     ) -> None:
         self.mapper = mapper
         self.map: BackendMap = mapper.map  # the node's map, lent to local mapping and loop closing
+        self.places = places  # the keyframe database (None: no vocabulary, no place recognition)
         self.loop_closer = loop_closer  # None: loop closing off
         self.global_ba = global_ba  # None: no global BA after a loop
         self._newest: tuple[int, int] = (-1, 0)  # id and stamp of the newest keyframe processed
@@ -97,16 +100,19 @@ class BackendNode:
         live runs; in place in lockstep, so its result lands at a deterministic point)."""
         bmap = new_backend_map(config.local_mapping)
         mapper = LocalMapper(bmap, config.local_mapping, LocalBundleAdjuster(config.local_ba))
+        from zenslam.backend.place_recognition import PlaceRecognition
+        from zenslam.vocabulary import load_vocabulary
+
+        places = PlaceRecognition(load_vocabulary(config.vocabulary or None))
         loop_closer, global_ba = None, None
         if config.loop_closing.enabled:
             from zenslam.backend.global_ba_runner import GlobalBARunner
             from zenslam.backend.loop_closing import LoopCloser
-            from zenslam.vocabulary import load_vocabulary
 
-            loop_closer = LoopCloser(bmap, load_vocabulary(config.vocabulary or None), config.loop_closing)
+            loop_closer = LoopCloser(bmap, places, config.loop_closing)
             if config.loop_closing.global_ba.enabled:
                 global_ba = GlobalBARunner(bmap, config.loop_closing.global_ba, config.local_mapping.ba_window, global_ba_in_background)
-        return cls(mapper, loop_closer, global_ba)
+        return cls(mapper, places, loop_closer, global_ba)
 
     def step(self, keyframe: codec.KeyframeMessage, queued: int = 0) -> StepOutput:
         """Insert one keyframe, run local mapping, then loop closing on it.
@@ -120,7 +126,11 @@ class BackendNode:
         self._newest = (int(keyframe.id), int(keyframe.stamp_ns))
         corrections: list[MapUpdate] = []
         loops: list[codec.LoopMessage] = []
-        if self.loop_closer is not None:
+        if self.places is not None:
+            self.places.remove(np.asarray(update.removed_keyframe_ids).tolist())
+            if int(keyframe.id) in self.map.keyframes:
+                self.places.add(int(keyframe.id), self.map.keyframe(int(keyframe.id)).descriptors)
+        if self.loop_closer is not None and int(keyframe.id) in self.map.keyframes:
             corrections, loops = self._close_loops(int(keyframe.id), update)
         if self.rerun is not None:
             self.rerun.log_keyframe(keyframe, self.mapper)
@@ -128,14 +138,9 @@ class BackendNode:
         return StepOutput([answer, *corrections], loops)
 
     def _close_loops(self, kf_id: int, update: MapUpdate) -> tuple[list[MapUpdate], list[codec.LoopMessage]]:
-        closer = self.loop_closer
-        closer.remove_keyframes(np.asarray(update.removed_keyframe_ids).tolist())
-        if kf_id not in self.map.keyframes:
-            return [], []
         T_before = self.map.keyframe(kf_id).T_world_cam.copy()
         started = time.perf_counter()
-        closer.add_keyframe(kf_id)
-        outcome = closer.process(kf_id)
+        outcome = self.loop_closer.process(kf_id)
         self.mapper.last_timings_ms["loop_closing"] = (time.perf_counter() - started) * 1e3
         loops = loop_messages(self.map, outcome, T_before)
         self.loop_counts["candidates"] += len(loops)
