@@ -74,6 +74,7 @@ class LoopCloser:
         if not detection.consistent:
             return LoopOutcome(detection)
         with_scale = kf.sensor == "mono"
+        T_before = kf.T_world_cam.copy()
         match, rejections = verify_candidates(
             self.map, kf_id, list(detection.consistent), places.feature_vectors, with_scale,
             self.config.verification, seed=self.config.seed * 1_000_003 + kf_id,
@@ -89,9 +90,8 @@ class LoopCloser:
         self.detector.loop_closed(kf.serial)
         self.loops.append(match)
         logger.info(
-            "loop closed: keyframe %d -> %d (%d inliers, %d points fused, correction %.3f m)",
-            kf_id, match.loop_keyframe_id, match.inliers, fused,
-            float(np.linalg.norm(match.T_world_cur_corrected[:3, 3] - kf.T_world_cam[:3, 3])),
+            "loop closed: keyframe %d -> %d (%d inliers, %d points fused, keyframe moved %.3f m)",
+            kf_id, match.loop_keyframe_id, match.inliers, fused, float(np.linalg.norm(kf.T_world_cam[:3, 3] - T_before[:3, 3])),
         )
         return LoopOutcome(detection, tuple(rejections), match, fused, connections, stats)
 
