@@ -145,6 +145,7 @@ def pose_graph_case(n, seed, yaw_bias_rad, scale_drift, bogus_shift, config) -> 
 
 POSE_GRAPH_VARIANTS = {
     "cauchy": PoseGraphConfig(),
+    "cauchy_k10": PoseGraphConfig(cauchy_k=10.0),
     "cauchy_keep_rejected": PoseGraphConfig(reject_below_weight=0.0),
     "gnc_tls": PoseGraphConfig(robust="gnc", gnc_loss="tls"),
     "gnc_tls_keep_rejected": PoseGraphConfig(robust="gnc", gnc_loss="tls", reject_below_weight=0.0),
