@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from vocabulary_helpers import full_tree, random_descriptors
+
 from zenslam.errors import VocabularyError
 from zenslam.vocabulary import Vocabulary, load_vocabulary, save_vocabulary
 from zenslam.vocabulary.dbow2_text import format_dbow2_text
