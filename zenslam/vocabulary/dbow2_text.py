@@ -102,8 +102,9 @@ def _parse_node_lines(body: bytes, source: str) -> tuple[np.ndarray, np.ndarray]
     ends = np.flatnonzero(raw == ord("\n"))
     if body == b"\n":
         raise VocabularyError(f"vocabulary {source}: no nodes after the header: the file is truncated")
-    back = np.arange(1, _WEIGHT_WINDOW + 1)
-    at = np.maximum(ends[:, None] - back, 0)  # (lines, window): the bytes before each line end, last first
+    index = np.int32 if raw.size < 2**31 else np.int64  # halves the window's memory for any real file
+    back = np.arange(1, _WEIGHT_WINDOW + 1, dtype=index)
+    at = np.maximum(ends.astype(index)[:, None] - back, 0)  # (lines, window): the bytes before each line end, last first
     window = raw[at]
     space = (window == ord(" ")) | (window == ord("\r")) | (window == ord("\t"))
     last_char = np.argmax(~space, axis=1)  # skips trailing blanks (and a \r)
