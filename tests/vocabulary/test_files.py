@@ -169,3 +169,16 @@ def test_crlf_trailing_blanks_and_any_float_notation_read_the_same(vocabulary, t
     blank_inside = write(tmp_path / "blank.txt", "\n".join([*lines[:3], "", *lines[3:]]) + "\n")
     with pytest.raises(VocabularyError, match=r"blank.txt, line 4 is empty"):
         load_vocabulary(blank_inside)
+
+
+def test_a_npz_of_other_descriptors_or_codes_is_refused(vocabulary, tmp_path: Path):
+    path = save_vocabulary(vocabulary, tmp_path / "voc.npz")
+    arrays = dict(np.load(path))
+    float_descriptors = tmp_path / "surf.npz"
+    np.savez(float_descriptors, **{**arrays, "descriptors": np.zeros((vocabulary.n_nodes, 64), np.float32)})
+    with pytest.raises(VocabularyError, match=r"surf.npz: node descriptors are float32 of shape .* 256-bit ORB"):
+        load_vocabulary(float_descriptors)
+    l2 = tmp_path / "l2.npz"
+    np.savez(l2, **{**arrays, "scoring": np.array(1)})
+    with pytest.raises(VocabularyError, match="l2.npz: scoring code 1 and weighting code 0"):
+        load_vocabulary(l2)
