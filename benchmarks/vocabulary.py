@@ -22,7 +22,6 @@ import tempfile
 import time
 from pathlib import Path
 
-
 from zenslam.frontend.config import FrontendConfig
 from zenslam.frontend.orb_extractor import OrbExtractor
 from zenslam.service.sources import open_source

@@ -97,7 +97,8 @@ def test_vocab_commands_run_in_order(tmp_path: Path, data_root: Path):
         )
         assert result.returncode == 0, f"{line}\n{result.stdout[-2000:]}\n{result.stderr[-2000:]}"
         if line.startswith("zenslam vocab score"):
-            assert re.search(r"^score: 0\.\d{4}$", result.stdout, re.M), result.stdout
+            assert re.search(r"^score: 0\.\d{4}$", result.stdout, re.MULTILINE), result.stdout
         if line.startswith("zenslam vocab info"):
-            assert re.search(r"^k: +10$", result.stdout, re.M) and re.search(r"^L: +5$", result.stdout, re.M), result.stdout
+            assert re.search(r"^k: +10$", result.stdout, re.MULTILINE), result.stdout
+            assert re.search(r"^L: +5$", result.stdout, re.MULTILINE), result.stdout
     assert (checkout / "recordings" / "vocab" / "small.txt.gz").is_file()

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
-
 from vocabulary_helpers import flip_bits, full_tree, random_descriptors
+
 from zenslam.vocabulary import FeatureVector
 from zenslam.vocabulary.bow_matching import rotation_consistent, search_by_bow
 

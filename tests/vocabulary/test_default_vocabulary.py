@@ -11,6 +11,7 @@ from zenslam.frontend.config import FrontendConfig
 from zenslam.frontend.orb_extractor import OrbExtractor
 from zenslam.service.sources.images import read_grey
 from zenslam.vocabulary import default_vocabulary_path, load_vocabulary
+from zenslam.vocabulary.files import DEFAULT_VOCABULARY
 
 
 @pytest.fixture(scope="module")
@@ -41,3 +42,14 @@ def test_euroc_revisits_rank_the_revisited_place_first(vocabulary, data_root: Pa
     for query, revisit in ((0, 1), (2, 3)):
         others = [i for i in range(4) if i != query]
         assert max(others, key=lambda i: scores[query, i]) == revisit, scores
+
+
+def test_the_wheel_ships_the_default_vocabulary():
+    """pyproject's package data names the default vocabulary (``pip wheel .`` then holds it)."""
+    import fnmatch
+    import tomllib
+
+    repo = Path(__file__).resolve().parents[2]
+    patterns = tomllib.loads((repo / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]["zenslam.vocabulary"]
+    assert any(fnmatch.fnmatch(f"data/{DEFAULT_VOCABULARY}", pattern) for pattern in patterns)
+    assert (repo / "zenslam" / "vocabulary" / "data" / DEFAULT_VOCABULARY).is_file()

@@ -24,8 +24,8 @@ def test_train_writes_dbow2_text_that_info_describes(trained: Path, capsys):
     assert trained.is_file()
     assert main(["vocab", "info", str(trained)]) == 0
     out = capsys.readouterr().out
-    assert re.search(r"^k: +10$", out, re.M) and re.search(r"^L: +3$", out, re.M)
-    assert re.search(r"^words: +\d+", out, re.M) and "tf-idf" in out and "L1-norm" in out
+    assert re.search(r"^k: +10$", out, re.MULTILINE) and re.search(r"^L: +3$", out, re.MULTILINE)
+    assert re.search(r"^words: +\d+", out, re.MULTILINE) and "tf-idf" in out and "L1-norm" in out
 
 
 def test_score_of_an_image_with_itself_is_one_and_with_another_less(trained: Path, tmp_path: Path, capsys):
@@ -34,9 +34,9 @@ def test_score_of_an_image_with_itself_is_one_and_with_another_less(trained: Pat
     cv2.imwrite(str(left), frame.left)
     cv2.imwrite(str(right), frame.right)
     assert main(["vocab", "score", str(left), str(left), "--vocabulary", str(trained)]) == 0
-    assert re.search(r"^score: 1\.0000$", capsys.readouterr().out, re.M)
+    assert re.search(r"^score: 1\.0000$", capsys.readouterr().out, re.MULTILINE)
     assert main(["vocab", "score", str(left), str(right), "--vocabulary", str(trained)]) == 0
-    score = float(re.search(r"^score: (\S+)$", capsys.readouterr().out, re.M).group(1))
+    score = float(re.search(r"^score: (\S+)$", capsys.readouterr().out, re.MULTILINE).group(1))
     assert 0.0 < score < 1.0
 
 
