@@ -29,6 +29,7 @@ import zenoh
 from zenslam.backend.config import BackendConfig
 from zenslam.backend.local_ba import LocalBundleAdjuster
 from zenslam.backend.local_mapping import LocalMapper, new_backend_map
+from zenslam.backend.keyframe_database import KeyframeDatabase
 from zenslam.backend.map import BackendMap
 from zenslam.backend.relocalisation_candidates import relocalisation_reply
 from zenslam.errors import ZenslamError
@@ -46,6 +47,7 @@ from zenslam.runtime.stage import (
 from zenslam.schemas import codec, keys
 from zenslam.schemas.map_update import MapUpdate
 from zenslam.schemas.relocalisation import RelocalisationCandidates, RelocalisationQuery
+from zenslam.vocabulary import Vocabulary, load_vocabulary
 
 if TYPE_CHECKING:
     from zenslam.runtime.rerun_log import BackendLog
@@ -60,18 +62,32 @@ class BackendNode:
     """The owner of the backend map: local mapping on decoded keyframes, and the map and trajectory
     replies; no transport in here."""
 
-    def __init__(self, mapper: LocalMapper, rerun: BackendLog | None = None) -> None:
+    def __init__(self, mapper: LocalMapper, rerun: BackendLog | None = None, vocabulary: Vocabulary | None = None) -> None:
         self.mapper = mapper
         self.map: BackendMap = mapper.map  # the node's map, lent to local mapping (and loop closing)
         self.rerun = rerun  # logs the map, graphs and timings after each keyframe to the stage's .rrd
         self.processed = 0  # keyframes processed
         self.finished = False  # the input's end of stream has been processed
+        # STAND-IN until the lead's loop-closing wiring: the database fed as keyframes come and go.
+        self.vocabulary = vocabulary
+        self.keyframe_database = KeyframeDatabase()
 
     @classmethod
     def from_config(cls, config: BackendConfig) -> BackendNode:
         """The node with the real local mapper and gtsam local bundle adjuster."""
         bmap = new_backend_map(config.local_mapping)
-        return cls(LocalMapper(bmap, config.local_mapping, LocalBundleAdjuster(config.local_ba)))
+        mapper = LocalMapper(bmap, config.local_mapping, LocalBundleAdjuster(config.local_ba))
+        return cls(mapper, vocabulary=load_vocabulary(None))
+
+    def _index_keyframes(self, keyframe: codec.KeyframeMessage, update: MapUpdate) -> None:
+        """STAND-IN: the new keyframe's bag of words into the database, culled keyframes out."""
+        if self.vocabulary is None:
+            return
+        for kf_id in np.asarray(update.removed_keyframe_ids, dtype=np.int64).tolist():
+            if kf_id in self.keyframe_database:
+                self.keyframe_database.remove(kf_id)
+        if keyframe.id in self.map.keyframes and keyframe.id not in self.keyframe_database:
+            self.keyframe_database.add(int(keyframe.id), self.vocabulary.transform(keyframe.descriptors)[0])
 
     def step(self, keyframe: codec.KeyframeMessage, queued: int = 0) -> MapUpdate:
         """Insert one keyframe and run local mapping on it; the update lists everything that changed.
@@ -79,6 +95,7 @@ class BackendNode:
         ``queued``: keyframes waiting behind this one (0 in lockstep); see ``LocalMapper.process``.
         """
         update = self.mapper.process(keyframe, queued=queued)
+        self._index_keyframes(keyframe, update)
         self.processed += 1
         if self.rerun is not None:
             self.rerun.log_keyframe(keyframe, self.mapper)
