@@ -273,9 +273,9 @@ class FakeBackend:
         return ids[ids >= 0]
 
 
-def _tracker(**tracking) -> tuple[Tracker, FakeBackend, Scene]:
+def _tracker(camera_fps: float = 10.0, **tracking) -> tuple[Tracker, FakeBackend, Scene]:
     config = TrackingConfig(**tracking)
-    tracker = Tracker(CAL, "stereo", config, camera_fps=10.0, vocabulary=VOCABULARY)
+    tracker = Tracker(CAL, "stereo", config, camera_fps=camera_fps, vocabulary=VOCABULARY)
     return tracker, FakeBackend(tracker), Scene(seed=11, n_points=12000, ring=True)
 
 
@@ -311,9 +311,9 @@ def test_a_lost_tracker_relocalises_on_the_old_map_even_when_its_cache_evicted_t
     assert tracker.n_relocalisations == 1 and tracker.n_reinitialisations == 0
     assert tracker.map.slot_of(0) >= 0  # the old place is cached again
     assert not tracker.motion.has_velocity  # the motion model restarts
-    for k in range(3, 8):  # and tracking goes on there, on the old map, without a keyframe for a while
+    for k in range(3, 8):  # and tracking goes on there, on the old map
         result = _track(tracker, backend, scene.view(path_pose(k), seed=82 + k, index=79 + k)[0])
-        assert result.state == "ok" and not result.relocalised and result.keyframe is None
+        assert result.state == "ok" and not result.relocalised
         t_err, _ = pose_errors(invert_T(result.T_world_cam), invert_T(T0) @ path_pose(k))
         assert t_err < 0.02
 
@@ -342,6 +342,22 @@ def test_a_frame_without_keypoints_asks_nothing() -> None:
     result = _track(tracker, backend, empty)
     assert result.state == "lost" and result.lost_reason == "relocalisation_no_keypoints" and backend.queries == []
     assert _track(tracker, backend, scene.view(path_pose(6), seed=6, index=6)[0]).relocalised
+
+
+def test_keyframes_pause_for_a_second_after_a_relocalisation_only_when_asked() -> None:
+    def keyframes_after_relocalising(pause: bool) -> list[bool]:
+        tracker, backend, scene = _tracker(camera_fps=4.0, relocalisation=RelocalisationConfig(pause_keyframes=pause))
+        for k in range(30):
+            _track(tracker, backend, scene.view(path_pose(k), seed=k, index=k)[0])
+        assert tracker.map.n_keyframes > 4  # past ORB-SLAM's condition: more keyframes than frames per second
+        _track(tracker, backend, _blind(scene.view(path_pose(30), seed=30, index=30)[0]))
+        results = [_track(tracker, backend, scene.view(path_pose(k), seed=k, index=k)[0]) for k in range(34, 44)]
+        assert results[0].relocalised and all(r.state == "ok" for r in results)
+        return [r.keyframe is not None for r in results]
+
+    paused = keyframes_after_relocalising(True)
+    assert not any(paused[:4]) and any(paused[4:])  # 4 frames: one second at 4 frames per second
+    assert any(keyframes_after_relocalising(False)[:4])
 
 
 def test_without_a_source_of_candidates_tracking_recovers_as_before() -> None:

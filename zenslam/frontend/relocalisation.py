@@ -61,10 +61,14 @@ class RelocalisationConfig:
     narrow_max_distance: int = 64  # Hamming bits, the narrow guided search
     narrow_min_inliers: int = 30  # more inliers than this (but fewer than min_inliers) try the narrow search
     min_inliers: int = 50  # inliers that accept a relocalisation
-    # After a relocalisation, for one second of frames (ORB-SLAM's mMaxFrames = the camera rate),
-    # local-map tracking needs this many inliers and no keyframe is made: the map is trusted again
-    # only once the frame is placed firmly in it.
+    # For one second of frames after a relocalisation (ORB-SLAM's mMaxFrames = the camera rate),
+    # local-map tracking needs this many inliers, as ORB-SLAM.
     min_local_map_inliers_after: int = 50
+    # ORB-SLAM also makes no keyframe in that second, so that a wrong relocalisation does not spread
+    # into the map. With stereo/RGB-D depths and min_inliers matches a relocalisation is rarely
+    # wrong, and a keyframe at once is worth more: local BA refines the relocalised pose, which
+    # rests on points the old map saw from farther away, and the keyframe adds close points.
+    pause_keyframes: bool = False  # True: ORB-SLAM's second without keyframes
 
     def __post_init__(self) -> None:
         problems = [

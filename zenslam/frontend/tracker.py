@@ -183,7 +183,7 @@ class Tracker:
         if relocalising:
             found, failure = self._relocalise(frame, candidates)
             if found is not None:
-                return found
+                return self._tracked(frame, *found, keyframes_in_flight, relocalised=True)
         if self.config.reinit_after_lost_frames and self._lost_streak >= self.config.reinit_after_lost_frames:
             n_lost = self._lost_streak
             result = self._initialise(frame, invert_T(self._last.T_cam_world), "no_depth_points_for_reinit")
@@ -205,17 +205,28 @@ class Tracker:
         min_inliers = self._min_local_map_inliers(frame)
         if n_inliers < min_inliers:
             return self._lost(frame, f"local_map_inliers_below_{min_inliers}", n_inliers)
+        return self._tracked(frame, T_cam_world, rows, n_inliers, keyframes_in_flight)
+
+    def _tracked(
+        self, frame: Frame, T_cam_world: np.ndarray, rows: np.ndarray, n_inliers: int, keyframes_in_flight: int,
+        relocalised: bool = False,
+    ) -> TrackResult:
+        """A frame tracked in the local map: the keyframe decision, the motion model (restarted after
+        a relocalisation, as ORB-SLAM's has no velocity across a lost frame) and the last frame."""
         start = time.perf_counter()
         keyframe = None
         if self._need_keyframe(frame, rows, n_inliers, keyframes_in_flight):
             keyframe = self._make_keyframe(frame, T_cam_world, rows)
         self._timers["keyframe_decision"] += (time.perf_counter() - start) * 1e3
-        self.motion.update(self._last.T_cam_world, T_cam_world, self._frame_gap(frame))
+        if relocalised:
+            self.motion.reset()
+        else:
+            self.motion.update(self._last.T_cam_world, T_cam_world, self._frame_gap(frame))
         self._last = _LastFrame(frame, rows, T_cam_world)
         self._lost_streak = 0
         if keyframe is not None:
             self._evict(keyframes_in_flight + 1)
-        return TrackResult("ok", None, invert_T(T_cam_world), n_inliers, keyframe, dict(self._timers))
+        return TrackResult("ok", None, invert_T(T_cam_world), n_inliers, keyframe, dict(self._timers), relocalised=relocalised)
 
     def apply_map_update(self, update: MapUpdate) -> None:
         """Apply the backend's correction to the local map and keep the last frame where it was
@@ -298,9 +309,10 @@ class Tracker:
     def _relocalises(self, candidates: CandidateSource | None) -> bool:
         return candidates is not None and self.vocabulary is not None and self.config.relocalisation.enabled
 
-    def _relocalise(self, frame: Frame, candidates: CandidateSource) -> tuple[TrackResult | None, str]:
-        """ORB-SLAM2's ``Relocalization`` then ``TrackLocalMap``: (the result, None) on success, else
-        (None, why not). The matched keyframe and its neighbours re-enter the cache either way."""
+    def _relocalise(self, frame: Frame, candidates: CandidateSource) -> tuple[tuple | None, str]:
+        """ORB-SLAM2's ``Relocalization`` then ``TrackLocalMap``: ((T_cam_world, rows, inliers), "") on
+        success, else (None, why not). The matched keyframe and its neighbours re-enter the cache
+        either way."""
         cfg = self.config.relocalisation
         start, pose_ms = time.perf_counter(), self._timers["pose_optimization"]
         self._timers["relocalisation"] = 0.0
@@ -323,13 +335,10 @@ class Tracker:
         min_inliers = max(self.config.min_local_map_inliers, cfg.min_local_map_inliers_after)
         if n_inliers < min_inliers:
             return None, f"relocalisation_local_map_inliers_below_{min_inliers}"
-        self.motion.reset()
-        self._last = _LastFrame(frame, rows, T_cam_world)
-        self._lost_streak = 0
         self._relocalised_at = frame.index
         self.n_relocalisations += 1
         logger.info("relocalised at frame %d on keyframe %d (%d inliers)", frame.index, found.keyframe_id, n_inliers)
-        return TrackResult("ok", None, invert_T(T_cam_world), n_inliers, None, dict(self._timers), relocalised=True), ""
+        return (T_cam_world, rows, n_inliers), ""
 
     def _recently_relocalised(self, frame: Frame) -> bool:
         """Within ORB-SLAM's mMaxFrames (one second of frames) after a relocalisation."""
@@ -521,7 +530,8 @@ class Tracker:
     # ---- keyframes ----------------------------------------------------------------------------------
     def _need_keyframe(self, frame: Frame, rows: np.ndarray, n_inliers: int, keyframes_in_flight: int) -> bool:
         n_kfs = self.map.n_keyframes
-        if self._recently_relocalised(frame) and n_kfs > (self.keyframe_config.max_frames or self.camera_fps):
+        paused = self.config.relocalisation.pause_keyframes and self._recently_relocalised(frame)
+        if paused and n_kfs > (self.keyframe_config.max_frames or self.camera_fps):
             return False  # ORB-SLAM: no keyframe within a second of a relocalisation
         min_obs = 1 if n_kfs <= 2 else self.config.reference_min_observations
         n_ref = self.map.tracked_points(self._reference_slot, min_obs) if self._reference_slot >= 0 else 0
