@@ -27,8 +27,9 @@ class TwoByteVocabulary:
     def transform(self, descriptors: np.ndarray) -> tuple[BowVector, FeatureVector]:
         d = np.asarray(descriptors, dtype=np.uint8).reshape(-1, 32)
         words, counts = np.unique(d[:, 0].astype(np.int64) * 256 + d[:, 1], return_counts=True)
-        features = (np.arange(len(d), dtype=np.int64),) if len(d) else ()
-        return BowVector(words, counts / max(counts.sum(), 1)), FeatureVector(np.zeros(len(features), np.int64), features)
+        nodes = np.unique(d[:, 0]).astype(np.int64)
+        features = tuple(np.flatnonzero(d[:, 0] == n).astype(np.int64) for n in nodes)
+        return BowVector(words, counts / max(counts.sum(), 1)), FeatureVector(nodes, features)
 
     def score(self, a: BowVector, b: BowVector) -> float:
         words = np.union1d(a.word_ids, b.word_ids)

@@ -31,15 +31,15 @@ SCALES = 1.2 ** np.arange(8)
 
 
 class TwoByteVocabulary:
-    """A stand-in vocabulary: a descriptor's word is its first two bytes; every feature sits under one
-    node, so bag-of-words matching is brute force with ORB-SLAM's ratio and rotation checks."""
+    """A stand-in vocabulary of known behaviour: a descriptor's word is its first two bytes, its
+    direct-index node its first byte (256 nodes, as a trained tree's level 2 has about 100)."""
 
     def transform(self, descriptors: np.ndarray) -> tuple[BowVector, FeatureVector]:
         d = np.asarray(descriptors, dtype=np.uint8).reshape(-1, 32)
         words, counts = np.unique(d[:, 0].astype(np.int64) * 256 + d[:, 1], return_counts=True)
         weights = counts / max(counts.sum(), 1)
-        nodes = np.zeros(1 if len(d) else 0, dtype=np.int64)
-        features = (np.arange(len(d), dtype=np.int64),) if len(d) else ()
+        nodes = np.unique(d[:, 0]).astype(np.int64)
+        features = tuple(np.flatnonzero(d[:, 0] == n).astype(np.int64) for n in nodes)
         return BowVector(words, weights.astype(np.float64)), FeatureVector(nodes, features)
 
     def score(self, a: BowVector, b: BowVector) -> float:
