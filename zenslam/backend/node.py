@@ -1,11 +1,14 @@
-"""The backend process: frontend/keyframe in, local mapping, backend/map_update out; answers backend/map and backend/trajectory.
+"""The backend process: frontend/keyframe in, local mapping, backend/map_update out; answers backend/map,
+backend/trajectory and backend/relocalisation.
 
-``BackendNode.step`` runs local mapping on one decoded keyframe and returns the ``MapUpdate`` to
-publish; it is testable without the bus. ``serve`` is the loop: it takes keyframes from a lossless,
+``BackendNode.step`` runs local mapping, then loop closing, on one decoded keyframe and returns the
+map updates to publish (the keyframe's answer, then any loop correction) and the verified loop
+candidates for backend/loop; it is testable without the bus. A background global BA's correction
+is published between keyframes when it finishes. ``serve`` is the loop: it takes keyframes from a lossless,
 bounded inbox (a full inbox blocks the frontend's send, nothing is dropped), tells local mapping
 how many keyframes wait behind the current one (ORB-SLAM's CheckNewKeyFrames: a backlog defers
 fusion, local BA and keyframe culling to the last queued keyframe; the end-of-stream marker does
-not count, so the last keyframe always gets them), publishes one map update per keyframe and a
+not count, so the last keyframe always gets them), publishes each keyframe's updates and a
 backend/status with the step time, the per-step timings and the queue depth, and answers the
 queryables between steps, on the same thread, so a reply always shows the map between two
 keyframes. After the frontend's end of stream it forwards the end of stream on backend/map_update
@@ -32,7 +35,9 @@ from zenslam.backend.config import BackendConfig
 from zenslam.backend.local_ba import LocalBundleAdjuster
 from zenslam.backend.local_mapping import LocalMapper, map_update_from_changes, new_backend_map
 from zenslam.backend.loop_messages import loop_messages
+from zenslam.backend.keyframe_database import KeyframeDatabase
 from zenslam.backend.map import BackendMap
+from zenslam.backend.relocalisation_candidates import relocalisation_reply
 from zenslam.errors import ZenslamError
 from zenslam.runtime import bus
 from zenslam.runtime.stage import (
@@ -48,6 +53,7 @@ from zenslam.runtime.stage import (
 )
 from zenslam.schemas import codec, keys
 from zenslam.schemas.map_update import MapUpdate
+from zenslam.schemas.relocalisation import RelocalisationCandidates, RelocalisationQuery
 
 if TYPE_CHECKING:
     from zenslam.backend.global_ba_runner import GlobalBARunner
@@ -183,6 +189,13 @@ class BackendNode:
             finished=self.finished,
         )
 
+    def relocalisation_candidates(self, query: RelocalisationQuery) -> RelocalisationCandidates:
+        """Candidate places of the whole map for a lost frame's bag of words, best first, with the
+        keyframes and points the frontend needs to match them (``relocalisation_reply``)."""
+        if self.places is None:  # no vocabulary: no place is ever recognised
+            return relocalisation_reply(self.map, KeyframeDatabase(), lambda a, b: 0.0, query, self.processed)
+        return relocalisation_reply(self.map, self.places.database, self.places.score, query, self.processed)
+
     def snapshot(self) -> codec.MapSnapshotMessage:
         """The keyframe poses and the map points (ids ascending, positions in metres, world frame)."""
         points = self.map.points
@@ -195,13 +208,16 @@ class BackendNode:
 
 
 class _Queryables:
-    """backend/map and backend/trajectory: queries wait in zenoh channels until the worker answers them."""
+    """backend/map, backend/trajectory and backend/relocalisation: queries wait in zenoh channels until
+    the worker answers them."""
 
     def __init__(self, session: zenoh.Session, session_name: str) -> None:
         self._map_key = keys.backend_map_query(session_name)
         self._trajectory_key = keys.backend_trajectory_query(session_name)
+        self._relocalisation_key = keys.backend_relocalisation_query(session_name)
         self._map = session.declare_queryable(self._map_key, zenoh.handlers.FifoChannel(16))
         self._trajectory = session.declare_queryable(self._trajectory_key, zenoh.handlers.FifoChannel(16))
+        self._relocalisation = session.declare_queryable(self._relocalisation_key, zenoh.handlers.FifoChannel(16))
 
     def answer(self, node: BackendNode) -> int:
         """Reply to every waiting query with the map as it is now; returns how many were answered."""
@@ -216,10 +232,28 @@ class _Queryables:
                 with query:  # leaving the block finalises the query: the querier stops waiting
                     query.reply(key, payload, encoding=zenoh.Encoding.APPLICATION_PROTOBUF.with_schema(schema))
                 answered += 1
+        return answered + self._answer_relocalisation(node)
+
+    def _answer_relocalisation(self, node: BackendNode) -> int:
+        """Each relocalisation query carries its own bag of words: one reply per query. A query
+        that does not decode gets an error reply (the querier's problem, not the backend's)."""
+        answered = 0
+        while (query := self._relocalisation.try_recv()) is not None:
+            with query:
+                try:
+                    request = codec.decode_relocalisation_query(query.payload.to_bytes() if query.payload is not None else b"")
+                except ZenslamError as exc:
+                    logger.warning("relocalisation query refused: %s", exc)
+                    query.reply_err(str(exc))
+                else:
+                    reply = codec.encode_relocalisation_candidates(node.relocalisation_candidates(request))
+                    encoding = zenoh.Encoding.APPLICATION_PROTOBUF.with_schema(codec.RELOCALISATION_CANDIDATES)
+                    query.reply(self._relocalisation_key, reply, encoding=encoding)
+            answered += 1
         return answered
 
     def close(self) -> None:
-        for queryable in (self._map, self._trajectory):
+        for queryable in (self._map, self._trajectory, self._relocalisation):
             while (query := queryable.try_recv()) is not None:
                 query.drop()
             queryable.undeclare()

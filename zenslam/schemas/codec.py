@@ -21,6 +21,13 @@ from zenslam.errors import CalibrationError, MessageError, ZenslamError
 from zenslam.geometry import R_to_quat_wxyz, quat_wxyz_to_R
 from zenslam.schemas import zenslam_pb2 as pb
 from zenslam.schemas.map_update import KeyframeCorrection, MapUpdate
+from zenslam.schemas.relocalisation import (
+    MapKeyframe,
+    MapPoints,
+    RelocalisationCandidate,
+    RelocalisationCandidates,
+    RelocalisationQuery,
+)
 from zenslam.schemas.sensor_data import SensorFrame
 
 # Schema names: the protobuf full names, also used as the zenoh encoding schema and MCAP schema.
@@ -32,6 +39,8 @@ STAGE_STATUS = "zenslam.StageStatus"
 KEYFRAME_TRAJECTORY = "zenslam.KeyframeTrajectory"
 MAP_SNAPSHOT = "zenslam.MapSnapshot"
 LOOP = "zenslam.Loop"
+RELOCALISATION_QUERY = "zenslam.RelocalisationQuery"
+RELOCALISATION_CANDIDATES = "zenslam.RelocalisationCandidates"
 POSE_IN_FRAME = "foxglove.PoseInFrame"
 
 MESSAGE_CLASSES: dict[str, type[Message]] = {
@@ -43,6 +52,8 @@ MESSAGE_CLASSES: dict[str, type[Message]] = {
     KEYFRAME_TRAJECTORY: pb.KeyframeTrajectory,
     MAP_SNAPSHOT: pb.MapSnapshot,
     LOOP: pb.Loop,
+    RELOCALISATION_QUERY: pb.RelocalisationQuery,
+    RELOCALISATION_CANDIDATES: pb.RelocalisationCandidates,
     POSE_IN_FRAME: PoseInFrame,
 }
 
@@ -83,6 +94,16 @@ ARRAY_FIELDS: dict[str, dict[str, ArrayLayout]] = {
     },
     KEYFRAME_TRAJECTORY: {"keyframe_ids": ("<i8", ()), "stamps_ns": ("<i8", ()), "T_world_cam": ("<f8", (4, 4))},
     MAP_SNAPSHOT: {"point_ids": ("<i8", ()), "p_world": ("<f8", (3,))},
+    RELOCALISATION_QUERY: {"word_ids": ("<i8", ()), "weights": ("<f8", ())},
+    "zenslam.MapKeyframe": {
+        "keypoints_px": ("<f4", (2,)), "levels": ("<i2", ()), "angles_deg": ("<f4", ()), "right_u": ("<f4", ()),
+        "depth_m": ("<f4", ()), "descriptors": ("u1", (32,)), "map_point_ids": ("<i8", ()), "scale_factors": ("<f8", ()),
+    },
+    "zenslam.RelocalisationCandidate": {"neighbour_ids": ("<i8", ())},
+    RELOCALISATION_CANDIDATES: {
+        "point_ids": ("<i8", ()), "p_world": ("<f8", (3,)), "descriptors": ("u1", (32,)), "normals": ("<f8", (3,)),
+        "min_distance_m": ("<f8", ()), "max_distance_m": ("<f8", ()),
+    },
 }  # fmt: skip
 
 
@@ -118,6 +139,7 @@ class TrackingStateMessage:
     # The keyframe the pose is kept relative to (-1 none) and the camera in its frame (4x4, as tracked).
     reference_keyframe_id: int = -1
     T_reference_cam: np.ndarray | None = None
+    relocalised: bool = False  # tracking was lost before this frame and found the map again here
 
 
 @dataclass(frozen=True)
@@ -406,6 +428,7 @@ def encode_tracking_state(state: TrackingStateMessage) -> bytes:
         n_tracked=state.n_tracked,
         has_pose=state.has_pose,
         keyframe_id=state.keyframe_id,
+        relocalised=state.relocalised,
     )
     for name, ms in state.timings_ms.items():
         msg.timings_ms[name] = float(ms)
@@ -435,6 +458,7 @@ def decode_tracking_state(data: bytes) -> TrackingStateMessage | EndOfStream:
         # Presence of the transform marks a reference: id 0 is a keyframe, not "unset".
         reference_keyframe_id=msg.reference_keyframe_id if msg.HasField("T_reference_cam") else -1,
         T_reference_cam=_transform_from_pb(msg.T_reference_cam) if msg.HasField("T_reference_cam") else None,
+        relocalised=msg.relocalised,
     )
 
 
@@ -701,3 +725,95 @@ def decode_map_snapshot(data: bytes) -> MapSnapshotMessage:
         point_ids=_unpack(msg.point_ids, "<i8", (p,), "map snapshot point_ids"),
         p_world=_unpack(msg.p_world, "<f8", (p, 3), "map snapshot p_world"),
     )
+
+
+def encode_relocalisation_query(query: RelocalisationQuery) -> bytes:
+    """Encode a backend/relocalisation query."""
+    msg = pb.RelocalisationQuery(
+        stamp_ns=query.stamp_ns, num_words=len(query.word_ids),
+        max_candidates=query.max_candidates, max_neighbours=query.max_neighbours,
+    )
+    msg.word_ids = _pack(query.word_ids, "<i8", (), "relocalisation query word_ids")
+    msg.weights = _pack(query.weights, "<f8", (), "relocalisation query weights")
+    return msg.SerializeToString()
+
+
+def decode_relocalisation_query(data: bytes) -> RelocalisationQuery:
+    """Decode a backend/relocalisation query."""
+    msg = _parse(pb.RelocalisationQuery, data)
+    w = msg.num_words
+    return RelocalisationQuery(
+        stamp_ns=msg.stamp_ns,
+        word_ids=_unpack(msg.word_ids, "<i8", (w,), "relocalisation query word_ids"),
+        weights=_unpack(msg.weights, "<f8", (w,), "relocalisation query weights"),
+        max_candidates=msg.max_candidates,
+        max_neighbours=msg.max_neighbours,
+    )
+
+
+_MAP_KEYFRAME_ARRAYS: dict[str, tuple[str, tuple[int, ...]]] = {
+    "levels": ("<i2", ()), "angles_deg": ("<f4", ()), "right_u": ("<f4", ()), "depth_m": ("<f4", ()),
+    "descriptors": ("u1", (32,)), "map_point_ids": ("<i8", ()),
+}  # fmt: skip
+_MAP_POINT_ARRAYS: dict[str, tuple[str, str, tuple[int, ...]]] = {  # message field: (MapPoints field, dtype, row)
+    "point_ids": ("ids", "<i8", ()), "p_world": ("p_world", "<f8", (3,)), "descriptors": ("descriptors", "u1", (32,)),
+    "normals": ("normals", "<f8", (3,)), "min_distance_m": ("min_distance_m", "<f8", ()),
+    "max_distance_m": ("max_distance_m", "<f8", ()),
+}  # fmt: skip
+
+
+def encode_relocalisation_candidates(reply: RelocalisationCandidates) -> bytes:
+    """Encode a backend/relocalisation reply; every keyframe's arrays must agree with its keypoint count."""
+    msg = pb.RelocalisationCandidates(
+        stamp_ns=reply.stamp_ns, keyframes_processed=reply.keyframes_processed, num_points=len(reply.points.ids)
+    )
+    for candidate in reply.candidates:
+        out = msg.candidates.add(keyframe_id=candidate.keyframe_id, score=candidate.score)
+        out.neighbour_ids = _pack(candidate.neighbour_ids, "<i8", (), f"relocalisation candidate {candidate.keyframe_id} neighbour_ids")
+    for kf in reply.keyframes:
+        n, where = len(kf.keypoints_px), f"relocalisation keyframe {kf.id}"
+        out = msg.keyframes.add(id=kf.id, stamp_ns=kf.stamp_ns, num_keypoints=n)
+        _transform_to_pb(kf.T_world_cam, out.T_world_cam)
+        out.keypoints_px = _pack(kf.keypoints_px, "<f4", (2,), f"{where} keypoints_px")
+        for name, (dtype, tail) in _MAP_KEYFRAME_ARRAYS.items():
+            array = getattr(kf, name)
+            if len(array) != n:
+                raise MessageError(f"{where}: {name} has {len(array)} entries for {n} keypoints")
+            setattr(out, name, _pack(array, dtype, tail, f"{where} {name}"))
+        out.scale_factors = _pack(kf.scale_factors, "<f8", (), f"{where} scale_factors")
+    for name, (attr, dtype, tail) in _MAP_POINT_ARRAYS.items():
+        setattr(msg, name, _pack(getattr(reply.points, attr), dtype, tail, f"relocalisation reply {name}"))
+    return msg.SerializeToString()
+
+
+def decode_relocalisation_candidates(data: bytes) -> RelocalisationCandidates:
+    """Decode a backend/relocalisation reply."""
+    msg = _parse(pb.RelocalisationCandidates, data)
+    candidates = tuple(
+        RelocalisationCandidate(
+            keyframe_id=c.keyframe_id,
+            score=c.score,
+            neighbour_ids=_unpack(c.neighbour_ids, "<i8", (len(c.neighbour_ids) // 8,), f"relocalisation candidate {c.keyframe_id} neighbour_ids"),
+        )
+        for c in msg.candidates
+    )
+    keyframes = []
+    for kf in msg.keyframes:
+        n, where = kf.num_keypoints, f"relocalisation keyframe {kf.id}"
+        arrays = {name: _unpack(getattr(kf, name), dtype, (n, *tail), f"{where} {name}") for name, (dtype, tail) in _MAP_KEYFRAME_ARRAYS.items()}
+        keyframes.append(
+            MapKeyframe(
+                id=kf.id,
+                stamp_ns=kf.stamp_ns,
+                T_world_cam=_transform_from_pb(kf.T_world_cam),
+                keypoints_px=_unpack(kf.keypoints_px, "<f4", (n, 2), f"{where} keypoints_px"),
+                scale_factors=_unpack(kf.scale_factors, "<f8", (len(kf.scale_factors) // 8,), f"{where} scale_factors"),
+                **arrays,
+            )
+        )
+    p = msg.num_points
+    points = MapPoints(**{
+        attr: _unpack(getattr(msg, name), dtype, (p, *tail), f"relocalisation reply {name}")
+        for name, (attr, dtype, tail) in _MAP_POINT_ARRAYS.items()
+    })  # fmt: skip
+    return RelocalisationCandidates(msg.stamp_ns, candidates, tuple(keyframes), points, msg.keyframes_processed)
