@@ -9,7 +9,7 @@ import threading
 import numpy as np
 
 from zenslam.backend.config import BackendConfig
-from zenslam.backend.keyframe_database import KeyframeDatabase
+from zenslam.backend.place_recognition import PlaceRecognition
 from zenslam.backend.local_mapping import LocalMapper, LocalMappingConfig, new_backend_map
 from zenslam.backend.node import BackendNode, serve
 from zenslam.backend.relocalisation_candidates import relocalisation_reply
@@ -43,17 +43,16 @@ VOCABULARY = TwoByteVocabulary()
 
 
 def _mapped(n_keyframes: int = 12) -> tuple[BackendNode, World, dict[int, BowVector]]:
-    """A node that mapped ``n_keyframes`` keyframes (identity BA), its database fed with them."""
+    """A node that mapped ``n_keyframes`` keyframes (identity BA), its database fed with them as it goes."""
     world = World(n_points=600)
-    node = BackendNode(LocalMapper(new_backend_map(LocalMappingConfig()), LocalMappingConfig(), IdentityAdjuster()))
-    node.vocabulary, node.keyframe_database = VOCABULARY, KeyframeDatabase()
+    node = BackendNode(
+        LocalMapper(new_backend_map(LocalMappingConfig()), LocalMappingConfig(), IdentityAdjuster()), PlaceRecognition(VOCABULARY)
+    )
     bows = {}
     for k in range(n_keyframes):
         keyframe = world.keyframe(k)
         node.step(keyframe)
         bows[k] = VOCABULARY.transform(keyframe.descriptors)[0]
-        if k in node.map.keyframes and k not in node.keyframe_database:
-            node.keyframe_database.add(k, bows[k])
     return node, world, bows
 
 
@@ -92,7 +91,7 @@ def test_the_reply_lists_candidates_best_first_with_their_neighbours_keyframes_a
 def test_an_unknown_place_gets_no_candidate() -> None:
     node, _, _ = _mapped(4)
     nowhere = BowVector(np.array([70_000, 70_001], np.int64), np.array([0.5, 0.5]))  # words no keyframe has
-    reply = relocalisation_reply(node.map, node.keyframe_database, VOCABULARY.score, _query(nowhere))
+    reply = relocalisation_reply(node.map, node.places.database, VOCABULARY.score, _query(nowhere))
     assert reply.candidates == () and reply.keyframes == () and len(reply.points.ids) == 0
 
 
