@@ -5,16 +5,18 @@ the node has indexed the keyframe already). For each keyframe local mapping has 
 detects consistent candidates, verifies them (``loop_verification``) and, for an accepted loop,
 corrects the map (ORB-SLAM's ``CorrectLoop``):
 
-1. the current keyframe's covisible neighbourhood is moved rigidly (with scale for monocular) to
-   where the loop puts the current keyframe, with the points they observe;
+0. a check: the essential graph is optimised with the current keyframe's covisible
+   neighbourhood tied to the loop keyframe; if its robust kernel rejects every such edge, the
+   loop is rejected and nothing in the map changes (a wrong loop's fused points could not be
+   separated again);
+1. the neighbourhood is moved rigidly (with scale for monocular) to where the loop puts the
+   current keyframe, with the points they observe;
 2. the loop's points replace the current neighbourhood's duplicates (matched points first, then
    every loop point projected into every neighbourhood keyframe);
 3. the essential graph (spanning tree, strong covisibility, loop edges, and the new links the
    fusion made across the loop) is optimised with the loop keyframe fixed, and every other point
    follows its reference keyframe;
-4. the loop edge is recorded in the essential graph, so neither end is ever culled -- unless the
-   pose graph's robust kernel rejected every edge of the loop: then the poses are back where
-   they were and the loop counts as rejected.
+4. the loop edge is recorded in the essential graph, so neither end is ever culled.
 
 Global bundle adjustment after the loop is the node's business (it decides when it runs and when
 its result is applied); this module only says that one is due.
@@ -97,39 +99,50 @@ class LoopCloser:
 
     # ---- correction ----------------------------------------------------------------------------------
     def _correct(self, match: LoopMatch, with_scale: bool) -> tuple[int, int, dict]:
+        """Correct the map for ``match``; (points fused, loop connections, pose-graph stats). When the
+        pose graph rejects the loop (``stats["loop_rejected"]``) the map is left as it was."""
         bmap = self.map
         cur = match.keyframe_id
         poses_before = {k: kf.T_world_cam.copy() for k, kf in bmap.keyframes.items()}
         neighbourhood = [cur] + bmap.covisibility.connected(cur)
-        neighbours_before = {k: set(bmap.covisibility.connected(k)) for k in neighbourhood}
         correction = match.T_world_cur_corrected @ invert_T(poses_before[cur])  # world -> corrected world
-        corrected = self._move_neighbourhood(neighbourhood, correction)
+        corrected = {k: correction @ poses_before[k] for k in neighbourhood}
+        # The robust check first, with the neighbourhood tied to the loop keyframe, before anything in
+        # the map changes: fusing a wrong loop's points cannot be undone.
+        ties = [(min(k, match.loop_keyframe_id), max(k, match.loop_keyframe_id)) for k in neighbourhood]
+        gate = self._optimize(poses_before, corrected, ties, match, with_scale)
+        if gate.stats.get("loop_rejected"):
+            return 0, 0, dict(gate.stats)
+        neighbours_before = {k: set(bmap.covisibility.connected(k)) for k in neighbourhood}
+        self._move_neighbourhood(corrected, correction)
         fused = self._fuse_loop_points(match, neighbourhood)
         connections = self._loop_connections(neighbourhood, neighbours_before)
-        result = optimize_essential_graph(
-            poses_before=poses_before,
-            corrected=corrected,
-            edges=bmap.essential_graph.edges(),
-            new_loop_edges=connections,
-            fixed={match.loop_keyframe_id},
-            with_scale=with_scale,
-            config=self.config.pose_graph,
-        )
+        result = self._optimize(poses_before, corrected, connections, match, with_scale)
         correct_points_after_pose_graph(bmap, result)  # from the initial values: the corrected neighbourhood
         bmap.refresh_points()
         return fused, len(connections), dict(result.stats)
 
-    def _move_neighbourhood(self, neighbourhood: list[int], correction: np.ndarray) -> dict[int, np.ndarray]:
-        """Apply ``correction`` to the neighbourhood's poses and to the points they observe (each once)."""
+    def _optimize(self, poses_before, corrected, loop_edges, match: LoopMatch, with_scale: bool):
+        """The essential graph's optimisation with ``loop_edges`` as the new loop edges, the loop keyframe fixed."""
+        return optimize_essential_graph(
+            poses_before=poses_before,
+            corrected=corrected,
+            edges=self.map.essential_graph.edges(),
+            new_loop_edges=loop_edges,
+            fixed={match.loop_keyframe_id},
+            with_scale=with_scale,
+            config=self.config.pose_graph,
+        )
+
+    def _move_neighbourhood(self, corrected: dict[int, np.ndarray], correction: np.ndarray) -> None:
+        """Set the neighbourhood's ``corrected`` poses and apply ``correction`` to the points they observe (each once)."""
         bmap = self.map
-        corrected = {k: correction @ bmap.keyframe(k).T_world_cam for k in neighbourhood}
-        point_ids = sorted({int(p) for k in neighbourhood for p in bmap.keyframe_point_ids(k).tolist()})
+        point_ids = sorted({int(p) for k in corrected for p in bmap.keyframe_point_ids(k).tolist()})
         if point_ids:
             p_world = np.array([bmap.points[p].p_world for p in point_ids])
             bmap.set_point_positions(point_ids, transform_points(correction, p_world))
         for k, T in corrected.items():
             bmap.set_keyframe_pose(k, T)
-        return corrected
 
     def _fuse_loop_points(self, match: LoopMatch, neighbourhood: list[int]) -> int:
         """The loop's points take the place of the current keyframe's matched ones, then every loop
