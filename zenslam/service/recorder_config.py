@@ -18,10 +18,11 @@ class RecorderConfig:
     # How sensor/frame's images are stored; lossless either way. PNG: on the synthetic scene 1.8x
     # smaller than raw for about 6 ms of CPU per 640x480 image (KITTI 1.7x, EuRoC 2.0x); raw: no CPU.
     frame_images: Literal["png", "raw"] = "png"
-    # The /camera/* Foxglove images drawn by viewers; sensor/frame itself is always recorded losslessly.
-    # JPEG: on the KITTI clip's 102 images 0.09 s CPU and 12 MB against PNG's 0.71 s and 27 MB
-    # (benchmarks/recorder_compression.py); PNG if the viewer images must be lossless too.
-    image_format: Literal["png", "jpeg"] = "jpeg"
+    # The /camera/* Foxglove images drawn by viewers; sensor/frame is always recorded losslessly.
+    # frame: they are the frames' own PNG images, stored once (sensor/frame refers to them; needs
+    # frame_images png). png or jpeg: separate copies beside the frames' images; JPEG costs on the
+    # KITTI clip's 102 images 0.09 s CPU and 12 MB against PNG's 0.71 s and 27 MB.
+    image_format: Literal["frame", "png", "jpeg"] = "frame"
     jpeg_quality: int = 75  # JPEG quality 1-100 (image_format jpeg); as rerun.jpeg_quality, a viewer's image
     png_compression: int = 1  # zlib level 0-9 of every PNG (frame_images, image_format png); 1 is fast, higher levels gain ~1%
     # /map/points clouds (the whole map each) at most this far apart in sensor time; the final map is
@@ -39,6 +40,11 @@ class RecorderConfig:
     quiet_s: float = 0.3  # seconds without a message that count as drained, at the end
 
     def __post_init__(self) -> None:
+        if self.image_format == "frame" and self.frame_images != "png":
+            raise ConfigError(
+                f"recorder.image_format=frame stores the frames' own PNG images for viewers, but recorder.frame_images="
+                f"{self.frame_images}; set frame_images to png, or image_format to jpeg or png for separate copies"
+            )
         if not 1 <= self.jpeg_quality <= 100:
             raise ConfigError(f"recorder.jpeg_quality={self.jpeg_quality} must be between 1 and 100")
         if not 0 <= self.png_compression <= 9:
