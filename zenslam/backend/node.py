@@ -264,6 +264,8 @@ def main(argv: list[str] | None = None) -> int:
             node.rerun = rerun_log.BackendLog(recording) if recording is not None else None
             bus.require_alive(session, args.session, args.wait_for, bus_config.start_timeout_s, stop.keep_going)
             serve(session, args.session, node, config, stop)
+            if node.rerun is not None:
+                node.rerun.finish()
     except ZenslamError as exc:
         logger.error("%s", exc)
         return 2
