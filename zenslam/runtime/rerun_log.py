@@ -57,6 +57,12 @@ SENSOR_TIMELINE = "sensor_time"  # the frame's stamp: a timestamp, or a duration
 RRD_SUFFIX = ".rrd"
 # Stamps before 2000-01-01 are taken as time since the sequence start (KITTI, synthetic), not epoch time.
 _EPOCH_STAMP_MIN_NS = 946_684_800 * 1_000_000_000
+# Logged rows are gathered into chunks (one per entity) until this much time or data has piled up.
+# rerun's default (200 ms) suits a live viewer; saved to a file it makes a chunk of one row for most
+# of a stage's per-frame entities, each with its own schema, so that the file's size depended on
+# the machine's speed and was up to half overhead. A stage killed with SIGKILL loses what is pending.
+_FLUSH_TICK_S = 5.0  # seconds
+_FLUSH_BYTES = 4 * 1024 * 1024  # bytes
 
 # Colours (RGB) the blueprint's views show; fixed so two recordings look alike.
 _KEYPOINT_RGB = (150, 150, 150)
@@ -148,7 +154,10 @@ class StageRecording:
         self.config = config
         self.path.parent.mkdir(parents=True, exist_ok=True)
         # No properties: the recording-start property is wall-clock time and would differ run to run.
-        self.stream = rr.RecordingStream(APPLICATION_ID, recording_id=run_id, send_properties=False)
+        self.stream = rr.RecordingStream(
+            APPLICATION_ID, recording_id=run_id, send_properties=False,
+            batcher_config=rr.ChunkBatcherConfig(flush_tick=_FLUSH_TICK_S, flush_num_bytes=_FLUSH_BYTES),
+        )
         self.stream.set_log_time_enabled(False)  # wall clock: logged data must compare equal across runs
         self.stream.set_log_tick_enabled(False)  # counts log calls, which differ between processes
         with _pandas_hidden():  # the blueprint is the first thing logged
