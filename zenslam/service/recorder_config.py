@@ -29,9 +29,9 @@ class RecorderConfig:
     # always written. 0: one after every keyframe and map update.
     map_points_period_s: float = 1.0  # seconds
     # Uncompressed bytes per chunk; a killed recorder loses the open chunk (``zenslam recover`` keeps the rest).
-    # The writer holds the open chunk and its compressed copy in memory; 4 MiB is about six stereo VGA
-    # frames. Chunks that span several map updates let zstd find what consecutive updates repeat.
-    chunk_size: int = 4 * 1024 * 1024  # bytes
+    # The writer holds the open chunk and its compressed copy in memory; 2 MiB is about six stereo VGA
+    # frames (PNG). Chunks that span several map updates let zstd find what consecutive updates repeat.
+    chunk_size: int = 2 * 1024 * 1024  # bytes
     # MCAP chunk compression: zstd, lz4 or none. The images are PNG already, which neither shrinks;
     # on map updates zstd stores about 30% less than lz4, for about the same CPU.
     chunk_compression: ChunkCompression = "zstd"
