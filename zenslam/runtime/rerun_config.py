@@ -17,9 +17,9 @@ class RerunConfig:
     image_every_n: int = 1  # frames; the source logs every n-th left image (keypoints and poses are logged every frame)
     # JPEG-compressed images: a third of the CPU and of the file size of raw images.
     jpeg: bool = True
-    # JPEG quality 1-100 (jpeg true): 75 keeps the features under the keypoints visible at about
-    # two thirds of the file size of 90.
-    jpeg_quality: int = 75
+    # JPEG quality 1-100 (jpeg true): 50 keeps the features under the keypoints visible at about half
+    # the file size of 90 (the run's recording keeps the lossless frames).
+    jpeg_quality: int = 50
     # The backend's whole map (backend/map_points, backend/covisibility) at most this far apart in
     # sensor time, and the final map; each holds every point and edge, so logging one per keyframe
     # grows the file with the square of the map. 0: after every keyframe.
