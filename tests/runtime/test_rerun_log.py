@@ -147,6 +147,7 @@ def test_the_backend_logs_the_map_its_graphs_local_ba_counts_and_timings(tmp_pat
         backend.log_keyframe(SimpleNamespace(frame_index=4, stamp_ns=400), _mapper(ba=False))
         backend.log_keyframe(SimpleNamespace(frame_index=9, stamp_ns=900), _mapper(ba=True))
         backend.log_queue_depth(SimpleNamespace(frame_index=9, stamp_ns=900), 2)
+        backend.finish()  # frame 9 came within map_period_s of frame 4: its map is the final one
     data = read_rrd(tmp_path / "backend.rrd")
     assert _value(data, "/backend/keyframes", "Points3D:positions", 9) == [[0, 0, 0], [1, 0, 0], [2, 0, 0]]
     assert _value(data, "/backend/trajectory", "LineStrips3D:strips", 9) == [[[0, 0, 0], [1, 0, 0], [2, 0, 0]]]
@@ -158,6 +159,26 @@ def test_the_backend_logs_the_map_its_graphs_local_ba_counts_and_timings(tmp_pat
     assert _value(data, "/backend/counts/map_points", "Scalars:scalars", 4) == [2.0]
     assert _value(data, "/backend/counts/queue_depth", "Scalars:scalars", 9) == [2.0]
     assert _frames(data, "/backend/timing/local_ba", "Scalars:scalars") == [4, 9]
+
+
+def test_the_backend_logs_the_map_at_most_once_per_period_and_the_final_map(tmp_path):
+    stamps_ns = (0, 400_000_000, 1_000_000_000, 1_300_000_000)
+    with StageRecording(tmp_path, "r", "backend", RerunConfig(map_period_s=1.0)) as recording:
+        backend = BackendLog(recording)
+        for frame, stamp_ns in enumerate(stamps_ns):
+            backend.log_keyframe(SimpleNamespace(frame_index=frame, stamp_ns=stamp_ns), _mapper(ba=False))
+        backend.finish()
+    data = read_rrd(tmp_path / "backend.rrd")
+    # 0.4 s and 1.3 s came within a second of the previous map; 1.3 s is the last: logged by finish().
+    assert _frames(data, "/backend/map_points", "Points3D:positions") == [0, 2, 3]
+    assert _frames(data, "/backend/covisibility", "LineStrips3D:strips") == [0, 2, 3]
+    assert _frames(data, "/backend/keyframes", "Points3D:positions") == [0, 1, 2, 3]  # small: every keyframe
+    with StageRecording(tmp_path, "r", "backend", RerunConfig(map_period_s=0.0)) as recording:
+        backend = BackendLog(recording)
+        for frame, stamp_ns in enumerate(stamps_ns):
+            backend.log_keyframe(SimpleNamespace(frame_index=frame, stamp_ns=stamp_ns), _mapper(ba=False))
+        backend.finish()
+    assert _frames(read_rrd(tmp_path / "backend.rrd"), "/backend/map_points", "Points3D:positions") == [0, 1, 2, 3]
 
 
 def test_a_stage_recording_keeps_pandas_out_of_the_stage_process(tmp_path):

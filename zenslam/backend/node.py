@@ -397,6 +397,8 @@ def main(argv: list[str] | None = None) -> int:
                 serve(session, args.session, node, config, stop)
             finally:
                 node.close()
+            if node.rerun is not None:
+                node.rerun.finish()
     except ZenslamError as exc:
         logger.error("%s", exc)
         return 2

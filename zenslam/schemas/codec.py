@@ -317,6 +317,11 @@ def _encode_image(image: np.ndarray, encoding: ImageEncodingName, png_compressio
 def _decode_image(data: bytes, encoding: int, shape: tuple[int, int], name: str) -> np.ndarray:
     if encoding == pb.IMAGE_ENCODING_RAW:
         return _unpack(data, "u1", shape, name)
+    if encoding == pb.IMAGE_ENCODING_PNG_APART:
+        raise MessageError(
+            f"{name}: the image is stored apart from the message, on a recording's camera channels; "
+            "read the recording with zenslam.service.mcap_io, which puts the images back"
+        )
     if encoding != pb.IMAGE_ENCODING_PNG:
         raise MessageError(f"{name}: unknown image encoding {encoding}; the sender's zenslam is newer than this one")
     image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
@@ -386,6 +391,44 @@ def sensor_frame_as_png(data: bytes, png_compression: int = 1) -> bytes:
         msg.right = png_bytes(_decode_image(msg.right, msg.image_encoding, shape, f"{where} right"), png_compression)
     msg.image_encoding = pb.IMAGE_ENCODING_PNG
     return msg.SerializeToString()
+
+
+def sensor_frame_images_apart(data: bytes, png_compression: int = 1) -> tuple[bytes, list[bytes]]:
+    """The sensor/frame message ``data`` split for a recording that stores each image once:
+    (the message without its images, IMAGE_ENCODING_PNG_APART; [left PNG, and right PNG if any]).
+
+    Images already in PNG are kept as they are; an end of stream comes back unchanged with no images.
+    ``sensor_frame_with_images`` puts them back.
+    """
+    msg = _parse(pb.SensorFrame, sensor_frame_as_png(data, png_compression))
+    if msg.end_of_stream:
+        return bytes(data), []
+    images = [msg.left, msg.right] if msg.right else [msg.left]
+    msg.image_encoding = pb.IMAGE_ENCODING_PNG_APART
+    msg.ClearField("left")
+    msg.ClearField("right")
+    return msg.SerializeToString(), images
+
+
+def sensor_frame_with_images(data: bytes, left_png: bytes, right_png: bytes | None) -> bytes:
+    """The sensor/frame message ``data`` whose images were stored apart, with them put back (IMAGE_ENCODING_PNG).
+
+    A message that holds its images (or an end of stream) comes back unchanged.
+    """
+    msg = _parse(pb.SensorFrame, data)
+    if msg.end_of_stream or msg.image_encoding != pb.IMAGE_ENCODING_PNG_APART:
+        return bytes(data)
+    msg.image_encoding = pb.IMAGE_ENCODING_PNG
+    msg.left = left_png
+    if right_png is not None:
+        msg.right = right_png
+    return msg.SerializeToString()
+
+
+def sensor_frame_images_are_apart(data: bytes) -> bool:
+    """True when the sensor/frame message ``data`` holds no images: a recording stores them apart."""
+    msg = _parse(pb.SensorFrame, data)
+    return not msg.end_of_stream and msg.image_encoding == pb.IMAGE_ENCODING_PNG_APART
 
 
 def decode_sensor_frame(data: bytes) -> FrameMessage | EndOfStream:

@@ -24,6 +24,7 @@ class ImageEncoding(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     __slots__ = ()
     IMAGE_ENCODING_RAW: _ClassVar[ImageEncoding]
     IMAGE_ENCODING_PNG: _ClassVar[ImageEncoding]
+    IMAGE_ENCODING_PNG_APART: _ClassVar[ImageEncoding]
 
 class TrackingStateKind(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     __slots__ = ()
@@ -54,6 +55,7 @@ DEPTH_ENCODING_FLOAT32_M: DepthEncoding
 DEPTH_ENCODING_UINT16_MM: DepthEncoding
 IMAGE_ENCODING_RAW: ImageEncoding
 IMAGE_ENCODING_PNG: ImageEncoding
+IMAGE_ENCODING_PNG_APART: ImageEncoding
 TRACKING_STATE_UNSPECIFIED: TrackingStateKind
 TRACKING_STATE_OK: TrackingStateKind
 TRACKING_STATE_LOST: TrackingStateKind
