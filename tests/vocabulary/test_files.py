@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from vocabulary_helpers import full_tree, random_descriptors
+
 from zenslam.errors import VocabularyError
 from zenslam.vocabulary import Vocabulary, load_vocabulary, save_vocabulary
 from zenslam.vocabulary.dbow2_text import format_dbow2_text
@@ -123,7 +123,7 @@ def test_vocabularies_of_other_descriptors_are_refused(tmp_path: Path):
     with pytest.raises(VocabularyError, match="short.txt, line 2: 19 fields, expected 35"):
         load_vocabulary(short)
     big = write(tmp_path / "big.txt", "10 2  0 0\n" + node_line(0, 1, [300] * 32))
-    with pytest.raises(VocabularyError, match="big.txt, line 2: descriptor value 300.0 is not a byte"):
+    with pytest.raises(VocabularyError, match="big.txt, line 2: descriptor value 300 is not a byte"):
         load_vocabulary(big)
 
 
@@ -157,3 +157,28 @@ def test_files_are_reproducible(vocabulary, tmp_path: Path):
         first = save_vocabulary(vocabulary, tmp_path / name).read_bytes()
         assert save_vocabulary(vocabulary, tmp_path / f"b{name}").read_bytes() == first
     assert gzip.decompress(first).decode().startswith("3 3  0 0\n")
+
+
+def test_crlf_trailing_blanks_and_any_float_notation_read_the_same(vocabulary, tmp_path: Path):
+    zeros, ones = " ".join(["0"] * 32), " ".join(["255"] * 32)
+    lines = ["10 2  0 0", f"0 0 {zeros} 0", f"0 1 {ones} 2.5e-1", f"1 1 {zeros} 1.2500000000000000000", f"1 1 {ones} 3"]
+    plain = load_vocabulary(write(tmp_path / "plain.txt", "\n".join(lines) + "\n"))
+    messy = load_vocabulary(write(tmp_path / "messy.txt", "\r\n".join(line + "  " for line in lines) + "\r\n\r\n"))
+    assert_same(plain, messy)
+    assert plain.word_weights.tolist() == [0.25, 1.25, 3.0]
+    blank_inside = write(tmp_path / "blank.txt", "\n".join([*lines[:3], "", *lines[3:]]) + "\n")
+    with pytest.raises(VocabularyError, match=r"blank.txt, line 4 is empty"):
+        load_vocabulary(blank_inside)
+
+
+def test_a_npz_of_other_descriptors_or_codes_is_refused(vocabulary, tmp_path: Path):
+    path = save_vocabulary(vocabulary, tmp_path / "voc.npz")
+    arrays = dict(np.load(path))
+    float_descriptors = tmp_path / "surf.npz"
+    np.savez(float_descriptors, **{**arrays, "descriptors": np.zeros((vocabulary.n_nodes, 64), np.float32)})
+    with pytest.raises(VocabularyError, match=r"surf.npz: node descriptors are float32 of shape .* 256-bit ORB"):
+        load_vocabulary(float_descriptors)
+    l2 = tmp_path / "l2.npz"
+    np.savez(l2, **{**arrays, "scoring": np.array(1)})
+    with pytest.raises(VocabularyError, match="l2.npz: scoring code 1 and weighting code 0"):
+        load_vocabulary(l2)

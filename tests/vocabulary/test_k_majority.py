@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
-
 from vocabulary_helpers import clustered_descriptors, random_descriptors
+
 from zenslam.descriptors import hamming_distance
 from zenslam.vocabulary.k_majority import _update_centres, k_majority
 

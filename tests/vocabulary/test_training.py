@@ -6,8 +6,8 @@ import math
 
 import numpy as np
 import pytest
-
 from vocabulary_helpers import clustered_descriptors, random_descriptors
+
 from zenslam.errors import ConfigError, VocabularyError
 from zenslam.vocabulary.training import TrainingConfig, train_vocabulary
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from vocabulary_helpers import descend_one, flip_bits, full_tree, random_descriptors
+
 from zenslam.errors import VocabularyError
 from zenslam.vocabulary import BowVector, Vocabulary
 

@@ -10,6 +10,8 @@ orientation agrees with the dominant ones.
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 
 from zenslam.descriptors import hamming_distance
@@ -94,7 +96,7 @@ def rotation_consistent(rotation_deg: np.ndarray) -> np.ndarray:
     counts = np.bincount(bins, minlength=HISTOGRAM_BINS)
     ranked = np.argsort(-counts, kind="stable")[:3]
     kept = [int(ranked[0])]
-    for previous, current in zip(ranked[:-1], ranked[1:]):
+    for previous, current in itertools.pairwise(ranked):
         if counts[current] == 0 or counts[current] < _SECONDARY_FRACTION * counts[previous]:
             break
         kept.append(int(current))

@@ -24,24 +24,23 @@ WEIGHTING_NAMES = ("tf-idf", "tf", "idf", "binary")
 L1_NORM, TF_IDF = 0, 0  # the only codes zenslam scores with
 _FIELDS = 2 + DESCRIPTOR_BYTES + 1  # parent, leaf flag, descriptor bytes, weight
 _BYTE_TEXT = [f"{value} " for value in range(256)]
+_WEIGHT_WINDOW = 40  # characters before a line end searched for the weight (ORBvoc's are ~8; repr's at most 24)
 
 
 def parse_dbow2_text(data: bytes, source: str) -> Vocabulary:
     """The vocabulary in DBoW2 text ``data`` (already decompressed); VocabularyError naming ``source``."""
-    try:
-        text = data.decode("ascii")
-    except UnicodeDecodeError as exc:
+    bad_byte = np.flatnonzero(np.frombuffer(data, dtype=np.uint8) >= 128)
+    if bad_byte.size:
         raise VocabularyError(
-            f"vocabulary {source}: not a text file (byte {exc.start} is not ASCII): give a zenslam .npz vocabulary "
-            "or a DBoW2 text vocabulary such as ORB-SLAM's ORBvoc.txt"
-        ) from None
-    header, _, body = text.partition("\n")
-    branching, depth = _parse_header(header, source)
-    values = _parse_numbers(body, source)
-    table = values.reshape(-1, _FIELDS)
-    _check_rows(table, source)
-    n = table.shape[0] + 1
-    parents = np.concatenate(([-1], table[:, 0].astype(np.int64)))
+            f"vocabulary {source}: not a text file (byte {int(bad_byte[0])} is not ASCII): give a zenslam .npz "
+            "vocabulary or a DBoW2 text vocabulary such as ORB-SLAM's ORBvoc.txt"
+        )
+    header, _, body = data.partition(b"\n")
+    branching, depth = _parse_header(header.decode("ascii"), source)
+    integers, weights = _parse_node_lines(body, source)
+    _check_rows(integers, weights, source)
+    n = integers.shape[0] + 1
+    parents = np.concatenate(([-1], integers[:, 0]))
     bad = np.flatnonzero(parents[1:] >= np.arange(1, n))
     if bad.size:
         node = int(bad[0]) + 1
@@ -50,9 +49,9 @@ def parse_dbow2_text(data: bytes, source: str) -> Vocabulary:
             "earlier node: the file is corrupt"
         )
     descriptors = np.zeros((n, DESCRIPTOR_BYTES), dtype=np.uint8)  # the root's is not in the file
-    descriptors[1:] = table[:, 2 : 2 + DESCRIPTOR_BYTES]
-    vocabulary = Vocabulary(branching, depth, parents, descriptors, np.concatenate(([0.0], table[:, -1])), source=source)
-    marked_leaf = np.concatenate(([False], table[:, 1] == 1))
+    descriptors[1:] = integers[:, 2:]
+    vocabulary = Vocabulary(branching, depth, parents, descriptors, np.concatenate(([0.0], weights)), source=source)
+    marked_leaf = np.concatenate(([False], integers[:, 1] == 1))
     wrong = np.flatnonzero(marked_leaf != vocabulary.is_leaf)
     if wrong.size:
         node = int(wrong[0])
@@ -90,71 +89,101 @@ def _parse_header(header: str, source: str) -> tuple[int, int]:
     return k, depth
 
 
-def _parse_numbers(body: str, source: str) -> np.ndarray:
-    """All numbers of the node lines, (lines * 35,) float64; on any malformed line, an error naming it."""
+def _parse_node_lines(body: bytes, source: str) -> tuple[np.ndarray, np.ndarray]:
+    """(n, 34) int64 (parent, leaf flag, 32 descriptor values) and (n,) float64 weights of the node lines.
+
+    ORBvoc.txt has a million lines: numpy parses the integers of all lines at once, and the weights
+    (the last field, the only one that is not an integer) are cut out of the text first, looked
+    for in a window before each line end. Anything unexpected sends the text to a line-by-line
+    check that names the first bad line.
+    """
+    body = body.rstrip() + b"\n"
+    raw = np.frombuffer(body, dtype=np.uint8)
+    ends = np.flatnonzero(raw == ord("\n"))
+    if body == b"\n":
+        raise VocabularyError(f"vocabulary {source}: no nodes after the header: the file is truncated")
+    index = np.int32 if raw.size < 2**31 else np.int64  # halves the window's memory for any real file
+    back = np.arange(1, _WEIGHT_WINDOW + 1, dtype=index)
+    at = np.maximum(ends.astype(index)[:, None] - back, 0)  # (lines, window): the bytes before each line end, last first
+    window = raw[at]
+    space = (window == ord(" ")) | (window == ord("\r")) | (window == ord("\t"))
+    last_char = np.argmax(~space, axis=1)  # skips trailing blanks (and a \r)
+    after_weight = space & (back - 1 > last_char[:, None])
+    weight_len = np.argmax(after_weight, axis=1) - last_char
+    in_weight = (back - 1 >= last_char[:, None]) & (back - 1 < (last_char + weight_len)[:, None])
+    lines = ends.size
+    if not after_weight.any(axis=1).all() or np.any(raw[ends[:-1] + 1] == ord("\n")):
+        raise _first_bad_line(body, source)
+    integer_text = raw.copy()
+    integer_text[at[in_weight]] = ord(" ")
+    weight_text = np.where(in_weight, window, ord(" "))[:, ::-1]
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         try:
-            values = np.fromstring(body, dtype=np.float64, sep=" ")  # any whitespace separates
+            integers = np.fromstring(integer_text.tobytes(), dtype=np.int64, sep=" ")  # any whitespace separates
+            weights = np.array([float(w) for w in weight_text.tobytes().split()], dtype=np.float64)
         except (DeprecationWarning, ValueError):
-            values = None
-    lines = sum(1 for line in body.splitlines() if line.strip())
-    if values is None or values.size != lines * _FIELDS:
+            raise _first_bad_line(body, source) from None
+    if integers.size != lines * (_FIELDS - 1) or weights.size != lines:
         raise _first_bad_line(body, source)
-    if lines == 0:
-        raise VocabularyError(f"vocabulary {source}: no nodes after the header: the file is truncated")
-    return values
+    return integers.reshape(lines, _FIELDS - 1), weights
 
 
-def _first_bad_line(body: str, source: str) -> VocabularyError:
-    for number, line in enumerate(body.splitlines(), start=2):
+def _first_bad_line(body: bytes, source: str) -> VocabularyError:
+    for number, line in enumerate(body.decode("ascii").split("\n"), start=2):
         fields = line.split()
         if not fields:
-            continue
+            return VocabularyError(f"vocabulary {source}, line {number} is empty: the file is corrupt")
         if len(fields) != _FIELDS:
             values = len(fields) - 3
             hint = (
                 f"descriptors of {values} values: zenslam needs 256-bit ORB descriptors ({DESCRIPTOR_BYTES} bytes)"
                 + (" (64 values: a SURF vocabulary?)" if values == 64 else "")
-                if values > 0 and len(fields) > _FIELDS
+                if len(fields) > _FIELDS
                 else "the file is truncated or corrupt"
             )
             return VocabularyError(
                 f"vocabulary {source}, line {number}: {len(fields)} fields, expected {_FIELDS} (parent, leaf flag, "
                 f"{DESCRIPTOR_BYTES} descriptor bytes, weight): {hint}"
             )
-        for field in fields:
+        for position, field in enumerate(fields):
             try:
-                float(field)
+                value = float(field)
             except ValueError:
                 return VocabularyError(f"vocabulary {source}, line {number}: {field[:20]!r} is not a number: the file is corrupt")
+            if 2 <= position < _FIELDS - 1 and not (value == int(value) and 0 <= value <= 255):
+                return VocabularyError(
+                    f"vocabulary {source}, line {number}: descriptor value {field[:20]} is not a byte (0-255): zenslam "
+                    f"needs 256-bit ORB descriptors ({DESCRIPTOR_BYTES} bytes per node), not float descriptors such as SURF's"
+                )
+            if position < 2 and value != int(value):
+                return VocabularyError(f"vocabulary {source}, line {number}: {field[:20]} is not an integer: the file is corrupt")
     return VocabularyError(f"vocabulary {source}: the node lines cannot be read: the file is corrupt")
 
 
-def _check_rows(table: np.ndarray, source: str) -> None:
+def _check_rows(integers: np.ndarray, weights: np.ndarray, source: str) -> None:
     def fail(row: int, problem: str) -> VocabularyError:
         return VocabularyError(f"vocabulary {source}, line {row + 2}: {problem}")
 
-    parent, leaf = table[:, 0], table[:, 1]
-    descriptor, weight = table[:, 2 : 2 + DESCRIPTOR_BYTES], table[:, -1]
-    bad = np.flatnonzero((parent != np.round(parent)) | (parent < 0))
+    parent, leaf, descriptor = integers[:, 0], integers[:, 1], integers[:, 2:]
+    bad = np.flatnonzero(parent < 0)
     if bad.size:
         raise fail(int(bad[0]), f"parent {parent[bad[0]]} is not a node id: the file is corrupt")
     bad = np.flatnonzero((leaf != 0) & (leaf != 1))
     if bad.size:
         raise fail(int(bad[0]), f"leaf flag {leaf[bad[0]]} is not 0 or 1: the file is corrupt")
-    not_byte = (descriptor != np.round(descriptor)) | (descriptor < 0) | (descriptor > 255)
+    not_byte = (descriptor < 0) | (descriptor > 255)
     bad = np.flatnonzero(not_byte.any(axis=1))
     if bad.size:
         value = descriptor[bad[0]][not_byte[bad[0]]][0]
         raise fail(
             int(bad[0]),
             f"descriptor value {value} is not a byte (0-255): zenslam needs 256-bit ORB descriptors "
-            f"({DESCRIPTOR_BYTES} bytes per node), not float descriptors such as SURF's",
+            f"({DESCRIPTOR_BYTES} bytes per node)",
         )
-    bad = np.flatnonzero(~np.isfinite(weight) | (weight < 0))
+    bad = np.flatnonzero(~np.isfinite(weights) | (weights < 0))
     if bad.size:
-        raise fail(int(bad[0]), f"weight {weight[bad[0]]} is not a finite, non-negative idf: the file is corrupt")
+        raise fail(int(bad[0]), f"weight {weights[bad[0]]} is not a finite, non-negative idf: the file is corrupt")
 
 
 def format_dbow2_text(vocabulary: Vocabulary) -> str:

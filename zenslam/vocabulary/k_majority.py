@@ -67,10 +67,10 @@ def k_majority(
 
 
 def _distances(d64: np.ndarray, centres: np.ndarray) -> np.ndarray:
-    """Hamming distances of rows (n, 4) to the rows of (n, 4) or (n, k, 4) uint64 centres."""
-    counts = np.bitwise_count(centres ^ (d64[:, None, :] if centres.ndim == 3 else d64))
+    """Row-wise Hamming distances between (n, 4) uint64 descriptors and (n, 4) uint64 centres, int64."""
+    counts = np.bitwise_count(centres ^ d64)
     # Two words add up to at most 128, safe in uint8; the total (up to 256) is not.
-    return (counts[..., 0] + counts[..., 1]).astype(np.int64) + (counts[..., 2] + counts[..., 3])
+    return (counts[:, 0] + counts[:, 1]).astype(np.int64) + (counts[:, 2] + counts[:, 3])
 
 
 def _seed(

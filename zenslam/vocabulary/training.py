@@ -94,7 +94,6 @@ def _grow_tree(
     descriptors: np.ndarray, config: TrainingConfig, on_level: LevelCallback | None
 ) -> tuple[np.ndarray, np.ndarray]:
     """(parents (n,) int64 with -1 for the root, node descriptors (n, 32) uint8), nodes level by level."""
-    k = config.branching
     rng = np.random.default_rng(config.seed)
     parents: list[np.ndarray] = [np.array([-1], dtype=np.int64)]
     node_descriptors: list[np.ndarray] = [np.zeros((1, DESCRIPTOR_BYTES), dtype=np.uint8)]
@@ -105,81 +104,99 @@ def _grow_tree(
         if rows.size == 0:
             break
         level_start = time.perf_counter()
-        seg = np.flatnonzero(np.concatenate(([True], node[1:] != node[:-1])))
-        sizes = np.diff(np.append(seg, rows.size))
-        group_of = np.repeat(np.arange(seg.size), sizes)
-        child_in_group = np.full(rows.size, -1, dtype=np.int64)
-        n_children = np.zeros(seg.size, dtype=np.int64)
-        large = sizes > k
-        placed = []  # (group of each child, its rank in the group, its descriptor)
-        placed.append(_split_large(descriptors, rows, group_of, np.flatnonzero(large), seg, sizes, k, rng, config,
-                                   child_in_group, n_children))
-        placed.append(_split_small(descriptors, rows, group_of, np.flatnonzero(~large & (sizes > 1)), child_in_group,
-                                   n_children))
-        offsets = n_nodes + np.concatenate(([0], np.cumsum(n_children)))[:-1]
+        first = np.flatnonzero(np.concatenate(([True], node[1:] != node[:-1])))  # first row of each node
+        sizes = np.diff(np.append(first, rows.size))
+        group_of = np.repeat(np.arange(first.size), sizes)  # node of each row, as an index into ``first``
+        splits = (
+            _split_large(descriptors, rows, group_of, sizes, sizes > config.branching, config, rng),
+            _split_small(descriptors, rows, group_of, (sizes > 1) & (sizes <= config.branching)),
+        )
+        n_children = np.bincount(np.concatenate([s.child_group for s in splits]), minlength=first.size)
+        offsets = n_nodes + np.concatenate(([0], np.cumsum(n_children)))[:-1]  # id of each node's first child
         total = int(n_children.sum())
         level_parents = np.empty(total, dtype=np.int64)
         level_descriptors = np.empty((total, DESCRIPTOR_BYTES), dtype=np.uint8)
-        for groups, ranks, child_descriptors in placed:
-            at = offsets[groups] + ranks - n_nodes
-            level_parents[at] = node[seg[groups]]
-            level_descriptors[at] = child_descriptors
+        child_of_row = np.full(rows.size, -1, dtype=np.int64)
+        for split in splits:
+            at = offsets[split.child_group] + split.child_rank - n_nodes
+            level_parents[at] = node[first[split.child_group]]
+            level_descriptors[at] = split.child_descriptors
+            going_on = split.member_child >= 0
+            members = split.members[going_on]
+            child_of_row[members] = offsets[group_of[members]] + split.member_child[going_on]
         parents.append(level_parents)
         node_descriptors.append(level_descriptors)
         n_nodes += total
-        descending = np.flatnonzero(child_in_group >= 0)
-        new_node = offsets[group_of[descending]] + child_in_group[descending]
-        order = np.argsort(new_node, kind="stable")
-        rows, node = rows[descending[order]], new_node[order]
-        logger.debug("level %d: %d nodes split into %d in %.1f s", level, int((n_children > 0).sum()), total,
-                     time.perf_counter() - level_start)
+        descending = np.flatnonzero(child_of_row >= 0)
+        order = np.argsort(child_of_row[descending], kind="stable")
+        rows, node = rows[descending[order]], child_of_row[descending[order]]
+        split_nodes = int((n_children > 0).sum())
+        logger.debug("level %d: %d nodes split into %d in %.1f s", level, split_nodes, total, time.perf_counter() - level_start)
         if on_level is not None:
-            on_level(level, int((n_children > 0).sum()), int(rows.size))
+            on_level(level, split_nodes, int(rows.size))
     return np.concatenate(parents), np.concatenate(node_descriptors)
 
 
-def _split_large(descriptors, rows, group_of, groups, seg, sizes, k, rng, config, child_in_group, n_children):
-    """k-majority on every group of more than k descriptors; fills ``child_in_group`` and ``n_children``."""
+@dataclass(frozen=True, eq=False)
+class _Split:
+    """Children made for some nodes of a level.
+
+    ``members``: the rows split; ``member_child``: the rank (among its node's children) of the child
+    each goes to, -1 when its node gets none. Per child: ``child_group`` (its node, an index into
+    the level's nodes), ``child_rank`` and ``child_descriptors``.
+    """
+
+    members: np.ndarray
+    member_child: np.ndarray
+    child_group: np.ndarray
+    child_rank: np.ndarray
+    child_descriptors: np.ndarray
+
+
+def _split_large(
+    descriptors: np.ndarray, rows: np.ndarray, group_of: np.ndarray, sizes: np.ndarray, chosen: np.ndarray,
+    config: TrainingConfig, rng: np.random.Generator,
+) -> _Split:
+    """k-majority on the ``chosen`` nodes (more than k descriptors each): one child per non-empty cluster."""
+    groups = np.flatnonzero(chosen)
+    members = np.flatnonzero(chosen[group_of])
     if groups.size == 0:
-        return _nothing_placed()
-    members = np.flatnonzero(np.isin(group_of, groups, assume_unique=False)) if groups.size < seg.size else np.arange(rows.size)
+        return _nothing_split()
     starts = np.concatenate(([0], np.cumsum(sizes[groups])))
-    result = k_majority(descriptors[rows[members]], starts, k, rng, config.max_iterations)
+    result = k_majority(descriptors[rows[members]], starts, config.branching, rng, config.max_iterations)
     logger.debug("k-majority on %d nodes of %d descriptors: %d passes", groups.size, members.size, result.iterations)
-    rank = np.cumsum(result.present, axis=1) - 1
+    rank = np.cumsum(result.present, axis=1) - 1  # empty clusters get no child: ranks skip them
     local_group = np.repeat(np.arange(groups.size), sizes[groups])
-    child_in_group[members] = rank[local_group, result.labels]
-    n_children[groups] = result.present.sum(axis=1)
     g, slot = np.nonzero(result.present)
-    return groups[g], rank[g, slot], result.centres[g, slot]
+    return _Split(members, rank[local_group, result.labels], groups[g], rank[g, slot], result.centres[g, slot])
 
 
-def _split_small(descriptors, rows, group_of, groups, child_in_group, n_children):
-    """One leaf child per distinct descriptor of every group of 2..k descriptors (none when all are equal)."""
-    if groups.size == 0:
-        return _nothing_placed()
-    members = np.flatnonzero(np.isin(group_of, groups))
+def _split_small(descriptors: np.ndarray, rows: np.ndarray, group_of: np.ndarray, chosen: np.ndarray) -> _Split:
+    """One leaf child per distinct descriptor of the ``chosen`` nodes (2..k descriptors; none when all are equal)."""
+    members = np.flatnonzero(chosen[group_of])
+    if members.size == 0:
+        return _nothing_split()
     d64 = descriptors[rows[members]].view(np.uint64)
     member_group = group_of[members]
-    order = np.lexsort((d64[:, 3], d64[:, 2], d64[:, 1], d64[:, 0], member_group))
+    order = np.lexsort((d64[:, 3], d64[:, 2], d64[:, 1], d64[:, 0], member_group))  # by node, then descriptor
     sorted_d64, sorted_group = d64[order], member_group[order]
     new_group = np.concatenate(([True], sorted_group[1:] != sorted_group[:-1]))
     distinct = new_group | np.concatenate(([True], np.any(sorted_d64[1:] != sorted_d64[:-1], axis=1)))
     distinct_index = np.cumsum(distinct) - 1
-    first_distinct_of_group = distinct_index[np.flatnonzero(new_group)]
     group_rank = np.cumsum(new_group) - 1
-    rank = distinct_index - first_distinct_of_group[group_rank]
-    count = np.bincount(group_rank, weights=distinct, minlength=groups.size).astype(np.int64)
-    splits = count > 1
-    keep = splits[group_rank]
-    child_in_group[members[order[keep]]] = rank[keep]
-    n_children[groups[splits]] = count[splits]
+    rank = distinct_index - distinct_index[np.flatnonzero(new_group)][group_rank]
+    count = np.bincount(group_rank, weights=distinct).astype(np.int64)
+    keep = (count > 1)[group_rank]
+    member_child = np.full(members.size, -1, dtype=np.int64)
+    member_child[order[keep]] = rank[keep]
     firsts = distinct & keep
-    return sorted_group[firsts], rank[firsts], sorted_d64[firsts].view(np.uint8).reshape(-1, DESCRIPTOR_BYTES)
+    return _Split(members, member_child, sorted_group[firsts], rank[firsts],
+                  sorted_d64[firsts].view(np.uint8).reshape(-1, DESCRIPTOR_BYTES))
 
 
-def _nothing_placed() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, DESCRIPTOR_BYTES), np.uint8)
+def _nothing_split() -> _Split:
+    empty = np.zeros(0, np.int64)
+    return _Split(empty, empty, empty, empty, np.zeros((0, DESCRIPTOR_BYTES), np.uint8))
 
 
 def expected_nodes(branching: int, depth: int) -> int:

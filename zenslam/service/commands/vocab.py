@@ -90,6 +90,7 @@ def run_train(args: argparse.Namespace) -> int:
                 f"max_iterations={config.max_iterations}; zenslam {__version__}",
             },
         )
+    args.output.parent.mkdir(parents=True, exist_ok=True)
     path = save_vocabulary(vocabulary, args.output)
     descriptors = sum(d.shape[0] for d in images)
     for part in parts:
