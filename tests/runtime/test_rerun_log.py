@@ -138,7 +138,8 @@ def _mapper(ba: bool) -> _Mapper:
     points = {5: SimpleNamespace(p_world=np.array([0.0, 1.0, 5.0])), 3: SimpleNamespace(p_world=np.array([1.0, 1.0, 4.0]))}
     graph = SimpleNamespace(edges=lambda: [(0, 1, 40), (0, 2, 20), (1, 2, 30)])
     stats = {"initial_error": 9.0, "final_error": 1.0} if ba else {}
-    return _Mapper(SimpleNamespace(keyframes=keyframes, points=points, covisibility=graph), stats)
+    essential = SimpleNamespace(loop_edges=lambda: [(0, 2)])
+    return _Mapper(SimpleNamespace(keyframes=keyframes, points=points, covisibility=graph, essential_graph=essential), stats)
 
 
 def test_the_backend_logs_the_map_its_graphs_local_ba_counts_and_timings(tmp_path):
@@ -154,6 +155,7 @@ def test_the_backend_logs_the_map_its_graphs_local_ba_counts_and_timings(tmp_pat
     assert _value(data, "/backend/map_points", "Points3D:positions", 9) == [[1, 1, 4], [0, 1, 5]]  # ids ascending
     strips = _value(data, "/backend/covisibility", "LineStrips3D:strips", 4)
     assert strips == [[[0, 0, 0], [1, 0, 0]], [[0, 0, 0], [2, 0, 0]], [[1, 0, 0], [2, 0, 0]]]
+    assert _value(data, "/backend/loops", "LineStrips3D:strips", 4) == [[[0, 0, 0], [2, 0, 0]]]
     assert _frames(data, "/backend/local_ba/before", "Scalars:scalars") == [9]  # no BA at frame 4
     assert _value(data, "/backend/local_ba/after", "Scalars:scalars", 9) == [1.0]
     assert _value(data, "/backend/counts/map_points", "Scalars:scalars", 4) == [2.0]
