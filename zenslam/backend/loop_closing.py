@@ -116,7 +116,8 @@ class LoopCloser:
         neighbours_before = {k: set(bmap.covisibility.connected(k)) for k in neighbourhood}
         self._move_neighbourhood(corrected, correction)
         fused = self._fuse_loop_points(match, neighbourhood)
-        connections = self._loop_connections(neighbourhood, neighbours_before)
+        # ORB-SLAM's loop connections; when fusion linked nothing new, the ties of the check hold the loop.
+        connections = self._loop_connections(neighbourhood, neighbours_before) or ties
         result = self._optimize(poses_before, corrected, connections, match, with_scale)
         correct_points_after_pose_graph(bmap, result)  # from the initial values: the corrected neighbourhood
         bmap.refresh_points()
