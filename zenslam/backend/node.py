@@ -23,7 +23,6 @@ import logging
 import os
 import sys
 import time
-from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
@@ -97,7 +96,6 @@ class BackendNode:
         self.rerun = rerun  # logs the map, graphs and timings after each keyframe to the stage's .rrd
         self.processed = 0  # keyframes processed
         self.finished = False  # the input's end of stream has been processed
-        self.loop_counts: Counter[str] = Counter()  # candidates verified, accepted, rejected
 
     @classmethod
     def from_config(cls, config: BackendConfig, global_ba_in_background: bool = False) -> BackendNode:
@@ -149,11 +147,8 @@ class BackendNode:
         outcome = self.loop_closer.process(kf_id)
         self.mapper.last_timings_ms["loop_closing"] = (time.perf_counter() - started) * 1e3
         loops = loop_messages(self.map, outcome, T_before)
-        self.loop_counts["candidates"] += len(loops)
-        self.loop_counts["rejected"] += len(outcome.rejections)
         if not outcome.accepted:
             return [], loops
-        self.loop_counts["accepted"] += 1
         if self.global_ba is not None:
             started = time.perf_counter()
             if self.global_ba.start():
