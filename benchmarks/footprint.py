@@ -8,7 +8,8 @@ matters for growth in a process's last moments. The sum of the per-process peaks
 the issue's target is about (processes peak at different times, so the real simultaneous peak is
 lower). Then it sums the run folder per file and run.mcap per topic: the messages' own bytes
 (uncompressed) and their share of the file's compressed chunks (each chunk's compressed size
-split across topics in proportion to their bytes in it).
+split across topics in proportion to what each topic's bytes in it compress to alone, with the
+chunk's codec: PNG images that do not shrink are not credited with the map updates' compression).
 
 RSS is barely affected by the machine's load; the wall time is (it is printed with the load average).
 
@@ -29,7 +30,9 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
+import lz4.frame
 import psutil
+import zstandard
 from mcap.records import Channel, Chunk, Message
 from mcap.stream_reader import StreamReader, breakup_chunk
 
@@ -103,6 +106,15 @@ def folder_sizes(run_dir: Path) -> dict[str, int]:
     return dict(sorted(sizes.items(), key=lambda kv: -kv[1]))
 
 
+def compressed_size(data: bytes, compression: str) -> int:
+    """Bytes of ``data`` compressed as an MCAP chunk with ``compression`` ("zstd", "lz4" or "") would be."""
+    if compression == "zstd":
+        return len(zstandard.compress(data))
+    if compression == "lz4":
+        return len(lz4.frame.compress(data))
+    return len(data)
+
+
 def mcap_channels(path: Path) -> dict[str, dict[str, float]]:
     """Per topic of an MCAP file: messages, their bytes, and their estimated share of the compressed chunks."""
     topics: dict[int, str] = {}
@@ -112,17 +124,18 @@ def mcap_channels(path: Path) -> dict[str, dict[str, float]]:
             if isinstance(record, Channel):
                 topics[record.id] = record.topic
             elif isinstance(record, Chunk):
-                in_chunk: dict[str, int] = defaultdict(int)
+                in_chunk: dict[str, list[bytes]] = defaultdict(list)
                 for inner in breakup_chunk(record):
                     if isinstance(inner, Channel):
                         topics[inner.id] = inner.topic
                     elif isinstance(inner, Message):
-                        in_chunk[topics[inner.channel_id]] += len(inner.data)
+                        in_chunk[topics[inner.channel_id]].append(inner.data)
                         stats[topics[inner.channel_id]]["messages"] += 1
-                total = sum(in_chunk.values()) or 1
-                for topic, size in in_chunk.items():
-                    stats[topic]["bytes"] += size
-                    stats[topic]["stored_bytes"] += len(record.data) * size / total
+                alone = {topic: compressed_size(b"".join(parts), record.compression) for topic, parts in in_chunk.items()}
+                total = sum(alone.values()) or 1
+                for topic, parts in in_chunk.items():
+                    stats[topic]["bytes"] += sum(len(p) for p in parts)
+                    stats[topic]["stored_bytes"] += len(record.data) * alone[topic] / total
             elif isinstance(record, Message):  # outside chunks: stored as is
                 topic = topics[record.channel_id]
                 stats[topic]["messages"] += 1

@@ -26,7 +26,7 @@ from pathlib import Path
 from mcap.reader import make_reader
 
 from zenslam.schemas import codec
-from zenslam.service.mcap_io import RecordingWriter
+from zenslam.service.mcap_io import RecordingWriter, iter_messages
 from zenslam.service.recorder import compressed_image
 from zenslam.service.run_config import RecorderConfig
 
@@ -69,11 +69,10 @@ def main() -> None:
     args = parser.parse_args()
     messages = read_messages(args.recording)
     images = []
-    for topic, _, _, data in messages:
-        if topic == "/sensor/frame":
-            message = codec.decode_sensor_frame(data)
-            if isinstance(message, codec.FrameMessage):
-                images += [(message.frame.stamp_ns, im) for im in (message.frame.left, message.frame.right) if im is not None]
+    for recorded in iter_messages(args.recording, ["/sensor/frame"]):  # whole frames, images put back
+        message = codec.decode_sensor_frame(recorded.data)
+        if isinstance(message, codec.FrameMessage):
+            images += [(message.frame.stamp_ns, im) for im in (message.frame.left, message.frame.right) if im is not None]
     chunks = {c: [] for c in COMPRESSIONS}
     encodings = {f: [] for f in ("png", "jpeg")}
     with tempfile.TemporaryDirectory() as tmp:

@@ -78,3 +78,27 @@ def test_tour_commands_run_in_order(tmp_path: Path, data_root: Path, kitti_root:
     assert (checkout / "recordings" / "kitti06" / "eval" / "metrics.json").is_file()
     assert (checkout / "recordings" / "kitti06" / "export" / "points.ply").is_file()
     assert (checkout / "recordings" / "loop_tum" / "metrics.json").is_file()
+
+
+@pytest.mark.slow(30)  # ORB on 40 frames and a k=10, L=5 tree
+def test_vocab_commands_run_in_order(tmp_path: Path, data_root: Path):
+    """Every line of the README's vocabulary section, run from a checkout whose ../shared/data is the real one."""
+    if not (data_root / "euroc" / "V1_01_easy_revisits").is_dir() or not (data_root / "kitti_odometry").is_dir():
+        pytest.skip(f"the EuRoC revisits and KITTI clips are not both in {data_root}")
+    checkout = tmp_path / "checkout"
+    checkout.mkdir()
+    (tmp_path / "shared").mkdir()
+    (tmp_path / "shared" / "data").symlink_to(data_root)
+    bin_dir = Path(sys.executable).parent
+    for line in readme_command("vocab").splitlines():
+        result = subprocess.run(
+            ["bash", "-c", line], cwd=checkout, capture_output=True, text=True, timeout=900,
+            env={"PATH": f"{bin_dir}:/usr/local/bin:/usr/bin:/bin", "HOME": str(Path.home())},
+        )
+        assert result.returncode == 0, f"{line}\n{result.stdout[-2000:]}\n{result.stderr[-2000:]}"
+        if line.startswith("zenslam vocab score"):
+            assert re.search(r"^score: 0\.\d{4}$", result.stdout, re.MULTILINE), result.stdout
+        if line.startswith("zenslam vocab info"):
+            assert re.search(r"^k: +10$", result.stdout, re.MULTILINE), result.stdout
+            assert re.search(r"^L: +5$", result.stdout, re.MULTILINE), result.stdout
+    assert (checkout / "recordings" / "vocab" / "small.txt.gz").is_file()

@@ -50,6 +50,10 @@ class ConfigError(ZenslamError):
     """A configuration file or value is invalid."""
 
 
+class VocabularyError(ZenslamError):
+    """A bag-of-words vocabulary file is missing, corrupt, or not one of 256-bit ORB descriptors."""
+
+
 class SourceSpecError(ZenslamError):
     """A source name such as ``kitti:<path>`` cannot be understood."""
 

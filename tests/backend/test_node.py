@@ -72,7 +72,7 @@ def _node() -> BackendNode:
 def test_step_returns_the_update_of_each_keyframe_and_its_timings():
     world, node = World(), _node()
     for k in range(4):
-        update = node.step(world.keyframe(k))
+        update = node.step(world.keyframe(k)).updates[0]
         assert (update.keyframe_id, update.stamp_ns) == (k, k * 100_000_000)
         assert k in [c.id for c in update.keyframes]
     assert node.processed == 4 and not node.finished

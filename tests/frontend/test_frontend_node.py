@@ -42,7 +42,7 @@ class StubPipeline:
         self.prepared.append(index)
         return SimpleNamespace(index=index)
 
-    def step(self, index, stamp_ns, left, right=None, depth_m=None, keyframes_in_flight=0, prepared=None):
+    def step(self, index, stamp_ns, left, right=None, depth_m=None, keyframes_in_flight=0, prepared=None, candidates=None):
         assert left.shape == (24, 32) and right is not None and depth_m is None
         assert prepared is None or prepared.index == index
         self.used_prepared.append(prepared is not None)
@@ -55,6 +55,7 @@ class StubPipeline:
             keyframe=None if lost or index % 2 else _keyframe(index, stamp_ns),
             timings_ms={"extraction": 1.0, "total": 2.0 + index},
             reference_keyframe_id=-1 if lost else index // 2, T_reference_cam=None if lost else make_T(np.eye(3), [0, 0, index]),
+            relocalised=False,
         )
 
 

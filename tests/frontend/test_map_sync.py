@@ -42,7 +42,7 @@ def synced_run():
         if out.keyframe is None:
             continue
         sent = codec.encode_keyframe(keyframe_message(out.keyframe, source.calibration, source.sensor))
-        update = codec.decode_map_update(codec.encode_map_update(backend.step(codec.decode_keyframe(sent))))
+        update = codec.decode_map_update(codec.encode_map_update(backend.step(codec.decode_keyframe(sent)).updates[0]))
         pipeline.apply_map_update(update)
         checks.append((update, _disagreements(pipeline.tracker.map, backend.mapper.map, update)))
     trajectory = Trajectory(np.array([s for s, _ in poses], dtype=np.int64), np.stack([T for _, T in poses]))

@@ -1,7 +1,8 @@
 """Replay as a regression test: the committed golden recording, and a fresh KITTI run, replay identically.
 
-The golden (recordings/golden/synthetic_loop: 20 lockstep frames of the synthetic loop at 256x192)
-guards behaviour: any change in what the frontend or backend publish fails here. When a change is
+The golden (recordings/golden/synthetic_loop: 101 lockstep frames of the synthetic loop scene, two
+5 Hz laps of a short lap at 192x144, with a loop closed on the second lap and a global BA) guards
+behaviour: any change in what the frontend or backend publish fails here. When a change is
 intended, regenerate it with ``python scripts/regenerate_golden.py`` and commit it with the change.
 It was made on another machine: the stage processes pin their math kernels
 (zenslam.runtime.cpu_kernels), so it replays bit for bit whatever kernels the machine, or the
@@ -19,7 +20,10 @@ from pathlib import Path
 import pytest
 
 from zenslam.runtime import cpu_kernels
+from zenslam.schemas import codec
+from zenslam.schemas.map_update import MapUpdate
 from zenslam.service import backend_replay, replay
+from zenslam.service.evaluation.loop_acceptance import loop_error
 from zenslam.service.sources.mcap_source import McapSource
 
 pytestmark = pytest.mark.integration
@@ -27,7 +31,7 @@ pytestmark = pytest.mark.integration
 REPO_ROOT = Path(__file__).resolve().parents[2]
 GOLDEN = REPO_ROOT / "recordings" / "golden" / "synthetic_loop" / "run.mcap"
 REGENERATE = "if the change is intended, run `python scripts/regenerate_golden.py` and commit the new golden with it"
-MAX_GOLDEN_BYTES = 4_000_000
+MAX_GOLDEN_BYTES = 20_000_000  # most of it: the map updates of 50 keyframes, a loop correction and a global BA
 
 
 # The replay command's own kernel choice: the machine's (no kernel variables set), or another one
@@ -55,9 +59,26 @@ def test_the_golden_is_a_small_lockstep_recording():
     assert GOLDEN.stat().st_size < MAX_GOLDEN_BYTES
     config = replay.recorded_run_config(GOLDEN)
     assert config.mode == "lockstep"
-    assert len(McapSource(GOLDEN)) == 20
-    counts = {topic: len(messages) for topic, messages in replay.read_topics(GOLDEN, replay.COMPARED_TOPICS).items()}
-    assert counts[replay.POSE_TOPIC] == 20 and counts[replay.KEYFRAME_TOPIC] >= 1 + 3  # 3 keyframes and the end
+    assert len(McapSource(GOLDEN)) == 101
+    streams = replay.read_topics(GOLDEN, replay.COMPARED_TOPICS)
+    assert len(streams[replay.POSE_TOPIC]) == 101 and len(streams[replay.KEYFRAME_TOPIC]) >= 1 + 3  # keyframes and the end
+
+
+def test_the_golden_closes_a_true_loop_and_corrects_the_map():
+    """The replays below cover loop closing: the golden holds an accepted loop, right by its ground
+    truth, and the correction it published."""
+    streams = replay.read_topics(GOLDEN, (replay.LOOP_TOPIC, replay.MAP_UPDATE_TOPIC))
+    loops = [codec.decode_loop(m.data) for m in streams[replay.LOOP_TOPIC]]
+    accepted = [loop for loop in loops if loop.accepted]
+    assert accepted, f"no accepted loop among {len(loops)} verified candidates; {REGENERATE}"
+    truth = McapSource(GOLDEN).ground_truth()
+    for loop in accepted:
+        translation_m, rotation_deg = loop_error(loop, truth)
+        assert translation_m < 0.05 and rotation_deg < 1.0, (loop.keyframe_id, loop.loop_keyframe_id, translation_m, rotation_deg)
+    updates = [codec.decode_map_update(m.data) for m in streams[replay.MAP_UPDATE_TOPIC]]
+    corrections = [u for u in updates if isinstance(u, MapUpdate) and u.kind == "correction"]
+    assert len(corrections) >= len(accepted)
+    assert sum(u.corrections_following for u in updates if isinstance(u, MapUpdate)) == len(corrections)
 
 
 @pytest.mark.parametrize("kernels", KERNEL_CHOICES.values(), ids=KERNEL_CHOICES)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import subprocess
 import sys
@@ -316,3 +317,27 @@ def test_generated_code_matches_the_proto():
         [sys.executable, str(REPO_ROOT / "scripts" / "generate_schemas.py"), "--check"], capture_output=True, text=True, timeout=120
     )
     assert result.returncode == 0, result.stdout + result.stderr
+
+
+def test_loop_messages_round_trip_accepted_and_rejected():
+    from zenslam.geometry import make_T, so3_exp
+
+    T_a = make_T(so3_exp(np.array([0.1, -0.2, 0.3])), np.array([1.0, 2.0, 3.0]))
+    T_b = make_T(so3_exp(np.array([0.0, 0.5, 0.0])), np.array([-1.0, 0.0, 4.0]))
+    accepted = codec.LoopMessage(
+        keyframe_id=40, stamp_ns=4_000, loop_keyframe_id=3, loop_stamp_ns=300, accepted=True, reason="",
+        T_world_cur_before=T_a, T_world_loop=T_b, T_cur_loop=T_b, scale=1.0, inliers=87, T_world_cur_after=T_a,
+    )
+    back = codec.decode_loop(codec.encode_loop(accepted))
+    assert (back.keyframe_id, back.loop_keyframe_id, back.loop_stamp_ns, back.accepted, back.inliers) == (40, 3, 300, True, 87)
+    np.testing.assert_allclose(back.T_cur_loop, T_b, atol=1e-12)
+    np.testing.assert_allclose(back.T_world_cur_after, T_a, atol=1e-12)
+    rejected = codec.decode_loop(codec.encode_loop(dataclasses.replace(accepted, accepted=False, reason="12 BoW matches < 20")))
+    assert not rejected.accepted and rejected.reason == "12 BoW matches < 20"
+    np.testing.assert_allclose(rejected.T_cur_loop, np.eye(4))
+
+
+def test_map_update_carries_the_corrections_that_follow_it():
+    update = codec.decode_map_update(codec.encode_map_update(MapUpdate(keyframe_id=5, stamp_ns=9, corrections_following=1)))
+    assert update.corrections_following == 1 and update.answers_keyframe
+    assert codec.decode_map_update(codec.encode_map_update(MapUpdate(keyframe_id=5, stamp_ns=9))).corrections_following == 0

@@ -17,6 +17,7 @@ DATA_KEYS = [
     keys.backend_loop,
     keys.backend_map_query,
     keys.backend_trajectory_query,
+    keys.backend_relocalisation_query,
 ]
 
 

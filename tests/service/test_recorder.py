@@ -12,8 +12,10 @@ import pytest
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
 from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+from mcap.reader import make_reader
 
 from zenslam.camera import PinholeCalibration
+from zenslam.errors import ConfigError
 from zenslam.schemas import codec, keys
 from zenslam.schemas import zenslam_pb2 as pb
 from zenslam.schemas.map_update import KeyframeCorrection, MapUpdate
@@ -77,11 +79,11 @@ def _by_topic(path) -> dict[str, list[mcap_io.RecordedMessage]]:
     return out
 
 
-@pytest.mark.parametrize("frame_images", ["png", "raw"])
-def test_frames_are_recorded_losslessly_in_png_or_raw(tmp_path, frame_images):
+@pytest.mark.parametrize(("frame_images", "image_format"), [("png", "frame"), ("png", "jpeg"), ("raw", "jpeg")])
+def test_frames_are_recorded_losslessly_in_png_or_raw(tmp_path, frame_images, image_format):
     sent = [_frame(i) for i in range(3)] + [codec.encode_end_of_stream(codec.SENSOR_FRAME, 3)]
     messages = [(keys.sensor_frame(SESSION), codec.SENSOR_FRAME, f) for f in sent]
-    path, _ = _record_all(tmp_path, messages, RecorderConfig(frame_images=frame_images))
+    path, _ = _record_all(tmp_path, messages, RecorderConfig(frame_images=frame_images, image_format=image_format))
     recorded = _by_topic(path)["/sensor/frame"]
     encoding = {"png": pb.IMAGE_ENCODING_PNG, "raw": pb.IMAGE_ENCODING_RAW}[frame_images]
     assert [pb.SensorFrame.FromString(m.data).image_encoding for m in recorded[:3]] == [encoding] * 3
@@ -99,6 +101,54 @@ def test_frames_are_recorded_losslessly_in_png_or_raw(tmp_path, frame_images):
         )
 
 
+def _stored(path) -> list[tuple[str, bytes]]:
+    """(topic, bytes) of every message as stored, in file order (no images put back)."""
+    with open(path, "rb") as f:
+        return [(channel.topic, message.data) for _, channel, message in make_reader(f).iter_messages(log_time_order=False)]
+
+
+def test_by_default_each_image_is_stored_once_as_the_viewers_camera_image(tmp_path):
+    assert RecorderConfig().image_format == "frame"
+    sent = [_frame(i) for i in range(3)]
+    path, _ = _record_all(tmp_path, [(keys.sensor_frame(SESSION), codec.SENSOR_FRAME, f) for f in sent])
+    stored = _stored(path)
+    # Per frame: its left and right images for viewers, then the frame without them.
+    assert [topic for topic, _ in stored] == ["/camera/left", "/camera/right", "/sensor/frame"] * 3
+    for i, data in enumerate(sent):
+        left, right, frame = (data for _, data in stored[3 * i : 3 * i + 3])
+        stored_frame = pb.SensorFrame.FromString(frame)
+        assert stored_frame.image_encoding == pb.IMAGE_ENCODING_PNG_APART and not stored_frame.left and not stored_frame.right
+        expected = codec.decode_sensor_frame(data).frame
+        for image_data, pixels in ((left, expected.left), (right, expected.right)):
+            image = CompressedImage.FromString(image_data)
+            assert image.format == "png" and image.timestamp.nanos == 1_000_000 * (i + 1)
+            np.testing.assert_array_equal(cv2.imdecode(np.frombuffer(image.data, np.uint8), cv2.IMREAD_UNCHANGED), pixels)
+    # Read back through mcap_io, the frames are whole again: the images put back as PNG.
+    recorded = _by_topic(path)
+    assert len(recorded["/camera/left"]) == len(recorded["/camera/right"]) == 3
+    for message, data in zip(recorded["/sensor/frame"], sent):
+        assert pb.SensorFrame.FromString(message.data).image_encoding == pb.IMAGE_ENCODING_PNG
+        got, expected = mcap_io.decode(message).frame, codec.decode_sensor_frame(data).frame
+        np.testing.assert_array_equal(got.left, expected.left)
+        np.testing.assert_array_equal(got.right, expected.right)
+    only_frames = list(mcap_io.iter_messages(path, ["/sensor/frame"]))  # camera channels read, not returned
+    assert [m.data for m in only_frames] == [m.data for m in recorded["/sensor/frame"]]
+
+
+def test_a_stored_apart_frame_without_its_images_is_an_error_naming_it(tmp_path):
+    path = tmp_path / "cut.mcap"
+    stored, _ = codec.sensor_frame_images_apart(_frame(0))
+    with mcap_io.RecordingWriter(path) as writer:
+        writer.write("/sensor/frame", codec.SENSOR_FRAME, stored, 1_000_000)
+    with pytest.raises(mcap_io.RecordingError, match=r"/sensor/frame message at 1000000 ns .* no /camera/left"):
+        list(mcap_io.iter_messages(path, ["/sensor/frame"]))
+
+
+def test_frame_images_for_viewers_need_png_frames():
+    with pytest.raises(ConfigError, match="image_format=frame .*frame_images=raw"):
+        RecorderConfig(frame_images="raw")
+
+
 def test_viewer_images_are_lossless_png_on_request(tmp_path):
     config = RecorderConfig(image_format="png")
     path, _ = _record_all(tmp_path, [(keys.sensor_frame(SESSION), codec.SENSOR_FRAME, _frame(i)) for i in range(3)], config)
@@ -113,11 +163,10 @@ def test_viewer_images_are_lossless_png_on_request(tmp_path):
         np.testing.assert_array_equal(decoded, expected)
 
 
-def test_viewer_images_are_jpeg_by_default(tmp_path):
-    assert RecorderConfig().image_format == "jpeg"
+def test_viewer_images_are_jpeg_copies_on_request(tmp_path):
     smooth = np.add.outer(np.arange(48), 2 * np.arange(64)).astype(np.uint8)  # a ramp, like natural images' large areas
     frame = codec.encode_sensor_frame(SensorFrame(0, 1_000_000, smooth, smooth), CAL, "stereo")
-    path, _ = _record_all(tmp_path, [(keys.sensor_frame(SESSION), codec.SENSOR_FRAME, frame)])
+    path, _ = _record_all(tmp_path, [(keys.sensor_frame(SESSION), codec.SENSOR_FRAME, frame)], RecorderConfig(image_format="jpeg"))
     topics = _by_topic(path)
     image = CompressedImage.FromString(topics["/camera/left"][0].data)
     assert image.format == "jpeg" and image.data[:2] == b"\xff\xd8"

@@ -10,6 +10,7 @@ import pytest
 
 from zenslam.camera import PinholeCalibration
 from zenslam.geometry import make_T, so3_exp
+from zenslam.backend.node import StepOutput
 from zenslam.schemas import codec
 from zenslam.schemas.map_update import KeyframeCorrection, MapUpdate
 from zenslam.service import backend_replay, mcap_io, replay
@@ -74,7 +75,7 @@ def _run_streams(frames: int = 4) -> dict[str, list[tuple[str, bytes, int]]]:
 
 
 def test_compared_topics_are_the_deterministic_ones():
-    assert replay.COMPARED_TOPICS == ("/frontend/pose", "/frontend/state", "/frontend/keyframe", "/backend/map_update")
+    assert replay.COMPARED_TOPICS == ("/frontend/pose", "/frontend/state", "/frontend/keyframe", "/backend/map_update", "/backend/loop")
 
 
 def _difference(schema: str, a: bytes, b: bytes, tolerance: float | None = None) -> tuple[str, str, str] | None:
@@ -190,7 +191,8 @@ def test_identical_recordings(tmp_path):
     comparison = replay.compare_recordings(a, b)
     assert comparison.identical and comparison.lines()[0] == "identical"
     assert comparison.counts == {
-        replay.POSE_TOPIC: (4, 4), replay.STATE_TOPIC: (5, 5), replay.KEYFRAME_TOPIC: (3, 3), replay.MAP_UPDATE_TOPIC: (3, 3)
+        replay.POSE_TOPIC: (4, 4), replay.STATE_TOPIC: (5, 5), replay.KEYFRAME_TOPIC: (3, 3), replay.MAP_UPDATE_TOPIC: (3, 3),
+        replay.LOOP_TOPIC: (0, 0),
     }  # fmt: skip
 
 
@@ -248,9 +250,9 @@ class _EchoBackend:
     def __init__(self) -> None:
         self.processed = 0
 
-    def step(self, keyframe: codec.KeyframeMessage) -> MapUpdate:
+    def step(self, keyframe: codec.KeyframeMessage) -> StepOutput:
         self.processed += 1
-        return codec.decode_map_update(_update(keyframe.id))
+        return StepOutput([codec.decode_map_update(_update(keyframe.id))])
 
 
 def test_backend_replay_compares_every_update_and_the_end_of_stream(tmp_path):

@@ -130,6 +130,20 @@ def test_timing_table_and_frame_counts():
     assert counts == {"frames": 5, "tracked_ok": 4, "lost_frames": 1, "lost_reasons": {"too few matches": 1}, "keyframes": 1}
 
 
+def test_relocalisation_counts_relocalised_frames_frames_without_a_pose_and_new_maps():
+    log = RunLog()
+    plan = [  # (state, has_pose, relocalised)
+        ("initializing", False, False), ("ok", True, False), ("lost", False, False), ("lost", False, False),
+        ("ok", True, True), ("lost", False, False), ("initializing", False, False), ("initializing", True, False),
+        ("ok", True, False),
+    ]  # fmt: skip
+    for i, (state, has_pose, relocalised) in enumerate(plan):
+        log.add_state(codec.TrackingStateMessage(i, i, state, has_pose=has_pose, relocalised=relocalised))
+    # The frame before the first map is no lost frame; the first map is no new one.
+    assert log.relocalisation_counts() == {"count": 1, "frames_lost": 4, "new_maps": 1}
+    assert RunLog().relocalisation_counts() == {"count": 0, "frames_lost": 0, "new_maps": 0}
+
+
 def test_outputs_with_ground_truth(tmp_path):
     truth = _truth(20)
     log = _log(truth, lost={7}, keyframes={0, 10}, rng=np.random.default_rng(2))
@@ -143,6 +157,7 @@ def test_outputs_with_ground_truth(tmp_path):
     assert metrics["ate"]["rmse_m"] < 0.003  # 1 mm noise per axis: about 1.7 mm
     assert metrics["ate"]["matched_poses"] == 19
     assert metrics["frames"] == 20 and metrics["lost_frames"] == 1 and metrics["run"] == {"run_id": "x"}
+    assert metrics["relocalisation"] == {"count": 0, "frames_lost": 1, "new_maps": 0}
     assert metrics["timing"]["total"]["frames"] == 20
     written = read_tum(tmp_path / "trajectory.tum")
     np.testing.assert_array_equal(written.stamps_ns, log.trajectory().stamps_ns)

@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 from zenslam.backend.ba_problem import LocalBAConfig
 from zenslam.backend.local_mapping import LocalMappingConfig
+from zenslam.backend.loop_closing_config import LoopClosingConfig
 from zenslam.errors import ConfigError
 
 
@@ -15,6 +16,10 @@ class BackendConfig:
 
     local_mapping: LocalMappingConfig = field(default_factory=LocalMappingConfig)
     local_ba: LocalBAConfig = field(default_factory=LocalBAConfig)
+    loop_closing: LoopClosingConfig = field(default_factory=LoopClosingConfig)
+    # Bag-of-words vocabulary for place recognition: a file (ours, or DBoW2 text as ORB-SLAM's
+    # ORBvoc.txt); empty = the vocabulary shipped with zenslam.
+    vocabulary: str = ""  # path
     # Keyframes the backend's inbox holds; when full the frontend's send blocks (lossless: never dropped).
     keyframe_queue: int = 32  # keyframes
     # After its input's end of stream the backend keeps answering backend/map and backend/trajectory

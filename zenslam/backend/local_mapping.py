@@ -25,9 +25,10 @@ from zenslam.backend.map import BackendKeyframe, BackendMap, MapChanges
 from zenslam.backend.point_culling import PointCullingConfig, count_visibility, cull_recent_points
 from zenslam.backend.point_fusion import FusionConfig, fuse_with_neighbours
 from zenslam.backend.triangulation import TriangulationConfig, create_new_points
+from zenslam.camera import PinholeCalibration
 from zenslam.errors import ConfigError
 from zenslam.schemas.codec import KeyframeMessage
-from zenslam.schemas.map_update import KeyframeCorrection, MapUpdate
+from zenslam.schemas.map_update import KeyframeCorrection, MapUpdate, MapUpdateKind
 
 logger = logging.getLogger(__name__)
 
@@ -166,7 +167,7 @@ class LocalMapper:
             if not deferred:
                 culled_kfs, touched = cull_redundant_keyframes(self.map, kf_id, self.config.keyframe_culling)
                 self.map.remove_weak_points(touched, self.config.min_keyframes_per_point)
-        update = _map_update(self.map, kf_id, keyframe.stamp_ns, self.map.take_changes())
+        update = map_update_from_changes(self.map, kf_id, keyframe.stamp_ns, self.map.take_changes())
         timings["total"] = (time.perf_counter() - started) * 1e3
         counts.update(points_created=len(created), points_culled=len(culled), keyframes_culled=len(culled_kfs))
         counts["deferred"] = int(deferred)
@@ -273,6 +274,21 @@ def local_ba_window(
     is_fixed = np.array([k in fixed or k == first for k in kf_ids], dtype=bool)
     if not is_fixed.any():
         is_fixed[int(np.argmin([bmap.keyframes[k].serial for k in kf_ids]))] = True
+    return ba_problem(bmap, kf_ids, point_ids, is_fixed, bmap.keyframes[kf_id].calibration, config)
+
+
+def ba_problem(
+    bmap: BackendMap,
+    kf_ids: list[int],
+    point_ids: list[int],
+    is_fixed: np.ndarray,
+    calibration: PinholeCalibration,
+    config: BAWindowConfig,
+) -> tuple[BAProblem, np.ndarray, np.ndarray]:
+    """The BA problem over keyframes ``kf_ids`` (held where ``is_fixed``) and the sorted ``point_ids``
+    with every observation of those points by those keyframes, the observation model of ``config``;
+    also each observation's point id and keyframe id. Every array is a copy: the problem shares no
+    memory with the map, so it can be optimised while the map changes."""
     obs_kf_arr, obs_pt_arr, obs_kp_arr = _window_observations(bmap, kf_ids, np.asarray(point_ids, dtype=np.int64))
     px, right_u, inv_sigma2, far, disparity_sigma = _observation_arrays(bmap, kf_ids, obs_kf_arr, obs_kp_arr, config)
     if np.isinf(config.far_right_sigma_scale):
@@ -282,10 +298,10 @@ def local_ba_window(
         right_scale = np.where(far, config.far_right_sigma_scale, 1.0)
     ids = np.asarray(point_ids, dtype=np.int64)
     problem = BAProblem(
-        calibration=bmap.keyframes[kf_id].calibration,
+        calibration=calibration,
         keyframe_ids=np.asarray(kf_ids, dtype=np.int64),
         T_world_cam=np.stack([bmap.keyframes[k].T_world_cam for k in kf_ids]),
-        fixed=is_fixed,
+        fixed=np.array(is_fixed, dtype=bool),
         point_ids=ids,
         p_world=np.stack([bmap.points[p].p_world for p in point_ids]),
         obs_keyframe=obs_kf_arr,
@@ -374,9 +390,11 @@ def apply_ba_result(
     return {"ba_outliers": len(outliers), "points_removed_after_ba": len(removed) + len(weak)}
 
 
-def _map_update(bmap: BackendMap, kf_id: int, stamp_ns: int, changes: MapChanges) -> MapUpdate:
-    """The replacement-semantics update of ``changes``; backend points born and removed in the same
-    step never reach the frontend, so they are not listed as removed."""
+def map_update_from_changes(
+    bmap: BackendMap, kf_id: int, stamp_ns: int, changes: MapChanges, kind: MapUpdateKind = "keyframe"
+) -> MapUpdate:
+    """The replacement-semantics update of ``changes``, of ``kind``; backend points born and removed in
+    the same step never reach the frontend, so they are not listed as removed."""
     kf_ids = sorted(k for k in changes.keyframes if k in bmap.keyframes)
     point_ids = sorted(p for p in changes.points if p in bmap.points)
     points = [bmap.points[p] for p in point_ids]
@@ -395,4 +413,5 @@ def _map_update(bmap: BackendMap, kf_id: int, stamp_ns: int, changes: MapChanges
         max_distance_m=np.array([p.max_distance_m for p in points], dtype=float),
         removed_point_ids=np.asarray(sorted(changes.removed_points - changes.created_points), dtype=np.int64),
         removed_keyframe_ids=np.asarray(sorted(changes.removed_keyframes), dtype=np.int64),
+        kind=kind,
     )

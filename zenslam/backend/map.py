@@ -165,6 +165,15 @@ class MapPoint:
         """Found / visible."""
         return self.n_found / max(self.n_visible, 1)
 
+    @property
+    def reference_keyframe_id(self) -> int | None:
+        """The keyframe the point's position is tied to (ORB-SLAM's reference keyframe): the one that
+        created it while it still observes it, else the observer with the smallest id; None unobserved.
+        Corrections of keyframe poses (loop closing, global BA) move a point with this keyframe."""
+        if self.first_keyframe_id in self.observations:
+            return self.first_keyframe_id
+        return min(self.observations) if self.observations else None
+
 
 @dataclass
 class MapChanges:

@@ -1,11 +1,14 @@
-"""The backend process: frontend/keyframe in, local mapping, backend/map_update out; answers backend/map and backend/trajectory.
+"""The backend process: frontend/keyframe in, local mapping, backend/map_update out; answers backend/map,
+backend/trajectory and backend/relocalisation.
 
-``BackendNode.step`` runs local mapping on one decoded keyframe and returns the ``MapUpdate`` to
-publish; it is testable without the bus. ``serve`` is the loop: it takes keyframes from a lossless,
+``BackendNode.step`` runs local mapping, then loop closing, on one decoded keyframe and returns the
+map updates to publish (the keyframe's answer, then any loop correction) and the verified loop
+candidates for backend/loop; it is testable without the bus. A background global BA's correction
+is published between keyframes when it finishes. ``serve`` is the loop: it takes keyframes from a lossless,
 bounded inbox (a full inbox blocks the frontend's send, nothing is dropped), tells local mapping
 how many keyframes wait behind the current one (ORB-SLAM's CheckNewKeyFrames: a backlog defers
 fusion, local BA and keyframe culling to the last queued keyframe; the end-of-stream marker does
-not count, so the last keyframe always gets them), publishes one map update per keyframe and a
+not count, so the last keyframe always gets them), publishes each keyframe's updates and a
 backend/status with the step time, the per-step timings and the queue depth, and answers the
 queryables between steps, on the same thread, so a reply always shows the map between two
 keyframes. After the frontend's end of stream it forwards the end of stream on backend/map_update
@@ -15,11 +18,13 @@ and keeps answering queries for ``BackendConfig.linger_s`` seconds or until stop
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import os
 import sys
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -27,8 +32,11 @@ import zenoh
 
 from zenslam.backend.config import BackendConfig
 from zenslam.backend.local_ba import LocalBundleAdjuster
-from zenslam.backend.local_mapping import LocalMapper, new_backend_map
+from zenslam.backend.local_mapping import LocalMapper, map_update_from_changes, new_backend_map
+from zenslam.backend.loop_messages import loop_messages
+from zenslam.backend.keyframe_database import KeyframeDatabase
 from zenslam.backend.map import BackendMap
+from zenslam.backend.relocalisation_candidates import relocalisation_reply
 from zenslam.errors import ZenslamError
 from zenslam.runtime import bus
 from zenslam.runtime.stage import (
@@ -36,6 +44,7 @@ from zenslam.runtime.stage import (
     StopFlag,
     add_process_arguments,
     bus_config_with,
+    load_mode,
     load_section,
     log_cpu_times,
     setup_process_logging,
@@ -43,8 +52,12 @@ from zenslam.runtime.stage import (
 )
 from zenslam.schemas import codec, keys
 from zenslam.schemas.map_update import MapUpdate
+from zenslam.schemas.relocalisation import RelocalisationCandidates, RelocalisationQuery
 
 if TYPE_CHECKING:
+    from zenslam.backend.global_ba_runner import GlobalBARunner
+    from zenslam.backend.loop_closing import LoopCloser
+    from zenslam.backend.place_recognition import PlaceRecognition
     from zenslam.runtime.rerun_log import BackendLog
 
 logger = logging.getLogger(__name__)
@@ -53,33 +66,107 @@ STAGE = "backend"
 _POLL_S = 0.02  # seconds the loop waits for a keyframe before answering queries again
 
 
-class BackendNode:
-    """The owner of the backend map: local mapping on decoded keyframes, and the map and trajectory
-    replies; no transport in here."""
+@dataclass(frozen=True)
+class StepOutput:
+    """What one keyframe produced: its answer, then any corrections (a closed loop), and the loop
+    candidates that reached verification."""
 
-    def __init__(self, mapper: LocalMapper, rerun: BackendLog | None = None) -> None:
+    updates: list[MapUpdate]  # the answer (kind keyframe) first, then corrections in order
+    loops: list[codec.LoopMessage] = field(default_factory=list)
+
+
+class BackendNode:
+    """The owner of the backend map: local mapping and loop closing on decoded keyframes, and the map
+    and trajectory replies; no transport in here."""
+
+    def __init__(
+        self,
+        mapper: LocalMapper,
+        places: PlaceRecognition | None = None,
+        loop_closer: LoopCloser | None = None,
+        global_ba: GlobalBARunner | None = None,
+        rerun: BackendLog | None = None,
+    ) -> None:
         self.mapper = mapper
-        self.map: BackendMap = mapper.map  # the node's map, lent to local mapping (and loop closing)
+        self.map: BackendMap = mapper.map  # the node's map, lent to local mapping and loop closing
+        self.places = places  # the keyframe database (None: no vocabulary, no place recognition)
+        self.loop_closer = loop_closer  # None: loop closing off
+        self.global_ba = global_ba  # None: no global BA after a loop
+        self._newest: tuple[int, int] = (-1, 0)  # id and stamp of the newest keyframe processed
         self.rerun = rerun  # logs the map, graphs and timings after each keyframe to the stage's .rrd
         self.processed = 0  # keyframes processed
         self.finished = False  # the input's end of stream has been processed
 
     @classmethod
-    def from_config(cls, config: BackendConfig) -> BackendNode:
-        """The node with the real local mapper and gtsam local bundle adjuster."""
+    def from_config(cls, config: BackendConfig, global_ba_in_background: bool = False) -> BackendNode:
+        """The node with the real local mapper, gtsam local bundle adjuster and, when enabled, loop
+        closer and global BA (in a helper process when ``global_ba_in_background``: pipelined and
+        live runs; in place in lockstep, so its result lands at a deterministic point)."""
         bmap = new_backend_map(config.local_mapping)
-        return cls(LocalMapper(bmap, config.local_mapping, LocalBundleAdjuster(config.local_ba)))
+        mapper = LocalMapper(bmap, config.local_mapping, LocalBundleAdjuster(config.local_ba))
+        from zenslam.backend.place_recognition import PlaceRecognition
+        from zenslam.vocabulary import load_vocabulary
 
-    def step(self, keyframe: codec.KeyframeMessage, queued: int = 0) -> MapUpdate:
-        """Insert one keyframe and run local mapping on it; the update lists everything that changed.
+        places = PlaceRecognition(load_vocabulary(config.vocabulary or None))
+        loop_closer, global_ba = None, None
+        if config.loop_closing.enabled:
+            from zenslam.backend.global_ba_runner import GlobalBARunner
+            from zenslam.backend.loop_closing import LoopCloser
+
+            loop_closer = LoopCloser(bmap, places, config.loop_closing)
+            if config.loop_closing.global_ba.enabled:
+                global_ba = GlobalBARunner(bmap, config.loop_closing.global_ba, config.local_mapping.ba_window, global_ba_in_background)
+        return cls(mapper, places, loop_closer, global_ba)
+
+    def step(self, keyframe: codec.KeyframeMessage, queued: int = 0) -> StepOutput:
+        """Insert one keyframe, run local mapping, then loop closing on it.
 
         ``queued``: keyframes waiting behind this one (0 in lockstep); see ``LocalMapper.process``.
+        The answer says how many corrections follow it, so a lockstep frontend applies them before
+        its next frame.
         """
         update = self.mapper.process(keyframe, queued=queued)
         self.processed += 1
+        self._newest = (int(keyframe.id), int(keyframe.stamp_ns))
+        corrections: list[MapUpdate] = []
+        loops: list[codec.LoopMessage] = []
+        if self.places is not None:
+            self.places.remove(np.asarray(update.removed_keyframe_ids).tolist())
+            if int(keyframe.id) in self.map.keyframes:
+                self.places.add(int(keyframe.id), self.map.keyframe(int(keyframe.id)).descriptors)
+        if self.loop_closer is not None and int(keyframe.id) in self.map.keyframes:
+            corrections, loops = self._close_loops(int(keyframe.id), update)
         if self.rerun is not None:
             self.rerun.log_keyframe(keyframe, self.mapper)
-        return update
+        answer = dataclasses.replace(update, corrections_following=len(corrections))
+        return StepOutput([answer, *corrections], loops)
+
+    def _close_loops(self, kf_id: int, update: MapUpdate) -> tuple[list[MapUpdate], list[codec.LoopMessage]]:
+        T_before = self.map.keyframe(kf_id).T_world_cam.copy()
+        started = time.perf_counter()
+        outcome = self.loop_closer.process(kf_id)
+        self.mapper.last_timings_ms["loop_closing"] = (time.perf_counter() - started) * 1e3
+        loops = loop_messages(self.map, outcome, T_before)
+        if not outcome.accepted:
+            return [], loops
+        if self.global_ba is not None:
+            started = time.perf_counter()
+            if self.global_ba.start():
+                self.mapper.last_timings_ms["global_ba"] = (time.perf_counter() - started) * 1e3
+        correction = map_update_from_changes(self.map, kf_id, update.stamp_ns, self.map.take_changes(), kind="correction")
+        return [correction], loops
+
+    def poll_global_ba(self) -> MapUpdate | None:
+        """The correction of a background global BA that has finished (applied to the map now), or None."""
+        if self.global_ba is None or not self.global_ba.poll():
+            return None
+        kf_id, stamp_ns = self._newest
+        return map_update_from_changes(self.map, kf_id, stamp_ns, self.map.take_changes(), kind="correction")
+
+    def close(self) -> None:
+        """Stop the global BA helper process, if any."""
+        if self.global_ba is not None:
+            self.global_ba.close()
 
     @property
     def last_timings_ms(self) -> dict[str, float]:
@@ -97,6 +184,13 @@ class BackendNode:
             finished=self.finished,
         )
 
+    def relocalisation_candidates(self, query: RelocalisationQuery) -> RelocalisationCandidates:
+        """Candidate places of the whole map for a lost frame's bag of words, best first, with the
+        keyframes and points the frontend needs to match them (``relocalisation_reply``)."""
+        if self.places is None:  # no vocabulary: no place is ever recognised
+            return relocalisation_reply(self.map, KeyframeDatabase(), lambda a, b: 0.0, query, self.processed)
+        return relocalisation_reply(self.map, self.places.database, self.places.score, query, self.processed)
+
     def snapshot(self) -> codec.MapSnapshotMessage:
         """The keyframe poses and the map points (ids ascending, positions in metres, world frame)."""
         points = self.map.points
@@ -109,13 +203,16 @@ class BackendNode:
 
 
 class _Queryables:
-    """backend/map and backend/trajectory: queries wait in zenoh channels until the worker answers them."""
+    """backend/map, backend/trajectory and backend/relocalisation: queries wait in zenoh channels until
+    the worker answers them."""
 
     def __init__(self, session: zenoh.Session, session_name: str) -> None:
         self._map_key = keys.backend_map_query(session_name)
         self._trajectory_key = keys.backend_trajectory_query(session_name)
+        self._relocalisation_key = keys.backend_relocalisation_query(session_name)
         self._map = session.declare_queryable(self._map_key, zenoh.handlers.FifoChannel(16))
         self._trajectory = session.declare_queryable(self._trajectory_key, zenoh.handlers.FifoChannel(16))
+        self._relocalisation = session.declare_queryable(self._relocalisation_key, zenoh.handlers.FifoChannel(16))
 
     def answer(self, node: BackendNode) -> int:
         """Reply to every waiting query with the map as it is now; returns how many were answered."""
@@ -130,10 +227,28 @@ class _Queryables:
                 with query:  # leaving the block finalises the query: the querier stops waiting
                     query.reply(key, payload, encoding=zenoh.Encoding.APPLICATION_PROTOBUF.with_schema(schema))
                 answered += 1
+        return answered + self._answer_relocalisation(node)
+
+    def _answer_relocalisation(self, node: BackendNode) -> int:
+        """Each relocalisation query carries its own bag of words: one reply per query. A query
+        that does not decode gets an error reply (the querier's problem, not the backend's)."""
+        answered = 0
+        while (query := self._relocalisation.try_recv()) is not None:
+            with query:
+                try:
+                    request = codec.decode_relocalisation_query(query.payload.to_bytes() if query.payload is not None else b"")
+                except ZenslamError as exc:
+                    logger.warning("relocalisation query refused: %s", exc)
+                    query.reply_err(str(exc))
+                else:
+                    reply = codec.encode_relocalisation_candidates(node.relocalisation_candidates(request))
+                    encoding = zenoh.Encoding.APPLICATION_PROTOBUF.with_schema(codec.RELOCALISATION_CANDIDATES)
+                    query.reply(self._relocalisation_key, reply, encoding=encoding)
+            answered += 1
         return answered
 
     def close(self) -> None:
-        for queryable in (self._map, self._trajectory):
+        for queryable in (self._map, self._trajectory, self._relocalisation):
             while (query := queryable.try_recv()) is not None:
                 query.drop()
             queryable.undeclare()
@@ -145,6 +260,14 @@ class _Outputs:
     def __init__(self, session: zenoh.Session, session_name: str) -> None:
         self.update = bus.declare_publisher(session, keys.backend_map_update(session_name), codec.MAP_UPDATE, "lossless")
         self.status = bus.declare_publisher(session, keys.status(session_name, STAGE), codec.STAGE_STATUS, "lossless")
+        self.loop = bus.declare_publisher(session, keys.backend_loop(session_name), codec.LOOP, "lossless")
+
+    def send_step(self, output: StepOutput) -> None:
+        """The loop messages, then the answer and its corrections, in order."""
+        for loop in output.loops:
+            self.loop.put(codec.encode_loop(loop))
+        for update in output.updates:
+            self.update.put(codec.encode_map_update(update))
 
     def send_status(self, status: codec.StageStatusMessage) -> None:
         self.status.put(codec.encode_stage_status(status))
@@ -187,6 +310,8 @@ def _process(outputs: _Outputs, inbox: bus.Inbox, queryables: _Queryables, node:
     """The worker loop: answer queries, take a keyframe, map it, publish; True at the end of stream."""
     while not should_stop():
         queryables.answer(node)
+        if (correction := node.poll_global_ba()) is not None:
+            outputs.update.put(codec.encode_map_update(correction))
         message = inbox.get(timeout_s=_POLL_S)
         if message is None:
             continue
@@ -200,11 +325,11 @@ def _process(outputs: _Outputs, inbox: bus.Inbox, queryables: _Queryables, node:
         started = time.perf_counter()
         queued = inbox.count_waiting(_is_keyframe)  # the end of stream is no keyframe to wait for
         try:
-            update = node.step(message, queued)
+            output = node.step(message, queued)
         except Exception as exc:
             outputs.send_status(codec.StageStatusMessage(STAGE, "failed", node.processed, detail=f"{type(exc).__name__}: {exc}"))
             raise
-        outputs.update.put(codec.encode_map_update(update))
+        outputs.send_step(output)
         step_ms = (time.perf_counter() - started) * 1e3
         depth = inbox.depth
         if node.rerun is not None:
@@ -253,7 +378,7 @@ def main(argv: list[str] | None = None) -> int:
         rerun_config = load_section(args.config, "rerun", rerun_log.RerunConfig)
         if config.nice:
             os.nice(config.nice)
-        node = BackendNode.from_config(config)
+        node = BackendNode.from_config(config, global_ba_in_background=load_mode(args.config) != "lockstep")
         if stopped_before_joining(stop):
             return 0
 
@@ -263,7 +388,12 @@ def main(argv: list[str] | None = None) -> int:
         ):
             node.rerun = rerun_log.BackendLog(recording) if recording is not None else None
             bus.require_alive(session, args.session, args.wait_for, bus_config.start_timeout_s, stop.keep_going)
-            serve(session, args.session, node, config, stop)
+            try:
+                serve(session, args.session, node, config, stop)
+            finally:
+                node.close()
+            if node.rerun is not None:
+                node.rerun.finish()
     except ZenslamError as exc:
         logger.error("%s", exc)
         return 2

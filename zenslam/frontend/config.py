@@ -26,9 +26,17 @@ class FrontendConfig:
     # Map updates the frontend's inbox holds before the backend's send blocks (lossless: never dropped).
     map_update_queue: int = 256  # map updates
     update_timeout_s: float = 300.0  # lockstep: seconds the frontend waits for the backend's update of one keyframe
+    # The bag-of-words vocabulary a lost frame is relocalised with: a file (zenslam's format or DBoW2's
+    # ORBvoc.txt), None for the one shipped with zenslam. Loaded at start when relocalisation is on.
+    vocabulary: str | None = None
+    # Seconds a lost frame waits for the backend's relocalisation candidates (the backend answers
+    # between two keyframes: in lockstep at once, otherwise after the keyframe it is mapping).
+    relocalisation_timeout_s: float = 30.0
 
     def __post_init__(self) -> None:
         if self.map_update_queue < 1:
             raise ConfigError(f"frontend.map_update_queue={self.map_update_queue} must be at least 1 message")
         if not self.update_timeout_s > 0:
             raise ConfigError(f"frontend.update_timeout_s={self.update_timeout_s} must be a positive number of seconds")
+        if not self.relocalisation_timeout_s > 0:
+            raise ConfigError(f"frontend.relocalisation_timeout_s={self.relocalisation_timeout_s} must be a positive number of seconds")

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,6 +34,7 @@ from zenslam.frontend.slot_graph import SlotGraph
 from zenslam.geometry import invert_T, transform_points
 from zenslam.map_point_rules import representative_descriptors, scale_invariance_range
 from zenslam.schemas.map_update import KeyframeCorrection, MapUpdate
+from zenslam.schemas.relocalisation import MapPoints
 
 logger = logging.getLogger(__name__)
 
@@ -251,6 +253,16 @@ class LocalMap:
         else:
             rows = np.asarray(point_rows, dtype=np.int64).copy()
             rows[np.asarray(keyframe.new_point_keypoints, dtype=np.int64)] = new_rows
+        observed = self._observe(slot, keyframe, rows)
+        self._pts["n_observations"][observed] += 1
+        self._refresh_points(observed)
+        self._graph.add(self._links(slot, observed))
+        return new_rows
+
+    def _observe(self, slot: int, keyframe: KeyFrame, rows: np.ndarray) -> np.ndarray:
+        """Record the observations of the new keyframe in ``slot`` matched to point ``rows`` (N,)
+        (-1 none; culled points are skipped, one observation per point); returns the rows observed."""
+        rows = rows.copy()
         rows[rows >= 0] = np.where(self.valid[rows[rows >= 0]], rows[rows >= 0], -1)
         keypoints = np.flatnonzero(rows >= 0)
         _, first = np.unique(rows[keypoints], return_index=True)  # one observation per point
@@ -258,10 +270,41 @@ class LocalMap:
         observed = rows[keypoints]
         self._append_observations(slot, observed, keypoints, keyframe.descriptors[keypoints])
         self._kf_rows.append(observed)
-        self._pts["n_observations"][observed] += 1
-        self._refresh_points(observed)
-        self._graph.add(self._links(slot, observed))
-        return new_rows
+        return observed
+
+    def restore_keyframes(self, keyframes: Sequence[KeyFrame], points: MapPoints) -> list[int]:
+        """Bring keyframes of the backend's map into the cache (evicted ones, or never held) with the
+        points they observe, as the backend describes them (``points``); returns their new slots.
+
+        Keyframes the cache holds stay as they are. Listed points the cache holds take the
+        backend's values; unknown ones observed by a restored keyframe are created (as a map
+        update creates them). A restored keyframe is no new keyframe: it does not advance
+        ``n_keyframes`` (the clock of the recent-point culling), and it adds to ``n_observations``
+        only of the points it brings (the others already count it, see ``retain``).
+        """
+        restored = [kf for kf in sorted(keyframes, key=lambda k: k.id) if self.slot_of(kf.id) < 0]
+        observed = [np.asarray(kf.map_point_ids, dtype=np.int64) for kf in restored]
+        known = self.rows_of_ids(points.ids) >= 0
+        listed = MapUpdate(
+            keyframe_id=-1, stamp_ns=0, point_ids=np.asarray(points.ids, dtype=np.int64), p_world=points.p_world,
+            descriptors=points.descriptors, normals=points.normals, min_distance_m=points.min_distance_m,
+            max_distance_m=points.max_distance_m,
+        )  # fmt: skip
+        self._replace_points(listed, np.concatenate(observed) if observed else np.zeros(0, dtype=np.int64))
+        brought = np.zeros(self._n_points, dtype=bool)
+        rows = self.rows_of_ids(points.ids)
+        brought[rows[(rows >= 0) & ~known]] = True
+        slots = []
+        for keyframe in restored:
+            slot = len(self._keyframes)
+            self._keyframes.append(keyframe)
+            self._slot_of_id[int(keyframe.id)] = slot
+            self._kf_centres = np.vstack([self._kf_centres, keyframe.centre_world[None]])
+            kf_rows = self._observe(slot, keyframe, self.rows_of_ids(keyframe.map_point_ids))
+            self._pts["n_observations"][kf_rows[brought[kf_rows]]] += 1
+            self._graph.add(self._links(slot, kf_rows))
+            slots.append(slot)
+        return slots
 
     def _append_new_points(self, keyframe: KeyFrame, serial: int) -> np.ndarray:
         n_new = len(keyframe.new_point_ids)

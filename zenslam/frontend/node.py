@@ -5,13 +5,16 @@ without the bus; ``serve`` is the loop that receives, handles and publishes. The
 is ``zenslam.frontend.pipeline.FrontendPipeline``, built on the first frame from the calibration
 and sensor kind that every sensor/frame message carries.
 
-With a backend (``serve(..., backend=...)``), the backend's backend/map_update messages are applied
+With a backend (``serve(..., map_updates=...)``), the backend's backend/map_update messages are applied
 to the pipeline's map: in live mode every update that has arrived is applied before the next
 frame is tracked; in lockstep, after publishing a keyframe the frontend waits for the backend's
 update of that keyframe before it tracks another frame, so the run is deterministic; meanwhile
 it builds the next frame (ORB, stereo or depth: images only, no map) if that frame has arrived,
 so the backend's mapping and the frontend's feature extraction share the two cores. Pipelined
-mode (every frame, in order, as in lockstep) applies updates as live mode does.
+mode (every frame, in order, as in lockstep) applies updates as live mode does. With a backend, a
+lost frame asks it for relocalisation candidates on backend/relocalisation (``RelocalisationQueries``)
+and waits for the answer: in lockstep the backend is idle between keyframes, so the answer, and
+the run, stay deterministic.
 """
 
 from __future__ import annotations
@@ -46,6 +49,7 @@ from zenslam.runtime.stage import (
 )
 from zenslam.schemas import codec, keys
 from zenslam.schemas.map_update import MapUpdate
+from zenslam.schemas.relocalisation import RelocalisationCandidates, RelocalisationQuery
 
 if TYPE_CHECKING:
     from zenslam.runtime.rerun_log import FrontendLog
@@ -65,12 +69,15 @@ class Pipeline(Protocol):
     def step(
         self, index: int, stamp_ns: int, left: np.ndarray, right: np.ndarray | None = None,
         depth_m: np.ndarray | None = None, keyframes_in_flight: int = 0, prepared: Any = None,
+        candidates: CandidateSource | None = None,
     ) -> Any: ...
 
     def apply_map_update(self, update: MapUpdate) -> None: ...
 
 
 PipelineFactory = Callable[[PinholeCalibration, SensorKind], Pipeline]
+# Relocalisation candidates for a lost frame's bag of words; None when the backend did not answer.
+CandidateSource = Callable[[RelocalisationQuery], "RelocalisationCandidates | None"]
 
 
 @dataclass(frozen=True)
@@ -120,6 +127,7 @@ class FrontendNode:
         self.skipped = 0  # frames never seen (gaps in the indices: dropped in live mode)
         self.updates_applied = 0  # backend map updates applied to the pipeline's map
         self.tracks_backend = False  # set by ``serve`` when the backend's map updates are applied
+        self.candidates: CandidateSource | None = None  # set by ``serve``: asks the backend where a lost frame is
         self._last_index: int | None = None
         self._ahead: tuple[int, Future] | None = None  # (frame index, its frame being prepared)
         self._ahead_worker: ThreadPoolExecutor | None = None
@@ -170,6 +178,7 @@ class FrontendNode:
         out = self._pipeline.step(
             frame.index, frame.stamp_ns, frame.left, right=frame.right, depth_m=frame.depth_m,
             keyframes_in_flight=self.keyframes_in_flight, prepared=self._take_ahead(frame.index),
+            candidates=self.candidates,
         )
         step_ms = (time.perf_counter() - started) * 1e3
         self.frames += 1
@@ -195,6 +204,7 @@ class FrontendNode:
             keyframe_id=keyframe_id,
             reference_keyframe_id=out.reference_keyframe_id if pose_bytes is not None else -1,
             T_reference_cam=out.T_reference_cam if pose_bytes is not None else None,
+            relocalised=bool(out.relocalised),
         )
         return FrontendMessages(keyframe_bytes, pose_bytes, codec.encode_tracking_state(state), step_ms, keyframe_id)
 
@@ -252,6 +262,33 @@ class _Outputs:
         self.state.put(codec.encode_end_of_stream(codec.TRACKING_STATE, frames))
 
 
+class RelocalisationQueries:
+    """Asks the backend for relocalisation candidates on backend/relocalisation (the tracker's
+    ``CandidateSource``); None, with a warning, when no answer comes within ``timeout_s`` seconds."""
+
+    def __init__(self, session: zenoh.Session, session_name: str, timeout_s: float) -> None:
+        self._session = session
+        self._key = keys.backend_relocalisation_query(session_name)
+        self._timeout_s = timeout_s
+        self._encoding = zenoh.Encoding.APPLICATION_PROTOBUF.with_schema(codec.RELOCALISATION_QUERY)
+        self.asked = 0  # queries sent
+        self.unanswered = 0  # queries without an answer
+
+    def __call__(self, query: RelocalisationQuery) -> RelocalisationCandidates | None:
+        self.asked += 1
+        payload = codec.encode_relocalisation_query(query)
+        for reply in self._session.get(self._key, payload=payload, encoding=self._encoding, timeout=self._timeout_s):
+            if reply.ok is not None:
+                return codec.decode_relocalisation_candidates(reply.ok.payload.to_bytes())
+            logger.warning("the backend refused a relocalisation query: %s", reply.err.payload.to_string())
+        self.unanswered += 1
+        logger.warning(
+            "no relocalisation candidates from the backend within %.1f s (frontend.relocalisation_timeout_s); "
+            "the frame stays lost", self._timeout_s,
+        )  # fmt: skip
+        return None
+
+
 class _MapUpdates:
     """The backend's map updates, applied to the node's pipeline as the run mode says."""
 
@@ -267,26 +304,32 @@ class _MapUpdates:
             self._apply(node, update)
 
     def wait_for(self, node: FrontendNode, keyframe_id: int, should_stop: Callable[[], bool]) -> None:
-        """Lockstep: apply updates until the one for ``keyframe_id`` has been applied, the backend has
-        ended its stream (``ended``: it was stopped) or ``should_stop()``."""
+        """Lockstep: apply updates until the one for ``keyframe_id`` and the corrections it announces
+        have been applied, the backend has ended its stream (``ended``: it was stopped) or ``should_stop()``."""
         deadline = time.monotonic() + self.timeout_s
+        corrections_due = -1  # unknown until the answer arrives
         while not should_stop() and not self.ended:
             update = self.inbox.get(timeout_s=0.1)
-            if update is not None and self._apply(node, update) >= keyframe_id:
-                return
+            if update is not None:
+                self._apply(node, update)
+                if isinstance(update, MapUpdate) and update.answers_keyframe and update.keyframe_id >= keyframe_id:
+                    corrections_due = update.corrections_following
+                elif isinstance(update, MapUpdate) and corrections_due > 0:
+                    corrections_due -= 1
+                if corrections_due == 0:
+                    return
             if update is None and time.monotonic() > deadline:
                 raise bus.BusError(
                     f"lockstep: no map update for keyframe {keyframe_id} from the backend within {self.timeout_s:.0f} s "
                     "(frontend.update_timeout_s); check the backend's log"
                 )
 
-    def _apply(self, node: FrontendNode, update: MapUpdate | codec.EndOfStream) -> int:
-        """Apply one update; the keyframe id it answers (-1 for the end of stream or a correction)."""
+    def _apply(self, node: FrontendNode, update: MapUpdate | codec.EndOfStream) -> None:
+        """Apply one update; the end of stream marks the stream ended."""
         if isinstance(update, codec.EndOfStream):
             self.ended = True
-            return -1
+            return
         node.apply_map_update(update)
-        return update.keyframe_id if update.answers_keyframe else -1
 
 
 def serve(
@@ -306,6 +349,8 @@ def serve(
     outputs = _Outputs(session, session_name)
     updates = _MapUpdates(session, session_name, map_updates) if map_updates is not None else None
     node.tracks_backend = updates is not None
+    if map_updates is not None:
+        node.candidates = RelocalisationQueries(session, session_name, map_updates.relocalisation_timeout_s)
     # Lockstep waits for each keyframe's update; live and pipelined apply the updates that have arrived.
     wait_for_updates = updates is not None and mode == "lockstep"
     if mode != "live":
@@ -362,14 +407,24 @@ def serve(
     return ended
 
 
-def default_pipeline_factory(frontend_config: Any) -> PipelineFactory:
-    """Builds the real tracker, FrontendPipeline(config, calibration, sensor)."""
+def default_pipeline_factory(frontend_config: Any, vocabulary: Any = None) -> PipelineFactory:
+    """Builds the real tracker, FrontendPipeline(config, calibration, sensor, vocabulary)."""
     from zenslam.frontend.pipeline import FrontendPipeline
 
     def make(calibration: PinholeCalibration, sensor: SensorKind) -> Pipeline:
-        return FrontendPipeline(frontend_config, calibration, sensor)
+        return FrontendPipeline(frontend_config, calibration, sensor, vocabulary)
 
     return make
+
+
+def load_relocalisation_vocabulary(config: FrontendConfig) -> Any:
+    """The vocabulary of ``frontend.vocabulary`` (None: the shipped one), or None when relocalisation
+    is off; a missing or bad file is a VocabularyError naming it."""
+    if not config.tracking.relocalisation.enabled:
+        return None
+    from zenslam.vocabulary import load_vocabulary
+
+    return load_vocabulary(config.vocabulary or None)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -399,7 +454,9 @@ def main(argv: list[str] | None = None) -> int:
 
         # OpenCV's pool slowed small calls 3x here; the extractor runs left/right on its own threads.
         cv2.setNumThreads(1)
-        node = FrontendNode(default_pipeline_factory(config))
+        # Relocalisation asks the backend: without its map updates there is no backend to ask.
+        vocabulary = load_relocalisation_vocabulary(config) if args.map_updates else None
+        node = FrontendNode(default_pipeline_factory(config, vocabulary))
         if stopped_before_joining(stop):
             return 0
 

@@ -15,7 +15,8 @@ from zenslam.frontend.config import FrontendConfig
 from zenslam.frontend.frame import Frame, make_rgbd_frame, make_stereo_frame
 from zenslam.frontend.keyframe import KeyFrame
 from zenslam.frontend.orb_extractor import OrbExtractor
-from zenslam.frontend.tracker import Tracker
+from zenslam.frontend.relocalisation import BowTransform
+from zenslam.frontend.tracker import CandidateSource, Tracker
 from zenslam.schemas.map_update import MapUpdate
 
 logger = logging.getLogger(__name__)
@@ -40,7 +41,8 @@ class TrackingOutput:
     ``T_world_cam`` (4x4, camera -> world) is None when lost. ``n_tracked`` counts inlier matches
     to map points. ``keyframe`` is the keyframe made at this frame, if any. ``timings_ms`` holds
     milliseconds per stage (keys in ``TIMING_KEYS``): the tracking stages exclude the pose
-    optimisation, which has its own key; "keyframe_decision" includes making the keyframe.
+    optimisation, which has its own key; "keyframe_decision" includes making the keyframe. Frames
+    that tried to relocalise also have "relocalisation" (the query, matching and local-map tracking).
     """
 
     index: int
@@ -53,6 +55,7 @@ class TrackingOutput:
     timings_ms: dict[str, float]
     reference_keyframe_id: int = -1  # the keyframe the pose is kept relative to, -1 none
     T_reference_cam: np.ndarray | None = None  # (4, 4) the camera in that keyframe's frame
+    relocalised: bool = False  # tracking was lost before this frame and found the map again here
 
 
 @dataclass(frozen=True)
@@ -68,10 +71,13 @@ class FrontendPipeline:
     """Builds a frame from the images (ORB, stereo or RGB-D depth) and tracks it.
 
     Monocular tracking needs a two-view initialisation that does not exist yet: a mono sensor is
-    a ConfigError.
+    a ConfigError. With a ``vocabulary``, a lost frame is relocalised against the candidates of the
+    source ``step`` is given.
     """
 
-    def __init__(self, config: FrontendConfig, calibration: PinholeCalibration, sensor: SensorKind) -> None:
+    def __init__(
+        self, config: FrontendConfig, calibration: PinholeCalibration, sensor: SensorKind, vocabulary: BowTransform | None = None
+    ) -> None:
         if sensor not in ("stereo", "rgbd"):
             raise ConfigError(
                 f"the frontend tracks stereo or rgbd cameras; sensor {sensor!r} is not supported yet "
@@ -85,7 +91,7 @@ class FrontendPipeline:
         self.calibration = calibration
         self.sensor = sensor
         self.extractor = OrbExtractor(config.orb)
-        self.tracker = Tracker(calibration, sensor, config.tracking, config.pose, config.keyframe)
+        self.tracker = Tracker(calibration, sensor, config.tracking, config.pose, config.keyframe, vocabulary=vocabulary)
         self._first_stamp_ns: int | None = None
         self._rate_known = False
 
@@ -109,20 +115,22 @@ class FrontendPipeline:
         depth_m: np.ndarray | None = None,
         keyframes_in_flight: int = 0,
         prepared: PreparedFrame | None = None,
+        candidates: CandidateSource | None = None,
     ) -> TrackingOutput:
         """Track one capture: ``left`` grey uint8 (H, W), with ``right`` (stereo) or ``depth_m`` (RGB-D, metres).
 
         ``keyframes_in_flight``: keyframes sent to the backend whose map update is not applied yet
         (0 = local mapping idle; always 0 in lockstep, which waits for every update); it throttles the
         keyframe decision. ``prepared``: this capture's frame from ``prepare``, when built ahead; the
-        timings' total then adds the time it took to the tracking's.
+        timings' total then adds the time it took to the tracking's. ``candidates``: asks the backend
+        for relocalisation candidates (called only while tracking is lost).
         """
         if prepared is None or prepared.frame.index != index:
             prepared = self.prepare(index, stamp_ns, left, right, depth_m)
         start = time.perf_counter()
         self._update_camera_rate(stamp_ns)
         timings = dict(prepared.timings_ms)
-        result = self.tracker.track(prepared.frame, keyframes_in_flight)
+        result = self.tracker.track(prepared.frame, keyframes_in_flight, candidates)
         timings.update(result.timings_ms)
         timings["total"] = prepared.elapsed_ms + (time.perf_counter() - start) * 1e3
         return TrackingOutput(
@@ -136,6 +144,7 @@ class FrontendPipeline:
             timings_ms=timings,
             reference_keyframe_id=result.reference_keyframe_id,
             T_reference_cam=result.T_reference_cam,
+            relocalised=result.relocalised,
         )
 
     def apply_map_update(self, update: MapUpdate) -> None:

@@ -1,4 +1,4 @@
-"""Frame-to-map tracking for stereo and RGB-D: ORB-SLAM2's Tracking without relocalisation.
+"""Frame-to-map tracking for stereo and RGB-D: ORB-SLAM2's Tracking.
 
 Per frame: predict the pose with the constant-velocity model and match the last frame's points
 by projection (falling back to descriptor matching against the reference keyframe), optimise the
@@ -6,11 +6,15 @@ pose, then track the local map (points of the keyframes covisible with the frame
 again; finally decide whether the frame becomes a keyframe, which creates new points from its
 stereo/RGB-D depths.
 
-Lost frames: there is no relocalisation yet. A lost frame reports ``lost`` with a reason; the next
-frame tries the reference keyframe and the last good pose again. After
-``reinit_after_lost_frames`` consecutive lost frames the tracker starts over from the current
-frame at the last good pose (a new keyframe with fresh points, not connected to the old ones),
-reported as ``initializing``.
+Lost frames: a lost frame reports ``lost`` with a reason. With a vocabulary and a source of
+candidates (the backend's keyframe database, passed to ``track``), every following frame is
+relocalised, as ORB-SLAM does: its bag of words is sent to the source, the candidate keyframes
+that come back are matched (``relocalisation.relocalise``), the matched keyframe and its covisible
+neighbours re-enter the cache, the local map is tracked and the motion model restarts; the frame
+reports ``ok`` with ``relocalised``. Without them, the next frame tries the reference keyframe and
+the last good pose again. After ``reinit_after_lost_frames`` consecutive frames without a pose
+the tracker starts over from the current frame at the last good pose (a new keyframe with fresh
+points, not connected to the old ones), reported as ``initializing``.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ import logging
 import time
 from collections import Counter
 from dataclasses import dataclass, field
+from collections.abc import Callable
 from typing import Literal
 
 import numpy as np
@@ -40,13 +45,17 @@ from zenslam.frontend.frustum import project_in_frustum
 from zenslam.frontend.local_map import LocalMap, LocalMapConfig
 from zenslam.frontend.motion_model import ConstantVelocityModel
 from zenslam.frontend.pose_optimizer import PoseOptimizerConfig, optimize_pose
+from zenslam.frontend.relocalisation import BowTransform, RelocalisationConfig, keyframes_to_restore, relocalise
 from zenslam.geometry import invert_T
 from zenslam.map_point_rules import radius_by_viewing_cos
 from zenslam.schemas.map_update import MapUpdate
+from zenslam.schemas.relocalisation import RelocalisationCandidates, RelocalisationQuery
 
 logger = logging.getLogger(__name__)
 
 TrackingState = Literal["ok", "lost", "initializing"]
+# Asks the backend for relocalisation candidates; None when it did not answer.
+CandidateSource = Callable[[RelocalisationQuery], "RelocalisationCandidates | None"]
 
 
 @dataclass(frozen=True)
@@ -83,8 +92,9 @@ class TrackingConfig:
     # without that (it still tracks the synthetic loop with 45-baseline points, where 2 loses
     # it) at 3-4x the keyframes; 2 also tracks every scene here at the default 60 baselines.
     reference_min_observations: int = 1
-    reinit_after_lost_frames: int = 10  # consecutive lost frames before starting over (0 = never)
+    reinit_after_lost_frames: int = 10  # consecutive frames without a pose before starting over (0 = never)
     local_map: LocalMapConfig = field(default_factory=LocalMapConfig)
+    relocalisation: RelocalisationConfig = field(default_factory=RelocalisationConfig)
 
 
 @dataclass(frozen=True)
@@ -101,6 +111,7 @@ class TrackResult:
     # and the camera in that keyframe's frame (4, 4), so the pose can follow the keyframe's corrections.
     reference_keyframe_id: int = -1
     T_reference_cam: np.ndarray | None = None
+    relocalised: bool = False  # the frame found the map again after tracking was lost
 
 
 @dataclass
@@ -121,6 +132,7 @@ class Tracker:
         pose_config: PoseOptimizerConfig | None = None,
         keyframe_config: KeyframeDecisionConfig | None = None,
         camera_fps: float = 10.0,
+        vocabulary: BowTransform | None = None,
     ) -> None:
         self.calibration = calibration
         self.sensor = sensor
@@ -134,6 +146,9 @@ class Tracker:
         self.th_depth_m = close_depth_threshold_m(calibration.baseline_m or 0.0, self.keyframe_config)
         self.lost_reasons: Counter[str] = Counter()
         self.n_reinitialisations = 0
+        self.n_relocalisations = 0
+        self.vocabulary = vocabulary  # the bag-of-words vocabulary relocalisation queries and matches with
+        self._relocalised_at = -(1 << 62)  # frame index of the last relocalisation
         self._last: _LastFrame | None = None  # the last successfully tracked frame
         self._reference_slot = -1
         self._last_keyframe_index = -1
@@ -141,14 +156,15 @@ class Tracker:
         self._timers: dict[str, float] = {}
 
     # ---- the per-frame entry point ----------------------------------------------------------------
-    def track(self, frame: Frame, keyframes_in_flight: int = 0) -> TrackResult:
+    def track(self, frame: Frame, keyframes_in_flight: int = 0, candidates: CandidateSource | None = None) -> TrackResult:
         """Track one frame: its pose in the world, the inlier count, a keyframe when one is made, and
         the pose relative to the frame's reference keyframe.
 
         ``keyframes_in_flight`` counts keyframes sent to local mapping whose update has not been
-        applied (the keyframe decision's view of local mapping; 0 = idle).
+        applied (the keyframe decision's view of local mapping; 0 = idle). ``candidates`` asks the
+        backend for relocalisation candidates; it is called only while tracking is lost.
         """
-        result = self._track(frame, keyframes_in_flight)
+        result = self._track(frame, keyframes_in_flight, candidates)
         reference = self.map.keyframe(self._reference_slot) if self._reference_slot >= 0 else None
         if result.T_world_cam is None or reference is None:
             return result
@@ -156,12 +172,18 @@ class Tracker:
             result, reference_keyframe_id=int(reference.id), T_reference_cam=reference.T_cam_world @ result.T_world_cam
         )
 
-    def _track(self, frame: Frame, keyframes_in_flight: int) -> TrackResult:
+    def _track(self, frame: Frame, keyframes_in_flight: int, candidates: CandidateSource | None) -> TrackResult:
         self._timers = dict.fromkeys(
             ("motion_model_tracking", "local_map_tracking", "pose_optimization", "keyframe_decision"), 0.0
         )
         if self._last is None:
             return self._initialise(frame, np.eye(4), "no_depth_points_for_init")
+        relocalising = self._lost_streak > 0 and self._relocalises(candidates)
+        failure = None
+        if relocalising:
+            found, failure = self._relocalise(frame, candidates)
+            if found is not None:
+                return self._tracked(frame, *found, keyframes_in_flight, relocalised=True)
         if self.config.reinit_after_lost_frames and self._lost_streak >= self.config.reinit_after_lost_frames:
             n_lost = self._lost_streak
             result = self._initialise(frame, invert_T(self._last.T_cam_world), "no_depth_points_for_reinit")
@@ -170,6 +192,8 @@ class Tracker:
                 logger.warning("tracking restarted at frame %d after %d lost frames", frame.index, n_lost)
                 return dataclasses.replace(result, state="initializing")
             return result
+        if relocalising:
+            return self._lost(frame, failure, 0)
         start, pose_ms = time.perf_counter(), self._timers["pose_optimization"]
         first = self._track_last_frame_or_reference(frame)
         self._add_time("motion_model_tracking", start, pose_ms)
@@ -178,19 +202,31 @@ class Tracker:
         start, pose_ms = time.perf_counter(), self._timers["pose_optimization"]
         T_cam_world, rows, n_inliers = self._track_local_map(frame, first[0], first[1])
         self._add_time("local_map_tracking", start, pose_ms)
-        if n_inliers < self.config.min_local_map_inliers:
-            return self._lost(frame, f"local_map_inliers_below_{self.config.min_local_map_inliers}", n_inliers)
+        min_inliers = self._min_local_map_inliers(frame)
+        if n_inliers < min_inliers:
+            return self._lost(frame, f"local_map_inliers_below_{min_inliers}", n_inliers)
+        return self._tracked(frame, T_cam_world, rows, n_inliers, keyframes_in_flight)
+
+    def _tracked(
+        self, frame: Frame, T_cam_world: np.ndarray, rows: np.ndarray, n_inliers: int, keyframes_in_flight: int,
+        relocalised: bool = False,
+    ) -> TrackResult:
+        """A frame tracked in the local map: the keyframe decision, the motion model (restarted after
+        a relocalisation, as ORB-SLAM's has no velocity across a lost frame) and the last frame."""
         start = time.perf_counter()
         keyframe = None
         if self._need_keyframe(frame, rows, n_inliers, keyframes_in_flight):
             keyframe = self._make_keyframe(frame, T_cam_world, rows)
         self._timers["keyframe_decision"] += (time.perf_counter() - start) * 1e3
-        self.motion.update(self._last.T_cam_world, T_cam_world, self._frame_gap(frame))
+        if relocalised:
+            self.motion.reset()
+        else:
+            self.motion.update(self._last.T_cam_world, T_cam_world, self._frame_gap(frame))
         self._last = _LastFrame(frame, rows, T_cam_world)
         self._lost_streak = 0
         if keyframe is not None:
             self._evict(keyframes_in_flight + 1)
-        return TrackResult("ok", None, invert_T(T_cam_world), n_inliers, keyframe, dict(self._timers))
+        return TrackResult("ok", None, invert_T(T_cam_world), n_inliers, keyframe, dict(self._timers), relocalised=relocalised)
 
     def apply_map_update(self, update: MapUpdate) -> None:
         """Apply the backend's correction to the local map and keep the last frame where it was
@@ -268,6 +304,51 @@ class Tracker:
         self.motion.reset()
         logger.debug("frame %d lost: %s", frame.index, reason)
         return TrackResult("lost", reason, None, n_tracked, None, dict(self._timers))
+
+    # ---- relocalisation ------------------------------------------------------------------------------
+    def _relocalises(self, candidates: CandidateSource | None) -> bool:
+        return candidates is not None and self.vocabulary is not None and self.config.relocalisation.enabled
+
+    def _relocalise(self, frame: Frame, candidates: CandidateSource) -> tuple[tuple | None, str]:
+        """ORB-SLAM2's ``Relocalization`` then ``TrackLocalMap``: ((T_cam_world, rows, inliers), "") on
+        success, else (None, why not). The matched keyframe and its neighbours re-enter the cache
+        either way."""
+        cfg = self.config.relocalisation
+        start, pose_ms = time.perf_counter(), self._timers["pose_optimization"]
+        self._timers["relocalisation"] = 0.0
+        try:
+            if len(frame.features) == 0:
+                return None, "relocalisation_no_keypoints"
+            bow, fvec = self.vocabulary.transform(frame.features.descriptors)
+            query = RelocalisationQuery(frame.stamp_ns, bow.word_ids, bow.weights, cfg.max_candidates, cfg.max_neighbours)
+            reply = candidates(query) if len(bow.word_ids) else None
+            if reply is None or not reply.candidates:
+                return None, "relocalisation_no_candidates"
+            found = relocalise(frame, reply, self.vocabulary, cfg, self.pose_config, frame_feature_vector=fvec)
+            if found is None:
+                return None, "relocalisation_no_candidate_matched"
+            self.map.restore_keyframes(keyframes_to_restore(reply, found.keyframe_id), reply.points)
+            rows = self.map.rows_of_ids(found.point_ids)
+            T_cam_world, rows, n_inliers = self._track_local_map(frame, found.T_cam_world, rows)
+        finally:
+            self._add_time("relocalisation", start, pose_ms)
+        min_inliers = max(self.config.min_local_map_inliers, cfg.min_local_map_inliers_after)
+        if n_inliers < min_inliers:
+            return None, f"relocalisation_local_map_inliers_below_{min_inliers}"
+        self._relocalised_at = frame.index
+        self.n_relocalisations += 1
+        logger.info("relocalised at frame %d on keyframe %d (%d inliers)", frame.index, found.keyframe_id, n_inliers)
+        return (T_cam_world, rows, n_inliers), ""
+
+    def _recently_relocalised(self, frame: Frame) -> bool:
+        """Within ORB-SLAM's mMaxFrames (one second of frames) after a relocalisation."""
+        window = self.keyframe_config.max_frames or self.camera_fps
+        return frame.index < self._relocalised_at + window
+
+    def _min_local_map_inliers(self, frame: Frame) -> int:
+        if self._recently_relocalised(frame):
+            return max(self.config.min_local_map_inliers, self.config.relocalisation.min_local_map_inliers_after)
+        return self.config.min_local_map_inliers
 
     # ---- stage 1: last frame (motion model) or reference keyframe ---------------------------------
     def _track_last_frame_or_reference(self, frame: Frame):
@@ -449,6 +530,9 @@ class Tracker:
     # ---- keyframes ----------------------------------------------------------------------------------
     def _need_keyframe(self, frame: Frame, rows: np.ndarray, n_inliers: int, keyframes_in_flight: int) -> bool:
         n_kfs = self.map.n_keyframes
+        paused = self.config.relocalisation.pause_keyframes and self._recently_relocalised(frame)
+        if paused and n_kfs > (self.keyframe_config.max_frames or self.camera_fps):
+            return False  # ORB-SLAM: no keyframe within a second of a relocalisation
         min_obs = 1 if n_kfs <= 2 else self.config.reference_min_observations
         n_ref = self.map.tracked_points(self._reference_slot, min_obs) if self._reference_slot >= 0 else 0
         tracked_close, untracked_close = close_point_counts(frame.depth_m, rows >= 0, self.th_depth_m)

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from zenslam.errors import ConfigError
@@ -16,11 +17,17 @@ class RerunConfig:
     image_every_n: int = 1  # frames; the source logs every n-th left image (keypoints and poses are logged every frame)
     # JPEG-compressed images: a third of the CPU and of the file size of raw images.
     jpeg: bool = True
-    # JPEG quality 1-100 (jpeg true): 75 keeps the features under the keypoints visible at about
-    # two thirds of the file size of 90.
-    jpeg_quality: int = 75
+    # JPEG quality 1-100 (jpeg true): 50 keeps the features under the keypoints visible at about half
+    # the file size of 90 (the run's recording keeps the lossless frames).
+    jpeg_quality: int = 50
+    # The backend's whole map (backend/map_points, backend/covisibility) at most this far apart in
+    # sensor time, and the final map; each holds every point and edge, so logging one per keyframe
+    # grows the file with the square of the map. 0: after every keyframe.
+    map_period_s: float = 1.0  # seconds
 
     def __post_init__(self) -> None:
+        if not (math.isfinite(self.map_period_s) and self.map_period_s >= 0):
+            raise ConfigError(f"rerun.map_period_s={self.map_period_s} must be >= 0 seconds (0: after every keyframe)")
         if self.image_every_n < 1:
             raise ConfigError(f"rerun.image_every_n={self.image_every_n} must be at least 1 frame (1: every image)")
         if not 1 <= self.jpeg_quality <= 100:

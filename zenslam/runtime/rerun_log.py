@@ -18,8 +18,9 @@ Entity paths mirror the packages::
     frontend/counts/<name>          tracked points, keypoints (Scalars)
     frontend/timing/<stage>         milliseconds per tracking stage (Scalars)
     backend/keyframes               keyframe centres (Points3D, world, metres), per keyframe
-    backend/map_points              every map point (Points3D, world, metres), per keyframe
-    backend/covisibility            covisibility edges between keyframe centres (LineStrips3D)
+    backend/map_points              every map point (Points3D, world, metres), at most once per
+                                    ``map_period_s`` of sensor time, and the final map
+    backend/covisibility            covisibility edges between keyframe centres (LineStrips3D), as map_points
     backend/trajectory              the keyframe centres in time order (LineStrips3D)
     backend/local_ba/before|after   local BA graph error before and after optimisation (Scalars)
     backend/counts/<name>           keyframes, map points, keyframe queue depth (Scalars)
@@ -56,6 +57,12 @@ SENSOR_TIMELINE = "sensor_time"  # the frame's stamp: a timestamp, or a duration
 RRD_SUFFIX = ".rrd"
 # Stamps before 2000-01-01 are taken as time since the sequence start (KITTI, synthetic), not epoch time.
 _EPOCH_STAMP_MIN_NS = 946_684_800 * 1_000_000_000
+# Logged rows are gathered into chunks (one per entity) until this much time or data has piled up.
+# rerun's default (200 ms) suits a live viewer; saved to a file it makes a chunk of one row for most
+# of a stage's per-frame entities, each with its own schema, so that the file's size depended on
+# the machine's speed and was up to half overhead. A stage killed with SIGKILL loses what is pending.
+_FLUSH_TICK_S = 5.0  # seconds
+_FLUSH_BYTES = 4 * 1024 * 1024  # bytes
 
 # Colours (RGB) the blueprint's views show; fixed so two recordings look alike.
 _KEYPOINT_RGB = (150, 150, 150)
@@ -63,6 +70,7 @@ _MATCH_RGB = (40, 220, 60)
 _KEYFRAME_RGB = (60, 120, 255)
 _MAP_POINT_RGB = (230, 230, 230)
 _COVISIBILITY_RGB = (255, 170, 0)
+_LOOP_RGB = (255, 64, 200)  # loop edges: magenta, drawn thicker than covisibility
 _TRAJECTORY_RGB = (255, 60, 60)
 
 
@@ -147,7 +155,10 @@ class StageRecording:
         self.config = config
         self.path.parent.mkdir(parents=True, exist_ok=True)
         # No properties: the recording-start property is wall-clock time and would differ run to run.
-        self.stream = rr.RecordingStream(APPLICATION_ID, recording_id=run_id, send_properties=False)
+        self.stream = rr.RecordingStream(
+            APPLICATION_ID, recording_id=run_id, send_properties=False,
+            batcher_config=rr.ChunkBatcherConfig(flush_tick=_FLUSH_TICK_S, flush_num_bytes=_FLUSH_BYTES),
+        )
         self.stream.set_log_time_enabled(False)  # wall clock: logged data must compare equal across runs
         self.stream.set_log_tick_enabled(False)  # counts log calls, which differ between processes
         with _pandas_hidden():  # the blueprint is the first thing logged
@@ -282,10 +293,13 @@ def tracked_keypoints(pipeline: Any, index: int) -> tuple[np.ndarray, np.ndarray
 
 
 class BackendLog:
-    """What the backend process logs per keyframe: the map, the graphs, local BA errors, counts, timings."""
+    """What the backend process logs per keyframe: keyframes, local BA errors, counts, timings; the map
+    and its covisibility graph at most once per ``map_period_s`` of sensor time, and the final map."""
 
     def __init__(self, recording: StageRecording) -> None:
         self.recording = recording
+        self._map_logged_ns: int | None = None  # stamp of the last logged map
+        self._unlogged: tuple[Any, Any] | None = None  # (keyframe, mapper) of a map change not logged yet
         _log_world_axes(recording)
 
     def log_keyframe(self, keyframe: Any, mapper: Any) -> None:
@@ -294,21 +308,42 @@ class BackendLog:
         rec.at(keyframe.frame_index, keyframe.stamp_ns)
         bmap = mapper.map
         keyframes = sorted(bmap.keyframes.values(), key=lambda kf: (kf.stamp_ns, kf.id))
-        centres = {kf.id: kf.centre_world for kf in keyframes}
-        positions = np.array([centres[kf.id] for kf in keyframes], dtype=float).reshape(-1, 3)
+        positions = np.array([kf.centre_world for kf in keyframes], dtype=float).reshape(-1, 3)
         rec.log("backend/keyframes", rr.Points3D(positions, radii=0.05, colors=_KEYFRAME_RGB))
         rec.log("backend/trajectory", rr.LineStrips3D([positions], colors=_TRAJECTORY_RGB))
-        point_ids = sorted(bmap.points)
-        p_world = np.array([bmap.points[p].p_world for p in point_ids], dtype=float).reshape(-1, 3)
-        rec.log("backend/map_points", rr.Points3D(p_world, radii=0.02, colors=_MAP_POINT_RGB))
-        edges = [(centres[a], centres[b]) for a, b, _ in bmap.covisibility.edges() if a in centres and b in centres]
-        rec.log("backend/covisibility", rr.LineStrips3D(np.array(edges, dtype=float).reshape(-1, 2, 3), colors=_COVISIBILITY_RGB))
+        period_ns = round(self.recording.config.map_period_s * 1e9)
+        if self._map_logged_ns is None or keyframe.stamp_ns - self._map_logged_ns >= period_ns:
+            self._log_map(keyframe, mapper)
+        else:
+            self._unlogged = (keyframe, mapper)
         ba = getattr(mapper, "last_ba_stats", {}) or {}
         if "initial_error" in ba and "final_error" in ba:
             rec.log("backend/local_ba/before", rr.Scalars(float(ba["initial_error"])))
             rec.log("backend/local_ba/after", rr.Scalars(float(ba["final_error"])))
-        rec.scalars("backend/counts", {"keyframes": len(keyframes), "map_points": len(point_ids)})
+        rec.scalars("backend/counts", {"keyframes": len(keyframes), "map_points": len(bmap.points)})
         rec.scalars("backend/timing", mapper.last_timings_ms)
+
+    def finish(self) -> None:
+        """Log the final map, if the last keyframes came too soon after the previous logged map."""
+        if self._unlogged is not None:
+            keyframe, mapper = self._unlogged
+            self.recording.at(keyframe.frame_index, keyframe.stamp_ns)
+            self._log_map(keyframe, mapper)
+
+    def _log_map(self, keyframe: Any, mapper: Any) -> None:
+        """The map points, covisibility and loop edges of ``mapper``'s map now, at the current time."""
+        bmap = mapper.map
+        centres = {kf.id: kf.centre_world for kf in bmap.keyframes.values()}
+        point_ids = sorted(bmap.points)
+        p_world = np.array([bmap.points[p].p_world for p in point_ids], dtype=float).reshape(-1, 3)
+        self.recording.log("backend/map_points", rr.Points3D(p_world, radii=0.02, colors=_MAP_POINT_RGB))
+        edges = [(centres[a], centres[b]) for a, b, _ in bmap.covisibility.edges() if a in centres and b in centres]
+        strips = np.array(edges, dtype=float).reshape(-1, 2, 3)
+        self.recording.log("backend/covisibility", rr.LineStrips3D(strips, colors=_COVISIBILITY_RGB))
+        loops = [(centres[a], centres[b]) for a, b in bmap.essential_graph.loop_edges() if a in centres and b in centres]
+        loop_strips = np.array(loops, dtype=float).reshape(-1, 2, 3)
+        self.recording.log("backend/loops", rr.LineStrips3D(loop_strips, colors=_LOOP_RGB, radii=0.03))
+        self._map_logged_ns, self._unlogged = keyframe.stamp_ns, None
 
     def log_queue_depth(self, keyframe: Any, depth: int) -> None:
         """Keyframes waiting in the backend's inbox after ``keyframe`` was processed."""

@@ -21,6 +21,13 @@ from zenslam.errors import CalibrationError, MessageError, ZenslamError
 from zenslam.geometry import R_to_quat_wxyz, quat_wxyz_to_R
 from zenslam.schemas import zenslam_pb2 as pb
 from zenslam.schemas.map_update import KeyframeCorrection, MapUpdate
+from zenslam.schemas.relocalisation import (
+    MapKeyframe,
+    MapPoints,
+    RelocalisationCandidate,
+    RelocalisationCandidates,
+    RelocalisationQuery,
+)
 from zenslam.schemas.sensor_data import SensorFrame
 
 # Schema names: the protobuf full names, also used as the zenoh encoding schema and MCAP schema.
@@ -31,6 +38,9 @@ MAP_UPDATE = "zenslam.MapUpdate"
 STAGE_STATUS = "zenslam.StageStatus"
 KEYFRAME_TRAJECTORY = "zenslam.KeyframeTrajectory"
 MAP_SNAPSHOT = "zenslam.MapSnapshot"
+LOOP = "zenslam.Loop"
+RELOCALISATION_QUERY = "zenslam.RelocalisationQuery"
+RELOCALISATION_CANDIDATES = "zenslam.RelocalisationCandidates"
 POSE_IN_FRAME = "foxglove.PoseInFrame"
 
 MESSAGE_CLASSES: dict[str, type[Message]] = {
@@ -41,6 +51,9 @@ MESSAGE_CLASSES: dict[str, type[Message]] = {
     STAGE_STATUS: pb.StageStatus,
     KEYFRAME_TRAJECTORY: pb.KeyframeTrajectory,
     MAP_SNAPSHOT: pb.MapSnapshot,
+    LOOP: pb.Loop,
+    RELOCALISATION_QUERY: pb.RelocalisationQuery,
+    RELOCALISATION_CANDIDATES: pb.RelocalisationCandidates,
     POSE_IN_FRAME: PoseInFrame,
 }
 
@@ -81,6 +94,16 @@ ARRAY_FIELDS: dict[str, dict[str, ArrayLayout]] = {
     },
     KEYFRAME_TRAJECTORY: {"keyframe_ids": ("<i8", ()), "stamps_ns": ("<i8", ()), "T_world_cam": ("<f8", (4, 4))},
     MAP_SNAPSHOT: {"point_ids": ("<i8", ()), "p_world": ("<f8", (3,))},
+    RELOCALISATION_QUERY: {"word_ids": ("<i8", ()), "weights": ("<f8", ())},
+    "zenslam.MapKeyframe": {
+        "keypoints_px": ("<f4", (2,)), "levels": ("<i2", ()), "angles_deg": ("<f4", ()), "right_u": ("<f4", ()),
+        "depth_m": ("<f4", ()), "descriptors": ("u1", (32,)), "map_point_ids": ("<i8", ()), "scale_factors": ("<f8", ()),
+    },
+    "zenslam.RelocalisationCandidate": {"neighbour_ids": ("<i8", ())},
+    RELOCALISATION_CANDIDATES: {
+        "point_ids": ("<i8", ()), "p_world": ("<f8", (3,)), "descriptors": ("u1", (32,)), "normals": ("<f8", (3,)),
+        "min_distance_m": ("<f8", ()), "max_distance_m": ("<f8", ()),
+    },
 }  # fmt: skip
 
 
@@ -116,6 +139,7 @@ class TrackingStateMessage:
     # The keyframe the pose is kept relative to (-1 none) and the camera in its frame (4x4, as tracked).
     reference_keyframe_id: int = -1
     T_reference_cam: np.ndarray | None = None
+    relocalised: bool = False  # tracking was lost before this frame and found the map again here
 
 
 @dataclass(frozen=True)
@@ -173,6 +197,24 @@ class KeyframeTrajectoryMessage:
     T_world_cam: np.ndarray  # (K, 4, 4) camera -> world
     keyframes_processed: int = 0  # keyframes the backend had processed when it answered
     finished: bool = False  # the backend had processed its input's end of stream
+
+
+@dataclass(frozen=True)
+class LoopMessage:
+    """A loop candidate that reached verification (backend/loop): accepted, or rejected with a reason."""
+
+    keyframe_id: int
+    stamp_ns: int
+    loop_keyframe_id: int
+    loop_stamp_ns: int
+    accepted: bool
+    reason: str  # why it was rejected; "" when accepted
+    T_world_cur_before: np.ndarray  # (4, 4) the current keyframe's pose before any correction
+    T_world_loop: np.ndarray  # (4, 4) the loop keyframe's pose
+    T_cur_loop: np.ndarray = field(default_factory=lambda: np.eye(4))  # (4, 4) rigid part: loop camera -> current camera
+    scale: float = 1.0  # the transform's scale (1 for stereo/RGB-D)
+    inliers: int = 0
+    T_world_cur_after: np.ndarray = field(default_factory=lambda: np.eye(4))  # (4, 4) after the correction
 
 
 @dataclass(frozen=True)
@@ -275,6 +317,11 @@ def _encode_image(image: np.ndarray, encoding: ImageEncodingName, png_compressio
 def _decode_image(data: bytes, encoding: int, shape: tuple[int, int], name: str) -> np.ndarray:
     if encoding == pb.IMAGE_ENCODING_RAW:
         return _unpack(data, "u1", shape, name)
+    if encoding == pb.IMAGE_ENCODING_PNG_APART:
+        raise MessageError(
+            f"{name}: the image is stored apart from the message, on a recording's camera channels; "
+            "read the recording with zenslam.service.mcap_io, which puts the images back"
+        )
     if encoding != pb.IMAGE_ENCODING_PNG:
         raise MessageError(f"{name}: unknown image encoding {encoding}; the sender's zenslam is newer than this one")
     image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
@@ -346,6 +393,44 @@ def sensor_frame_as_png(data: bytes, png_compression: int = 1) -> bytes:
     return msg.SerializeToString()
 
 
+def sensor_frame_images_apart(data: bytes, png_compression: int = 1) -> tuple[bytes, list[bytes]]:
+    """The sensor/frame message ``data`` split for a recording that stores each image once:
+    (the message without its images, IMAGE_ENCODING_PNG_APART; [left PNG, and right PNG if any]).
+
+    Images already in PNG are kept as they are; an end of stream comes back unchanged with no images.
+    ``sensor_frame_with_images`` puts them back.
+    """
+    msg = _parse(pb.SensorFrame, sensor_frame_as_png(data, png_compression))
+    if msg.end_of_stream:
+        return bytes(data), []
+    images = [msg.left, msg.right] if msg.right else [msg.left]
+    msg.image_encoding = pb.IMAGE_ENCODING_PNG_APART
+    msg.ClearField("left")
+    msg.ClearField("right")
+    return msg.SerializeToString(), images
+
+
+def sensor_frame_with_images(data: bytes, left_png: bytes, right_png: bytes | None) -> bytes:
+    """The sensor/frame message ``data`` whose images were stored apart, with them put back (IMAGE_ENCODING_PNG).
+
+    A message that holds its images (or an end of stream) comes back unchanged.
+    """
+    msg = _parse(pb.SensorFrame, data)
+    if msg.end_of_stream or msg.image_encoding != pb.IMAGE_ENCODING_PNG_APART:
+        return bytes(data)
+    msg.image_encoding = pb.IMAGE_ENCODING_PNG
+    msg.left = left_png
+    if right_png is not None:
+        msg.right = right_png
+    return msg.SerializeToString()
+
+
+def sensor_frame_images_are_apart(data: bytes) -> bool:
+    """True when the sensor/frame message ``data`` holds no images: a recording stores them apart."""
+    msg = _parse(pb.SensorFrame, data)
+    return not msg.end_of_stream and msg.image_encoding == pb.IMAGE_ENCODING_PNG_APART
+
+
 def decode_sensor_frame(data: bytes) -> FrameMessage | EndOfStream:
     """Decode a sensor/frame message (images raw or PNG); depth comes back as float32 metres whatever its encoding."""
     msg = _parse(pb.SensorFrame, data)
@@ -386,6 +471,7 @@ def encode_tracking_state(state: TrackingStateMessage) -> bytes:
         n_tracked=state.n_tracked,
         has_pose=state.has_pose,
         keyframe_id=state.keyframe_id,
+        relocalised=state.relocalised,
     )
     for name, ms in state.timings_ms.items():
         msg.timings_ms[name] = float(ms)
@@ -415,6 +501,7 @@ def decode_tracking_state(data: bytes) -> TrackingStateMessage | EndOfStream:
         # Presence of the transform marks a reference: id 0 is a keyframe, not "unset".
         reference_keyframe_id=msg.reference_keyframe_id if msg.HasField("T_reference_cam") else -1,
         T_reference_cam=_transform_from_pb(msg.T_reference_cam) if msg.HasField("T_reference_cam") else None,
+        relocalised=msg.relocalised,
     )
 
 
@@ -482,7 +569,7 @@ def encode_map_update(update: MapUpdate) -> bytes:
     """Encode a backend/map_update message."""
     msg = pb.MapUpdate(
         keyframe_id=update.keyframe_id, stamp_ns=update.stamp_ns, num_points=len(update.point_ids),
-        kind=_MAP_UPDATE_KIND_TO_PB[update.kind],
+        kind=_MAP_UPDATE_KIND_TO_PB[update.kind], corrections_following=update.corrections_following,
     )
     for kf in update.keyframes:
         correction = msg.keyframes.add(id=kf.id, num_keypoints=len(kf.map_point_ids))
@@ -516,6 +603,7 @@ def decode_map_update(data: bytes) -> MapUpdate | EndOfStream:
     )
     return MapUpdate(
         kind=_MAP_UPDATE_KIND_FROM_PB[msg.kind],
+        corrections_following=msg.corrections_following,
         keyframe_id=msg.keyframe_id,
         stamp_ns=msg.stamp_ns,
         keyframes=keyframes,
@@ -529,6 +617,34 @@ def decode_map_update(data: bytes) -> MapUpdate | EndOfStream:
         removed_keyframe_ids=_unpack(
             msg.removed_keyframe_ids, "<i8", (len(msg.removed_keyframe_ids) // 8,), f"{where} removed_keyframe_ids"
         ),
+    )
+
+
+def encode_loop(loop: LoopMessage) -> bytes:
+    """Encode a backend/loop message."""
+    msg = pb.Loop(
+        keyframe_id=loop.keyframe_id, stamp_ns=loop.stamp_ns, loop_keyframe_id=loop.loop_keyframe_id,
+        loop_stamp_ns=loop.loop_stamp_ns, accepted=loop.accepted, reason=loop.reason, scale=loop.scale, inliers=loop.inliers,
+    )
+    _transform_to_pb(loop.T_world_cur_before, msg.T_world_cur_before)
+    _transform_to_pb(loop.T_world_loop, msg.T_world_loop)
+    if loop.accepted:
+        _transform_to_pb(loop.T_cur_loop, msg.T_cur_loop)
+        _transform_to_pb(loop.T_world_cur_after, msg.T_world_cur_after)
+    return msg.SerializeToString()
+
+
+def decode_loop(data: bytes) -> LoopMessage:
+    """Decode a backend/loop message (an unaccepted loop's transforms after the correction are identities)."""
+    msg = _parse(pb.Loop, data)
+    accepted = bool(msg.accepted)
+    return LoopMessage(
+        keyframe_id=msg.keyframe_id, stamp_ns=msg.stamp_ns, loop_keyframe_id=msg.loop_keyframe_id,
+        loop_stamp_ns=msg.loop_stamp_ns, accepted=accepted, reason=msg.reason,
+        T_world_cur_before=_transform_from_pb(msg.T_world_cur_before), T_world_loop=_transform_from_pb(msg.T_world_loop),
+        T_cur_loop=_transform_from_pb(msg.T_cur_loop) if accepted else np.eye(4),
+        scale=msg.scale if accepted else 1.0, inliers=msg.inliers,
+        T_world_cur_after=_transform_from_pb(msg.T_world_cur_after) if accepted else np.eye(4),
     )
 
 
@@ -652,3 +768,95 @@ def decode_map_snapshot(data: bytes) -> MapSnapshotMessage:
         point_ids=_unpack(msg.point_ids, "<i8", (p,), "map snapshot point_ids"),
         p_world=_unpack(msg.p_world, "<f8", (p, 3), "map snapshot p_world"),
     )
+
+
+def encode_relocalisation_query(query: RelocalisationQuery) -> bytes:
+    """Encode a backend/relocalisation query."""
+    msg = pb.RelocalisationQuery(
+        stamp_ns=query.stamp_ns, num_words=len(query.word_ids),
+        max_candidates=query.max_candidates, max_neighbours=query.max_neighbours,
+    )
+    msg.word_ids = _pack(query.word_ids, "<i8", (), "relocalisation query word_ids")
+    msg.weights = _pack(query.weights, "<f8", (), "relocalisation query weights")
+    return msg.SerializeToString()
+
+
+def decode_relocalisation_query(data: bytes) -> RelocalisationQuery:
+    """Decode a backend/relocalisation query."""
+    msg = _parse(pb.RelocalisationQuery, data)
+    w = msg.num_words
+    return RelocalisationQuery(
+        stamp_ns=msg.stamp_ns,
+        word_ids=_unpack(msg.word_ids, "<i8", (w,), "relocalisation query word_ids"),
+        weights=_unpack(msg.weights, "<f8", (w,), "relocalisation query weights"),
+        max_candidates=msg.max_candidates,
+        max_neighbours=msg.max_neighbours,
+    )
+
+
+_MAP_KEYFRAME_ARRAYS: dict[str, tuple[str, tuple[int, ...]]] = {
+    "levels": ("<i2", ()), "angles_deg": ("<f4", ()), "right_u": ("<f4", ()), "depth_m": ("<f4", ()),
+    "descriptors": ("u1", (32,)), "map_point_ids": ("<i8", ()),
+}  # fmt: skip
+_MAP_POINT_ARRAYS: dict[str, tuple[str, str, tuple[int, ...]]] = {  # message field: (MapPoints field, dtype, row)
+    "point_ids": ("ids", "<i8", ()), "p_world": ("p_world", "<f8", (3,)), "descriptors": ("descriptors", "u1", (32,)),
+    "normals": ("normals", "<f8", (3,)), "min_distance_m": ("min_distance_m", "<f8", ()),
+    "max_distance_m": ("max_distance_m", "<f8", ()),
+}  # fmt: skip
+
+
+def encode_relocalisation_candidates(reply: RelocalisationCandidates) -> bytes:
+    """Encode a backend/relocalisation reply; every keyframe's arrays must agree with its keypoint count."""
+    msg = pb.RelocalisationCandidates(
+        stamp_ns=reply.stamp_ns, keyframes_processed=reply.keyframes_processed, num_points=len(reply.points.ids)
+    )
+    for candidate in reply.candidates:
+        out = msg.candidates.add(keyframe_id=candidate.keyframe_id, score=candidate.score)
+        out.neighbour_ids = _pack(candidate.neighbour_ids, "<i8", (), f"relocalisation candidate {candidate.keyframe_id} neighbour_ids")
+    for kf in reply.keyframes:
+        n, where = len(kf.keypoints_px), f"relocalisation keyframe {kf.id}"
+        out = msg.keyframes.add(id=kf.id, stamp_ns=kf.stamp_ns, num_keypoints=n)
+        _transform_to_pb(kf.T_world_cam, out.T_world_cam)
+        out.keypoints_px = _pack(kf.keypoints_px, "<f4", (2,), f"{where} keypoints_px")
+        for name, (dtype, tail) in _MAP_KEYFRAME_ARRAYS.items():
+            array = getattr(kf, name)
+            if len(array) != n:
+                raise MessageError(f"{where}: {name} has {len(array)} entries for {n} keypoints")
+            setattr(out, name, _pack(array, dtype, tail, f"{where} {name}"))
+        out.scale_factors = _pack(kf.scale_factors, "<f8", (), f"{where} scale_factors")
+    for name, (attr, dtype, tail) in _MAP_POINT_ARRAYS.items():
+        setattr(msg, name, _pack(getattr(reply.points, attr), dtype, tail, f"relocalisation reply {name}"))
+    return msg.SerializeToString()
+
+
+def decode_relocalisation_candidates(data: bytes) -> RelocalisationCandidates:
+    """Decode a backend/relocalisation reply."""
+    msg = _parse(pb.RelocalisationCandidates, data)
+    candidates = tuple(
+        RelocalisationCandidate(
+            keyframe_id=c.keyframe_id,
+            score=c.score,
+            neighbour_ids=_unpack(c.neighbour_ids, "<i8", (len(c.neighbour_ids) // 8,), f"relocalisation candidate {c.keyframe_id} neighbour_ids"),
+        )
+        for c in msg.candidates
+    )
+    keyframes = []
+    for kf in msg.keyframes:
+        n, where = kf.num_keypoints, f"relocalisation keyframe {kf.id}"
+        arrays = {name: _unpack(getattr(kf, name), dtype, (n, *tail), f"{where} {name}") for name, (dtype, tail) in _MAP_KEYFRAME_ARRAYS.items()}
+        keyframes.append(
+            MapKeyframe(
+                id=kf.id,
+                stamp_ns=kf.stamp_ns,
+                T_world_cam=_transform_from_pb(kf.T_world_cam),
+                keypoints_px=_unpack(kf.keypoints_px, "<f4", (n, 2), f"{where} keypoints_px"),
+                scale_factors=_unpack(kf.scale_factors, "<f8", (len(kf.scale_factors) // 8,), f"{where} scale_factors"),
+                **arrays,
+            )
+        )
+    p = msg.num_points
+    points = MapPoints(**{
+        attr: _unpack(getattr(msg, name), dtype, (p, *tail), f"relocalisation reply {name}")
+        for name, (attr, dtype, tail) in _MAP_POINT_ARRAYS.items()
+    })  # fmt: skip
+    return RelocalisationCandidates(msg.stamp_ns, candidates, tuple(keyframes), points, msg.keyframes_processed)

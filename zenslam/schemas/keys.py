@@ -90,6 +90,12 @@ def backend_trajectory_query(session: str) -> str:
     return f"{session_prefix(session)}/backend/trajectory"
 
 
+def backend_relocalisation_query(session: str) -> str:
+    """Queryable: relocalisation candidates for a lost frame's bag of words (zenslam.RelocalisationQuery in,
+    zenslam.RelocalisationCandidates out)."""
+    return f"{session_prefix(session)}/backend/relocalisation"
+
+
 def alive(session: str, process: str) -> str:
     """Liveliness token of one process of the session."""
     return f"{session_prefix(session)}/alive/{_check_name('process', process)}"

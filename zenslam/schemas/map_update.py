@@ -55,6 +55,10 @@ class MapUpdate:
     removed_point_ids: np.ndarray = field(default_factory=lambda: _empty((0,), np.int64))  # (R,)
     removed_keyframe_ids: np.ndarray = field(default_factory=lambda: _empty((0,), np.int64))  # (Q,)
     kind: MapUpdateKind = "keyframe"
+    # Corrections the backend publishes right after this answer (a loop found at this keyframe):
+    # in lockstep the frontend applies them too before its next frame, so where a correction
+    # lands in the stream does not depend on timing.
+    corrections_following: int = 0
 
     @property
     def answers_keyframe(self) -> bool:

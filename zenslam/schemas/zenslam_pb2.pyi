@@ -24,6 +24,7 @@ class ImageEncoding(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     __slots__ = ()
     IMAGE_ENCODING_RAW: _ClassVar[ImageEncoding]
     IMAGE_ENCODING_PNG: _ClassVar[ImageEncoding]
+    IMAGE_ENCODING_PNG_APART: _ClassVar[ImageEncoding]
 
 class TrackingStateKind(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     __slots__ = ()
@@ -54,6 +55,7 @@ DEPTH_ENCODING_FLOAT32_M: DepthEncoding
 DEPTH_ENCODING_UINT16_MM: DepthEncoding
 IMAGE_ENCODING_RAW: ImageEncoding
 IMAGE_ENCODING_PNG: ImageEncoding
+IMAGE_ENCODING_PNG_APART: ImageEncoding
 TRACKING_STATE_UNSPECIFIED: TrackingStateKind
 TRACKING_STATE_OK: TrackingStateKind
 TRACKING_STATE_LOST: TrackingStateKind
@@ -136,7 +138,7 @@ class SensorFrame(_message.Message):
     def __init__(self, index: _Optional[int] = ..., stamp_ns: _Optional[int] = ..., width: _Optional[int] = ..., height: _Optional[int] = ..., sensor: _Optional[_Union[SensorKind, str]] = ..., calibration: _Optional[_Union[Calibration, _Mapping]] = ..., left: _Optional[bytes] = ..., right: _Optional[bytes] = ..., depth_encoding: _Optional[_Union[DepthEncoding, str]] = ..., depth: _Optional[bytes] = ..., source_name: _Optional[str] = ..., end_of_stream: _Optional[bool] = ..., count: _Optional[int] = ..., image_encoding: _Optional[_Union[ImageEncoding, str]] = ...) -> None: ...
 
 class TrackingState(_message.Message):
-    __slots__ = ("index", "stamp_ns", "state", "lost_reason", "n_tracked", "timings_ms", "has_pose", "keyframe_id", "end_of_stream", "count", "reference_keyframe_id", "T_reference_cam")
+    __slots__ = ("index", "stamp_ns", "state", "lost_reason", "n_tracked", "timings_ms", "has_pose", "keyframe_id", "end_of_stream", "count", "reference_keyframe_id", "T_reference_cam", "relocalised")
     class TimingsMsEntry(_message.Message):
         __slots__ = ("key", "value")
         KEY_FIELD_NUMBER: _ClassVar[int]
@@ -156,6 +158,7 @@ class TrackingState(_message.Message):
     COUNT_FIELD_NUMBER: _ClassVar[int]
     REFERENCE_KEYFRAME_ID_FIELD_NUMBER: _ClassVar[int]
     T_REFERENCE_CAM_FIELD_NUMBER: _ClassVar[int]
+    RELOCALISED_FIELD_NUMBER: _ClassVar[int]
     index: int
     stamp_ns: int
     state: TrackingStateKind
@@ -168,7 +171,8 @@ class TrackingState(_message.Message):
     count: int
     reference_keyframe_id: int
     T_reference_cam: RigidTransform
-    def __init__(self, index: _Optional[int] = ..., stamp_ns: _Optional[int] = ..., state: _Optional[_Union[TrackingStateKind, str]] = ..., lost_reason: _Optional[str] = ..., n_tracked: _Optional[int] = ..., timings_ms: _Optional[_Mapping[str, float]] = ..., has_pose: _Optional[bool] = ..., keyframe_id: _Optional[int] = ..., end_of_stream: _Optional[bool] = ..., count: _Optional[int] = ..., reference_keyframe_id: _Optional[int] = ..., T_reference_cam: _Optional[_Union[RigidTransform, _Mapping]] = ...) -> None: ...
+    relocalised: bool
+    def __init__(self, index: _Optional[int] = ..., stamp_ns: _Optional[int] = ..., state: _Optional[_Union[TrackingStateKind, str]] = ..., lost_reason: _Optional[str] = ..., n_tracked: _Optional[int] = ..., timings_ms: _Optional[_Mapping[str, float]] = ..., has_pose: _Optional[bool] = ..., keyframe_id: _Optional[int] = ..., end_of_stream: _Optional[bool] = ..., count: _Optional[int] = ..., reference_keyframe_id: _Optional[int] = ..., T_reference_cam: _Optional[_Union[RigidTransform, _Mapping]] = ..., relocalised: _Optional[bool] = ...) -> None: ...
 
 class Keyframe(_message.Message):
     __slots__ = ("id", "stamp_ns", "frame_index", "T_world_cam", "calibration", "sensor", "num_keypoints", "keypoints_px", "levels", "angles_deg", "right_u", "depth_m", "descriptors", "map_point_ids", "scale_factors", "num_new_points", "new_point_ids", "new_points_world", "end_of_stream", "count")
@@ -227,7 +231,7 @@ class KeyframeCorrection(_message.Message):
     def __init__(self, id: _Optional[int] = ..., T_world_cam: _Optional[_Union[RigidTransform, _Mapping]] = ..., num_keypoints: _Optional[int] = ..., map_point_ids: _Optional[bytes] = ...) -> None: ...
 
 class MapUpdate(_message.Message):
-    __slots__ = ("keyframe_id", "stamp_ns", "keyframes", "num_points", "point_ids", "p_world", "descriptors", "normals", "min_distance_m", "max_distance_m", "removed_point_ids", "removed_keyframe_ids", "end_of_stream", "count", "kind")
+    __slots__ = ("keyframe_id", "stamp_ns", "keyframes", "num_points", "point_ids", "p_world", "descriptors", "normals", "min_distance_m", "max_distance_m", "removed_point_ids", "removed_keyframe_ids", "end_of_stream", "count", "kind", "corrections_following")
     KEYFRAME_ID_FIELD_NUMBER: _ClassVar[int]
     STAMP_NS_FIELD_NUMBER: _ClassVar[int]
     KEYFRAMES_FIELD_NUMBER: _ClassVar[int]
@@ -243,6 +247,7 @@ class MapUpdate(_message.Message):
     END_OF_STREAM_FIELD_NUMBER: _ClassVar[int]
     COUNT_FIELD_NUMBER: _ClassVar[int]
     KIND_FIELD_NUMBER: _ClassVar[int]
+    CORRECTIONS_FOLLOWING_FIELD_NUMBER: _ClassVar[int]
     keyframe_id: int
     stamp_ns: int
     keyframes: _containers.RepeatedCompositeFieldContainer[KeyframeCorrection]
@@ -258,7 +263,36 @@ class MapUpdate(_message.Message):
     end_of_stream: bool
     count: int
     kind: MapUpdateKind
-    def __init__(self, keyframe_id: _Optional[int] = ..., stamp_ns: _Optional[int] = ..., keyframes: _Optional[_Iterable[_Union[KeyframeCorrection, _Mapping]]] = ..., num_points: _Optional[int] = ..., point_ids: _Optional[bytes] = ..., p_world: _Optional[bytes] = ..., descriptors: _Optional[bytes] = ..., normals: _Optional[bytes] = ..., min_distance_m: _Optional[bytes] = ..., max_distance_m: _Optional[bytes] = ..., removed_point_ids: _Optional[bytes] = ..., removed_keyframe_ids: _Optional[bytes] = ..., end_of_stream: _Optional[bool] = ..., count: _Optional[int] = ..., kind: _Optional[_Union[MapUpdateKind, str]] = ...) -> None: ...
+    corrections_following: int
+    def __init__(self, keyframe_id: _Optional[int] = ..., stamp_ns: _Optional[int] = ..., keyframes: _Optional[_Iterable[_Union[KeyframeCorrection, _Mapping]]] = ..., num_points: _Optional[int] = ..., point_ids: _Optional[bytes] = ..., p_world: _Optional[bytes] = ..., descriptors: _Optional[bytes] = ..., normals: _Optional[bytes] = ..., min_distance_m: _Optional[bytes] = ..., max_distance_m: _Optional[bytes] = ..., removed_point_ids: _Optional[bytes] = ..., removed_keyframe_ids: _Optional[bytes] = ..., end_of_stream: _Optional[bool] = ..., count: _Optional[int] = ..., kind: _Optional[_Union[MapUpdateKind, str]] = ..., corrections_following: _Optional[int] = ...) -> None: ...
+
+class Loop(_message.Message):
+    __slots__ = ("keyframe_id", "stamp_ns", "loop_keyframe_id", "loop_stamp_ns", "accepted", "reason", "T_cur_loop", "scale", "inliers", "T_world_cur_before", "T_world_cur_after", "T_world_loop")
+    KEYFRAME_ID_FIELD_NUMBER: _ClassVar[int]
+    STAMP_NS_FIELD_NUMBER: _ClassVar[int]
+    LOOP_KEYFRAME_ID_FIELD_NUMBER: _ClassVar[int]
+    LOOP_STAMP_NS_FIELD_NUMBER: _ClassVar[int]
+    ACCEPTED_FIELD_NUMBER: _ClassVar[int]
+    REASON_FIELD_NUMBER: _ClassVar[int]
+    T_CUR_LOOP_FIELD_NUMBER: _ClassVar[int]
+    SCALE_FIELD_NUMBER: _ClassVar[int]
+    INLIERS_FIELD_NUMBER: _ClassVar[int]
+    T_WORLD_CUR_BEFORE_FIELD_NUMBER: _ClassVar[int]
+    T_WORLD_CUR_AFTER_FIELD_NUMBER: _ClassVar[int]
+    T_WORLD_LOOP_FIELD_NUMBER: _ClassVar[int]
+    keyframe_id: int
+    stamp_ns: int
+    loop_keyframe_id: int
+    loop_stamp_ns: int
+    accepted: bool
+    reason: str
+    T_cur_loop: RigidTransform
+    scale: float
+    inliers: int
+    T_world_cur_before: RigidTransform
+    T_world_cur_after: RigidTransform
+    T_world_loop: RigidTransform
+    def __init__(self, keyframe_id: _Optional[int] = ..., stamp_ns: _Optional[int] = ..., loop_keyframe_id: _Optional[int] = ..., loop_stamp_ns: _Optional[int] = ..., accepted: _Optional[bool] = ..., reason: _Optional[str] = ..., T_cur_loop: _Optional[_Union[RigidTransform, _Mapping]] = ..., scale: _Optional[float] = ..., inliers: _Optional[int] = ..., T_world_cur_before: _Optional[_Union[RigidTransform, _Mapping]] = ..., T_world_cur_after: _Optional[_Union[RigidTransform, _Mapping]] = ..., T_world_loop: _Optional[_Union[RigidTransform, _Mapping]] = ...) -> None: ...
 
 class StageStatus(_message.Message):
     __slots__ = ("stage", "state", "processed", "step_ms", "queue_depth", "dropped", "detail", "timings_ms", "skipped")
@@ -323,3 +357,83 @@ class MapSnapshot(_message.Message):
     point_ids: bytes
     p_world: bytes
     def __init__(self, keyframes: _Optional[_Union[KeyframeTrajectory, _Mapping]] = ..., num_points: _Optional[int] = ..., point_ids: _Optional[bytes] = ..., p_world: _Optional[bytes] = ...) -> None: ...
+
+class RelocalisationQuery(_message.Message):
+    __slots__ = ("stamp_ns", "num_words", "word_ids", "weights", "max_candidates", "max_neighbours")
+    STAMP_NS_FIELD_NUMBER: _ClassVar[int]
+    NUM_WORDS_FIELD_NUMBER: _ClassVar[int]
+    WORD_IDS_FIELD_NUMBER: _ClassVar[int]
+    WEIGHTS_FIELD_NUMBER: _ClassVar[int]
+    MAX_CANDIDATES_FIELD_NUMBER: _ClassVar[int]
+    MAX_NEIGHBOURS_FIELD_NUMBER: _ClassVar[int]
+    stamp_ns: int
+    num_words: int
+    word_ids: bytes
+    weights: bytes
+    max_candidates: int
+    max_neighbours: int
+    def __init__(self, stamp_ns: _Optional[int] = ..., num_words: _Optional[int] = ..., word_ids: _Optional[bytes] = ..., weights: _Optional[bytes] = ..., max_candidates: _Optional[int] = ..., max_neighbours: _Optional[int] = ...) -> None: ...
+
+class MapKeyframe(_message.Message):
+    __slots__ = ("id", "stamp_ns", "T_world_cam", "num_keypoints", "keypoints_px", "levels", "angles_deg", "right_u", "depth_m", "descriptors", "map_point_ids", "scale_factors")
+    ID_FIELD_NUMBER: _ClassVar[int]
+    STAMP_NS_FIELD_NUMBER: _ClassVar[int]
+    T_WORLD_CAM_FIELD_NUMBER: _ClassVar[int]
+    NUM_KEYPOINTS_FIELD_NUMBER: _ClassVar[int]
+    KEYPOINTS_PX_FIELD_NUMBER: _ClassVar[int]
+    LEVELS_FIELD_NUMBER: _ClassVar[int]
+    ANGLES_DEG_FIELD_NUMBER: _ClassVar[int]
+    RIGHT_U_FIELD_NUMBER: _ClassVar[int]
+    DEPTH_M_FIELD_NUMBER: _ClassVar[int]
+    DESCRIPTORS_FIELD_NUMBER: _ClassVar[int]
+    MAP_POINT_IDS_FIELD_NUMBER: _ClassVar[int]
+    SCALE_FACTORS_FIELD_NUMBER: _ClassVar[int]
+    id: int
+    stamp_ns: int
+    T_world_cam: RigidTransform
+    num_keypoints: int
+    keypoints_px: bytes
+    levels: bytes
+    angles_deg: bytes
+    right_u: bytes
+    depth_m: bytes
+    descriptors: bytes
+    map_point_ids: bytes
+    scale_factors: bytes
+    def __init__(self, id: _Optional[int] = ..., stamp_ns: _Optional[int] = ..., T_world_cam: _Optional[_Union[RigidTransform, _Mapping]] = ..., num_keypoints: _Optional[int] = ..., keypoints_px: _Optional[bytes] = ..., levels: _Optional[bytes] = ..., angles_deg: _Optional[bytes] = ..., right_u: _Optional[bytes] = ..., depth_m: _Optional[bytes] = ..., descriptors: _Optional[bytes] = ..., map_point_ids: _Optional[bytes] = ..., scale_factors: _Optional[bytes] = ...) -> None: ...
+
+class RelocalisationCandidate(_message.Message):
+    __slots__ = ("keyframe_id", "score", "neighbour_ids")
+    KEYFRAME_ID_FIELD_NUMBER: _ClassVar[int]
+    SCORE_FIELD_NUMBER: _ClassVar[int]
+    NEIGHBOUR_IDS_FIELD_NUMBER: _ClassVar[int]
+    keyframe_id: int
+    score: float
+    neighbour_ids: bytes
+    def __init__(self, keyframe_id: _Optional[int] = ..., score: _Optional[float] = ..., neighbour_ids: _Optional[bytes] = ...) -> None: ...
+
+class RelocalisationCandidates(_message.Message):
+    __slots__ = ("stamp_ns", "keyframes_processed", "candidates", "keyframes", "num_points", "point_ids", "p_world", "descriptors", "normals", "min_distance_m", "max_distance_m")
+    STAMP_NS_FIELD_NUMBER: _ClassVar[int]
+    KEYFRAMES_PROCESSED_FIELD_NUMBER: _ClassVar[int]
+    CANDIDATES_FIELD_NUMBER: _ClassVar[int]
+    KEYFRAMES_FIELD_NUMBER: _ClassVar[int]
+    NUM_POINTS_FIELD_NUMBER: _ClassVar[int]
+    POINT_IDS_FIELD_NUMBER: _ClassVar[int]
+    P_WORLD_FIELD_NUMBER: _ClassVar[int]
+    DESCRIPTORS_FIELD_NUMBER: _ClassVar[int]
+    NORMALS_FIELD_NUMBER: _ClassVar[int]
+    MIN_DISTANCE_M_FIELD_NUMBER: _ClassVar[int]
+    MAX_DISTANCE_M_FIELD_NUMBER: _ClassVar[int]
+    stamp_ns: int
+    keyframes_processed: int
+    candidates: _containers.RepeatedCompositeFieldContainer[RelocalisationCandidate]
+    keyframes: _containers.RepeatedCompositeFieldContainer[MapKeyframe]
+    num_points: int
+    point_ids: bytes
+    p_world: bytes
+    descriptors: bytes
+    normals: bytes
+    min_distance_m: bytes
+    max_distance_m: bytes
+    def __init__(self, stamp_ns: _Optional[int] = ..., keyframes_processed: _Optional[int] = ..., candidates: _Optional[_Iterable[_Union[RelocalisationCandidate, _Mapping]]] = ..., keyframes: _Optional[_Iterable[_Union[MapKeyframe, _Mapping]]] = ..., num_points: _Optional[int] = ..., point_ids: _Optional[bytes] = ..., p_world: _Optional[bytes] = ..., descriptors: _Optional[bytes] = ..., normals: _Optional[bytes] = ..., min_distance_m: _Optional[bytes] = ..., max_distance_m: _Optional[bytes] = ...) -> None: ...

@@ -17,18 +17,20 @@ import sys
 import tempfile
 from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 from zenslam.backend.config import BackendConfig
 from zenslam.runtime.stage import add_process_arguments, load_section, setup_process_logging
 from zenslam.runtime.stop import EXIT_INTERRUPTED, StopFlag
 from zenslam.runtime.supervisor import ProcessSpec, Supervisor
 from zenslam.schemas import codec
-from zenslam.schemas.map_update import MapUpdate
 from zenslam.service import mcap_io
 from zenslam.service.replay import KEYFRAME_TOPIC, MAP_UPDATE_TOPIC, Comparison, compare_streams, read_topics
 from zenslam.service.run_config import RunConfig, run_config_to_yaml
 from zenslam.service.run_output import CONFIG_FILENAME
+
+if TYPE_CHECKING:
+    from zenslam.backend.node import StepOutput
 
 logger = logging.getLogger(__name__)
 
@@ -41,13 +43,14 @@ class Backend(Protocol):
 
     processed: int
 
-    def step(self, keyframe: codec.KeyframeMessage) -> MapUpdate: ...
+    def step(self, keyframe: codec.KeyframeMessage) -> StepOutput: ...
 
 
 def map_updates(
     keyframes: Iterable[mcap_io.RecordedMessage], backend: Backend, keep_going: Callable[[], bool] = lambda: True
 ) -> list[mcap_io.RecordedMessage]:
-    """``backend``'s map update for each recorded keyframe message, in order, and its end of stream when
+    """``backend``'s map updates (the answer, then any corrections) for each recorded keyframe message,
+    in order, and its end of stream when
     the keyframes end with one; logged at the update's stamp (the last one seen, for the end). Stops
     early, without an end of stream, once ``keep_going()`` is false."""
     replayed: list[mcap_io.RecordedMessage] = []
@@ -60,10 +63,10 @@ def map_updates(
             data = codec.encode_end_of_stream(codec.MAP_UPDATE, backend.processed)
             replayed.append(mcap_io.RecordedMessage(MAP_UPDATE_TOPIC, codec.MAP_UPDATE, last_stamp_ns, last_stamp_ns, 0, data))
             break
-        update = backend.step(keyframe)
-        last_stamp_ns = max(last_stamp_ns, update.stamp_ns)
-        data = codec.encode_map_update(update)
-        replayed.append(mcap_io.RecordedMessage(MAP_UPDATE_TOPIC, codec.MAP_UPDATE, update.stamp_ns, update.stamp_ns, 0, data))
+        for update in backend.step(keyframe).updates:
+            last_stamp_ns = max(last_stamp_ns, update.stamp_ns)
+            data = codec.encode_map_update(update)
+            replayed.append(mcap_io.RecordedMessage(MAP_UPDATE_TOPIC, codec.MAP_UPDATE, update.stamp_ns, update.stamp_ns, 0, data))
         logger.debug("keyframe %d replayed through the backend", keyframe.id)
     return replayed
 

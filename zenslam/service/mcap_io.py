@@ -7,6 +7,12 @@ can decode it. ``RecordingWriter`` registers schemas and channels lazily and num
 channel's messages; ``iter_messages`` reads a recording back, falling back to a streaming pass
 over a file whose summary is missing (a killed writer), and ``decode`` turns a message into
 zenslam's own types with ``zenslam.schemas.codec``.
+
+Camera images are stored once: the recorder writes each frame's lossless PNG images as the
+foxglove.CompressedImage messages of ``/camera/left`` and ``/camera/right`` (which viewers draw),
+then the ``/sensor/frame`` message without them (IMAGE_ENCODING_PNG_APART), all with the frame's
+stamp as log time. ``iter_messages`` gives ``/sensor/frame`` messages back whole (their images
+put back, IMAGE_ENCODING_PNG); recordings whose frames hold their own images read as they are.
 """
 
 from __future__ import annotations
@@ -39,6 +45,8 @@ MAGIC = b"\x89MCAP0\r\n"
 ChunkCompression = Literal["zstd", "lz4", "none"]
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 COMPRESSED_IMAGE = "foxglove.CompressedImage"
+SENSOR_FRAME_TOPIC = "/sensor/frame"
+CAMERA_TOPICS = ("/camera/left", "/camera/right")  # foxglove.CompressedImage: a frame's left and right image
 FRAME_TRANSFORM = "foxglove.FrameTransform"
 POINT_CLOUD = "foxglove.PointCloud"
 
@@ -59,6 +67,7 @@ DECODERS: dict[str, Callable[[bytes], Any]] = {
     codec.STAGE_STATUS: codec.decode_stage_status,
     codec.KEYFRAME_TRAJECTORY: codec.decode_keyframe_trajectory,
     codec.MAP_SNAPSHOT: codec.decode_map_snapshot,
+    codec.LOOP: codec.decode_loop,
     codec.POSE_IN_FRAME: codec.decode_pose_in_frame,
 }
 
@@ -214,22 +223,71 @@ def _to_recorded(schema: Schema | None, channel: Channel, message: McapMessage) 
 
 
 def iter_messages(path: str | Path, topics: Iterable[str] | None = None, log_time_order: bool = True) -> Iterator[RecordedMessage]:
-    """The messages of ``topics`` (all when None) in a recording, oldest log time first.
+    """The messages of ``topics`` (all when None) in a recording, oldest log time first; ``/sensor/frame``
+    messages whole, with the images the recording stores apart put back.
 
     A file without its summary (the writer was killed) is read by a streaming pass up to its
     last complete record, in file order, with a warning that ``zenslam recover`` would index it.
     """
     path = Path(path)
     wanted = None if topics is None else set(topics)
+    read = wanted if wanted is None or SENSOR_FRAME_TOPIC not in wanted else wanted | set(CAMERA_TOPICS)
+    yield from _with_frame_images(path, _iter_stored(path, read, log_time_order), wanted)
+
+
+def _iter_stored(path: Path, topics: set[str] | None, log_time_order: bool) -> Iterator[RecordedMessage]:
+    """The messages of ``topics`` (all when None) as stored."""
     if has_summary(path):
         with open(path, "rb") as f:
             reader = make_reader(f)
-            for schema, channel, message in reader.iter_messages(topics=wanted, log_time_order=log_time_order):
+            for schema, channel, message in reader.iter_messages(topics=topics, log_time_order=log_time_order):
                 yield _to_recorded(schema, channel, message)
         return
     logger.warning("%s has no summary (its writer was killed?): reading it sequentially; `zenslam recover` fixes it", path)
-    for schema, channel, message in stream_messages(path, wanted):
+    for schema, channel, message in stream_messages(path, topics):
         yield _to_recorded(schema, channel, message)
+
+
+def _with_frame_images(path: Path, messages: Iterable[RecordedMessage], wanted: set[str] | None) -> Iterator[RecordedMessage]:
+    """``messages`` with each stored-apart sensor frame given back its images (the camera messages
+    just before it with its log time); camera messages pass only when ``wanted`` (None: all)."""
+    images: dict[str, RecordedMessage] = {}  # camera topic -> its latest message, all at one log time
+    for message in messages:
+        if message.topic in CAMERA_TOPICS:
+            if images and next(iter(images.values())).log_time_ns != message.log_time_ns:
+                images.clear()
+            images[message.topic] = message
+            if wanted is None or message.topic in wanted:
+                yield message
+        elif message.topic == SENSOR_FRAME_TOPIC and message.schema == codec.SENSOR_FRAME:
+            at_frame = {t: m for t, m in images.items() if m.log_time_ns == message.log_time_ns}
+            images.clear()
+            if codec.sensor_frame_images_are_apart(message.data):
+                message = _joined_frame(path, message, at_frame)
+            yield message
+        else:
+            yield message
+
+
+def _joined_frame(path: Path, message: RecordedMessage, images: dict[str, RecordedMessage]) -> RecordedMessage:
+    """The stored-apart sensor frame ``message`` with the PNG images of ``images`` (camera topic -> message) put back."""
+    left_topic, right_topic = CAMERA_TOPICS
+    pngs: dict[str, bytes] = {}
+    for topic, image in images.items():
+        compressed = CompressedImage.FromString(image.data)
+        if compressed.format != "png":
+            raise RecordingError(
+                f"{path}: the {message.topic} message at {message.log_time_ns} ns stores its images on the camera "
+                f"channels, but {topic} holds {compressed.format!r}, not the frame's PNG; the recording is inconsistent"
+            )
+        pngs[topic] = compressed.data
+    if left_topic not in pngs:
+        raise RecordingError(
+            f"{path}: the {message.topic} message at {message.log_time_ns} ns stores its images on {left_topic} and "
+            f"{right_topic}, but no {left_topic} message with that log time precedes it; the recording lost it"
+        )
+    data = codec.sensor_frame_with_images(message.data, pngs[left_topic], pngs.get(right_topic))
+    return RecordedMessage(message.topic, message.schema, message.log_time_ns, message.publish_time_ns, message.sequence, data)
 
 
 def stream_messages(path: Path, topics: set[str] | None = None) -> Iterator[tuple[Schema | None, Channel, McapMessage]]:

@@ -2,10 +2,12 @@
 
 Each bus message is written as it came, on the topic of its key without the session prefix
 (``/sensor/frame``, ``/frontend/pose``, ...), with its protobuf schema embedded; sensor frames'
-images are stored as lossless PNG (``recorder.frame_images``), which decode to the same pixels.
-Alongside, for
-Foxglove and rerun: ``/camera/left`` and ``/camera/right`` (foxglove.CompressedImage, PNG or
-JPEG), ``/tf`` (foxglove.FrameTransform world -> camera for every pose) and ``/map/points``
+images are stored as lossless PNG (``recorder.frame_images``), which decode to the same pixels,
+once: by default (``recorder.image_format`` frame) they are the ``/camera/left`` and
+``/camera/right`` foxglove.CompressedImage messages that viewers draw, and the ``/sensor/frame``
+message follows them without its images (``mcap_io.iter_messages`` puts them back). Alongside, for
+Foxglove and rerun: ``/camera/*`` as separate PNG or JPEG copies when ``image_format`` says so,
+``/tf`` (foxglove.FrameTransform world -> camera for every pose) and ``/map/points``
 (foxglove.PointCloud of the map as rebuilt from keyframes and map updates, at most one per
 ``recorder.map_points_period_s`` of sensor time, and the final map). Log and publish
 times are the messages' own ``stamp_ns`` (messages without one, such as statuses, take the
@@ -62,7 +64,7 @@ logger = logging.getLogger(__name__)
 STAGE = "recorder"
 RECORDING_NAME = "run.mcap"
 FOLLOWED_STAGES = ("source", "frontend", "backend")
-CAMERA_TOPICS = ("/camera/left", "/camera/right")
+CAMERA_TOPICS = mcap_io.CAMERA_TOPICS
 TF_TOPIC = "/tf"
 MAP_POINTS_TOPIC = "/map/points"
 WORLD_FRAME = "world"
@@ -119,15 +121,18 @@ def _set_stamp(timestamp, stamp_ns: int) -> None:
 
 
 def compressed_image(image: np.ndarray, stamp_ns: int, config: RecorderConfig, frame_id: str = CAMERA_FRAME) -> bytes:
-    """A foxglove.CompressedImage of a uint8 grey image, PNG or JPEG as ``config.image_format`` says."""
+    """A foxglove.CompressedImage of a uint8 grey image: JPEG when ``config.image_format`` says so, else PNG."""
     if config.image_format == "jpeg":
         ok, encoded = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, config.jpeg_quality])
         if not ok:
             raise mcap_io.RecordingError(f"OpenCV could not encode a {image.dtype} {image.shape} image as JPEG")
-        data = encoded.tobytes()
-    else:
-        data = codec.png_bytes(image, config.png_compression)
-    msg = CompressedImage(frame_id=frame_id, data=data, format=config.image_format)
+        return compressed_image_message(encoded.tobytes(), "jpeg", stamp_ns, frame_id)
+    return compressed_image_message(codec.png_bytes(image, config.png_compression), "png", stamp_ns, frame_id)
+
+
+def compressed_image_message(data: bytes, image_format: str, stamp_ns: int, frame_id: str = CAMERA_FRAME) -> bytes:
+    """A foxglove.CompressedImage of already encoded image ``data`` ("png" or "jpeg")."""
+    msg = CompressedImage(frame_id=frame_id, data=data, format=image_format)
     _set_stamp(msg.timestamp, stamp_ns)
     return msg.SerializeToString()
 
@@ -179,7 +184,12 @@ class Recorder:
         self.last_stamp_ns = max(self.last_stamp_ns, stamp_ns)
         log_time = stamp_ns or self.last_stamp_ns
         stored = data
-        if isinstance(decoded, codec.FrameMessage) and self.config.frame_images == "png":
+        if isinstance(decoded, codec.FrameMessage) and self.config.image_format == "frame":
+            # Each image once: the viewers' camera messages first, then the frame that refers to them.
+            stored, pngs = codec.sensor_frame_images_apart(data, self.config.png_compression)
+            for camera_topic, png in zip(CAMERA_TOPICS, pngs):
+                self.writer.write(camera_topic, mcap_io.COMPRESSED_IMAGE, compressed_image_message(png, "png", log_time), log_time)
+        elif isinstance(decoded, codec.FrameMessage) and self.config.frame_images == "png":
             stored = codec.sensor_frame_as_png(data, self.config.png_compression)
         self.writer.write(topic, schema, stored, log_time)
         if decoded is not None:
@@ -187,6 +197,8 @@ class Recorder:
 
     def _derive(self, decoded: object, data: bytes, log_time: int) -> None:
         if isinstance(decoded, codec.FrameMessage):
+            if self.config.image_format == "frame":
+                return  # the camera messages are the frame's own images, written with it
             for topic, image in zip(CAMERA_TOPICS, (decoded.frame.left, decoded.frame.right)):
                 if image is not None:
                     self.writer.write(topic, mcap_io.COMPRESSED_IMAGE, compressed_image(image, log_time, self.config), log_time)

@@ -18,27 +18,33 @@ class RecorderConfig:
     # How sensor/frame's images are stored; lossless either way. PNG: on the synthetic scene 1.8x
     # smaller than raw for about 6 ms of CPU per 640x480 image (KITTI 1.7x, EuRoC 2.0x); raw: no CPU.
     frame_images: Literal["png", "raw"] = "png"
-    # The /camera/* Foxglove images drawn by viewers; sensor/frame itself is always recorded losslessly.
-    # JPEG: on the KITTI clip's 102 images 0.09 s CPU and 12 MB against PNG's 0.71 s and 27 MB
-    # (benchmarks/recorder_compression.py); PNG if the viewer images must be lossless too.
-    image_format: Literal["png", "jpeg"] = "jpeg"
+    # The /camera/* Foxglove images drawn by viewers; sensor/frame is always recorded losslessly.
+    # frame: they are the frames' own PNG images, stored once (sensor/frame refers to them; needs
+    # frame_images png). png or jpeg: separate copies beside the frames' images; JPEG costs on the
+    # KITTI clip's 102 images 0.09 s CPU and 12 MB against PNG's 0.71 s and 27 MB.
+    image_format: Literal["frame", "png", "jpeg"] = "frame"
     jpeg_quality: int = 75  # JPEG quality 1-100 (image_format jpeg); as rerun.jpeg_quality, a viewer's image
     png_compression: int = 1  # zlib level 0-9 of every PNG (frame_images, image_format png); 1 is fast, higher levels gain ~1%
     # /map/points clouds (the whole map each) at most this far apart in sensor time; the final map is
     # always written. 0: one after every keyframe and map update.
     map_points_period_s: float = 1.0  # seconds
     # Uncompressed bytes per chunk; a killed recorder loses the open chunk (``zenslam recover`` keeps the rest).
-    # The writer holds the open chunk and its compressed copy in memory; 1 MiB is two stereo VGA frames.
-    chunk_size: int = 1024 * 1024  # bytes
-    # MCAP chunk compression: zstd, lz4 or none. On the KITTI clip's recording lz4 took half of zstd's
-    # CPU (0.24 s vs 0.50 s) for an 11% larger file (87 vs 78 MB; raw images barely compress):
-    # the recorder competes with tracking and mapping for the CPU, so lz4; zstd for smaller archives.
-    chunk_compression: ChunkCompression = "lz4"
+    # The writer holds the open chunk and its compressed copy in memory; 2 MiB is about six stereo VGA
+    # frames (PNG). Chunks that span several map updates let zstd find what consecutive updates repeat.
+    chunk_size: int = 2 * 1024 * 1024  # bytes
+    # MCAP chunk compression: zstd, lz4 or none. The images are PNG already, which neither shrinks;
+    # on map updates zstd stores about 30% less than lz4, for about the same CPU.
+    chunk_compression: ChunkCompression = "zstd"
     # Messages waiting for the writer thread; when full, publishers block (lossless: nothing is dropped).
     queue: int = 64  # messages
     quiet_s: float = 0.3  # seconds without a message that count as drained, at the end
 
     def __post_init__(self) -> None:
+        if self.image_format == "frame" and self.frame_images != "png":
+            raise ConfigError(
+                f"recorder.image_format=frame stores the frames' own PNG images for viewers, but recorder.frame_images="
+                f"{self.frame_images}; set frame_images to png, or image_format to jpeg or png for separate copies"
+            )
         if not 1 <= self.jpeg_quality <= 100:
             raise ConfigError(f"recorder.jpeg_quality={self.jpeg_quality} must be between 1 and 100")
         if not 0 <= self.png_compression <= 9:

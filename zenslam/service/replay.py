@@ -36,7 +36,8 @@ POSE_TOPIC = _topic(keys.frontend_pose)
 STATE_TOPIC = _topic(keys.frontend_state)
 KEYFRAME_TOPIC = _topic(keys.frontend_keyframe)
 MAP_UPDATE_TOPIC = _topic(keys.backend_map_update)
-COMPARED_TOPICS = (POSE_TOPIC, STATE_TOPIC, KEYFRAME_TOPIC, MAP_UPDATE_TOPIC)
+LOOP_TOPIC = _topic(keys.backend_loop)
+COMPARED_TOPICS = (POSE_TOPIC, STATE_TOPIC, KEYFRAME_TOPIC, MAP_UPDATE_TOPIC, LOOP_TOPIC)
 # Fields holding measured wall-clock durations: they differ between any two runs, so they are not compared.
 IGNORED_FIELDS: dict[str, tuple[str, ...]] = {codec.TRACKING_STATE: ("timings_ms",)}
 

@@ -8,10 +8,11 @@ frontend/pose got), ``trajectory_final.tum`` (ORB-SLAM's saved trajectory: each 
 kept relative to its reference keyframe and composed with that keyframe's final pose, so mapping's
 later corrections reach every frame), ``keyframes.tum`` (the backend's final keyframe poses; the
 frontend's when no backend answered), ``metrics.json`` (ATE/RPE of the tracked trajectory, ATE of
-the final one as ``ate_final``, when there is ground truth; ``loops``: the error where the path
-returns to its start, see ``evaluation.loops``; tracking and backend timing, frame and
-keyframe counts, ``skipped_frames``: ``{"total": N, "reasons": {"corrupt": n, ...}}``) and
-``trajectory_top.png``.
+the final one as ``ate_final``, when there is ground truth; ``loops``: loop candidates verified,
+accepted and rejected (with ``false_accepted`` against ground truth) and the error where the path
+returns to its start, see ``evaluation.loops``; tracking and backend timing, frame and keyframe
+counts, ``skipped_frames``: ``{"total": N, "reasons": {"corrupt": n, ...}}``, ``relocalisation``:
+``{"count": N, "frames_lost": N, "new_maps": N}``) and ``trajectory_top.png``.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ import numpy as np
 from zenslam.errors import ConfigError, TrajectoryError
 from zenslam.runtime.stop import STOPPED
 from zenslam.schemas import codec, keys
+from zenslam.service.evaluation.loop_acceptance import acceptance_counts
 from zenslam.service.evaluation.loops import loops_section
 from zenslam.service.evaluation.metrics import Evaluation, EvaluationConfig, evaluate
 from zenslam.service.evaluation.plot import Plane, save_evaluation_plot
@@ -101,6 +103,7 @@ class RunLog:
         self.source_skipped: dict[str, int] = {}  # frames the source did not send, by reason (its latest count)
         self.source_failure: str | None = None  # what the source said when it failed (e.g. strict and a bad frame)
         self.stopped_stages: list[str] = []  # stages whose last status says they stopped before their input's end
+        self.loops: list[codec.LoopMessage] = []  # backend/loop: every verified loop candidate, in order
 
     def add_map_update(self, update: object) -> None:
         """Count a backend/map_update message (a MapUpdate, or the stream's end)."""
@@ -233,6 +236,18 @@ class RunLog:
             "keyframes": sum(1 for s in states if s.keyframe_id >= 0),
         }
 
+    def relocalisation_counts(self) -> dict[str, int]:
+        """The ``relocalisation`` section of metrics.json: ``count``, frames that found the map again
+        after tracking was lost; ``frames_lost``, frames without a pose once tracking had started
+        (lost, or waiting to start a new map); ``new_maps``, maps started over after a loss."""
+        states = [self.states[i] for i in sorted(self.states)]
+        first = next((k for k, s in enumerate(states) if s.has_pose), len(states))
+        return {
+            "count": sum(1 for s in states if s.relocalised),
+            "frames_lost": sum(1 for s in states[first:] if not s.has_pose),
+            "new_maps": sum(1 for s in states[first + 1 :] if s.state == "initializing" and s.has_pose),
+        }
+
 
 @dataclass(frozen=True)
 class RunResult:
@@ -277,12 +292,13 @@ def write_outputs(
     sections: dict[str, object] = {"timing": log.timing(), **log.frame_counts()}
     sections["keyframes"] = log.keyframe_counts()
     sections["skipped_frames"] = log.skipped_frames()
+    sections["relocalisation"] = log.relocalisation_counts()
     sections["keyframes_from"] = "backend" if log.backend_keyframes is not None else "frontend"
     sections["backend_timing"] = log.backend_timing()
     sections["backend_queue_depth_max"] = log.backend_queue_max
     if final_evaluation is not None:
         sections["ate_final"] = final_evaluation.to_json()["ate"]
-    sections["loops"] = loops_section(evaluation, final_evaluation)
+    sections["loops"] = {**acceptance_counts(log.loops, ground_truth), **loops_section(evaluation, final_evaluation)}
     sections.update(extra or {})
     if error is not None:
         sections["evaluation_error"] = error

@@ -172,6 +172,7 @@ class _Follower:
         update_capacity = max(config.frontend.map_update_queue, capacity)
         self.updates = bus.subscribe(session, keys.backend_map_update(run_id), codec.decode_map_update, "lossless", update_capacity)
         self.statuses = bus.subscribe(session, keys.all_status(run_id), codec.decode_stage_status, "lossless", capacity)
+        self.loops = bus.subscribe(session, keys.backend_loop(run_id), codec.decode_loop, "lossless", capacity)
         self.log = RunLog()
         self.bar = tqdm(total=total, unit="frame", desc="tracking", disable=not progress)
 
@@ -194,6 +195,8 @@ class _Follower:
             self.log.add_map_update(update)
         while (status := self.statuses.get(0)) is not None:
             self.log.add_status(status)
+        while (loop := self.loops.get(0)) is not None:
+            self.log.loops.append(loop)
 
     def drain(self, until: float) -> None:
         """Keep taking messages until the poses announced by the states have all arrived, or ``until``."""

@@ -26,8 +26,13 @@ Format (a UTF-8 JSON object; keys are stable, new keys may be added, none rename
       "loops": {                      # zenslam run and zenslam eval; see zenslam.service.evaluation.loops
         "revisit_error_m": float | null,   # relative pose error (translation) from the first pose to where
                                       # the ground truth first comes back to it; null: no return / no truth
-        ...
+        "candidates": int,            # zenslam run: loop candidates verified (backend/loop messages)
+        "accepted": int,
+        "rejected": int,
+        "false_accepted": int,        # with ground truth: accepted loops off the truth by > 0.3 m or 5 deg
+        ...                           # (see zenslam.service.evaluation.loop_acceptance)
       },
+      "relocalisation": {"count": int, "frames_lost": int, "new_maps": int},   # zenslam run
       ...                             # extra top-level sections from the caller, e.g. zenslam run's
                                       # "timing", "frames", "lost_frames"
     }

@@ -1,0 +1,47 @@
+"""Configuration of loop closing (the ``backend.loop_closing`` section): plain dataclasses, no gtsam."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from zenslam.backend.global_ba import GlobalBAConfig
+from zenslam.backend.pose_graph import PoseGraphConfig
+from zenslam.backend.similarity import SimilarityOptimizationConfig, SimilarityRansacConfig
+
+
+@dataclass(frozen=True)
+class LoopDetectionConfig:
+    """When a keyframe's database candidates become loops to verify (ORB-SLAM2's values)."""
+
+    min_keyframes: int = 10  # keyframes in the map before any detection
+    keyframes_after_loop: int = 10  # keyframes inserted after a closed loop before detecting again
+    min_consistency: int = 3  # consecutive keyframes whose candidate groups overlap
+
+
+@dataclass(frozen=True)
+class LoopVerificationConfig:
+    """ORB-SLAM2's thresholds for accepting a loop candidate."""
+
+    min_bow_matches: int = 20  # map-point matches by BoW to try a candidate
+    bow_ratio: float = 0.75  # best / second-best descriptor distance in SearchByBoW
+    ransac: SimilarityRansacConfig = field(default_factory=SimilarityRansacConfig)
+    optimization: SimilarityOptimizationConfig = field(default_factory=SimilarityOptimizationConfig)
+    sim3_search_radius_px: float = 7.5  # SearchBySim3 window at level 0 (x the level's scale)
+    min_optimised_inliers: int = 20  # inliers after the transform's optimisation
+    projection_radius_px: float = 10.0  # SearchByProjection window for the loop neighbourhood's points
+    min_total_matches: int = 40  # current keyframe's keypoints matched to loop points, to accept
+
+
+@dataclass(frozen=True)
+class LoopClosingConfig:
+    """The backend's loop closing (the ``backend.loop_closing`` section)."""
+
+    enabled: bool = True  # detect and close loops; off = odometry with local mapping only
+    detection: LoopDetectionConfig = field(default_factory=LoopDetectionConfig)
+    verification: LoopVerificationConfig = field(default_factory=LoopVerificationConfig)
+    fusion_radius_px: float = 4.0  # window for fusing loop points into the corrected neighbourhood (ORB-SLAM: 4)
+    pose_graph: PoseGraphConfig = field(default_factory=PoseGraphConfig)
+    global_ba: GlobalBAConfig = field(default_factory=GlobalBAConfig)  # after each closed loop
+    seed: int = 0  # seeds the verification's RANSAC (with the keyframe id, so each keyframe draws its own)
+
+

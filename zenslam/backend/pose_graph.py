@@ -1,0 +1,195 @@
+"""Essential-graph pose-graph optimisation after a loop closure (ORB-SLAM's OptimizeEssentialGraph).
+
+Nodes are keyframes: ``gtsam.Pose3`` = T_world_cam for stereo/RGB-D maps, ``gtsam.Similarity3`` for
+monocular ones, whose scale drifts and is corrected with the loop. Poses cross this module's
+boundary as 4x4 similarities S_world_cam = [[s R, c], [0, 1]] (camera -> world, c the camera
+centre, s = 1 for a rigid pose); gtsam's Similarity3 maps p -> s (R p + t), so it holds t = c / s.
+
+Edges, as ORB-SLAM builds them: every spanning-tree edge, every covisibility pair sharing at least
+the essential graph's weight, every loop edge closed earlier, each measured as the relative pose
+of its ends *before* this correction (the map's poses: ORB-SLAM's NonCorrectedSim3 for the
+corrected neighbourhood), plus the new loop edges between the corrected neighbourhood of the
+current keyframe and the loop keyframe's neighbourhood, measured from their corrected poses.
+Initial values are the corrected poses where given, the map's elsewhere; the loop keyframe is
+held fixed (edges to a fixed keyframe become priors on the other end). Every edge has the same
+diagonal noise (ORB-SLAM gives all edges identity information); loop edges -- new and old -- are
+the only ones that may be wrong and the only ones made robust. The gtsam side lives in
+``pose_graph_solver`` so that this module (configuration, result, point correction) loads without it.
+
+Robustness against a wrong loop: a Cauchy kernel on the loop edges, Levenberg-Marquardt from the
+corrected poses, and a rejection rule. A kernel alone cannot undo a wrong loop: the spanning tree
+is a long chain, far more compliant than the cluster of new loop edges between two
+neighbourhoods, so a least-squares start bends the chain to fit the loop almost exactly. From the
+corrected start, LM keeps a loop the chain can absorb within its edges' noise (the loop edges stay
+near zero residual, weight near 1) and drives the others out to the kernel's tail (weight near
+0) -- but it leaves the graph wherever that took it, bent by the tail's pull, and in a Sim(3)
+graph it can collapse the scale. So when every new loop edge ends with a weight below
+``reject_below_weight`` the loop is rejected and the result is the poses before correction, which
+are the optimum of the graph without it (every other edge was measured on them), reported in
+``stats["loop_rejected"]``. GNC (gtsam.GncLMOptimizer, TLS, non-loop edges known inliers) under
+the same rule sorts the same loops the same way on the benchmark's graphs, at 3-15x the time
+(over the 150 ms budget at 500 keyframes) and, without the rule, leaves a distorted graph where
+it rejects; it stays available as ``robust="gnc"``. What separates a wrong loop from drift is the
+edge noise: a loop whose error the chain can absorb within a few sigma per edge is accepted,
+right or wrong, so the sigmas are the drift a correct loop may show, and verification before
+this step must stop wrong loops within that envelope. Figures: benchmarks/README.md
+(benchmarks/loop_geometry.py).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from zenslam.backend.essential_graph import EssentialEdge
+from zenslam.backend.map import BackendMap
+from zenslam.errors import ZenslamError
+
+logger = logging.getLogger(__name__)
+
+RobustMethod = Literal["cauchy", "gnc", "none"]
+
+
+class PoseGraphError(ZenslamError):
+    """The pose graph names a keyframe without a pose, has no fixed keyframe, or a pose is not a similarity."""
+
+
+@dataclass(frozen=True)
+class PoseGraphConfig:
+    """Settings of the essential-graph optimisation (ORB-SLAM: 20 iterations, identity information)."""
+
+    iterations: int = 20  # Levenberg-Marquardt iterations at most (count)
+    # Noise of every edge's relative pose: rotation (rad), translation (map units: metres for
+    # stereo/RGB-D), log scale (Sim(3) graphs, unitless). Only their ratios matter without
+    # robust kernels; with them, a loop edge is judged against the chain's ability to absorb it.
+    sigma_rotation_rad: float = 0.002
+    sigma_translation_m: float = 0.01
+    sigma_log_scale: float = 0.01
+    robust: RobustMethod = "cauchy"
+    cauchy_k: float = 1.0  # Cauchy kernel width on the whitened residual norm (unitless)
+    # A new loop whose every edge ends with a robust weight below this is rejected: the result is
+    # then the poses before correction (the optimum of the graph without it) and ``loop_rejected``
+    # is set. 0 keeps whatever the optimiser returned (ORB-SLAM has no rejection here).
+    reject_below_weight: float = 0.5
+    # GNC: a loop edge is an inlier when its whitened squared error is below the chi2 quantile of
+    # this probability for its dimension (gtsam's setInlierCostThresholdsAtProbability).
+    gnc_inlier_probability: float = 0.99
+    gnc_loss: Literal["tls", "gm"] = "tls"
+    relative_error_tolerance: float = 1e-6  # LM stops when the error drops by less than this fraction
+
+    def __post_init__(self) -> None:
+        sigmas = (self.sigma_rotation_rad, self.sigma_translation_m, self.sigma_log_scale, self.cauchy_k)
+        if not all(math.isfinite(v) and v > 0 for v in sigmas):
+            raise PoseGraphError(f"pose graph sigmas and cauchy_k must be positive, got {sigmas}")
+        if self.iterations < 1:
+            raise PoseGraphError(f"pose_graph.iterations={self.iterations} must be at least 1")
+
+
+@dataclass(frozen=True)
+class PoseGraphResult:
+    """Optimised keyframe poses; ``S_world_cam_initial`` is where each started (the poses the map's
+    points agree with when the corrected neighbourhood's points were moved with it)."""
+
+    T_world_cam: dict[int, np.ndarray]  # (4, 4) rigid camera -> world: rotation and camera centre
+    scale: dict[int, float]  # s of the optimised similarity (1.0 in rigid graphs)
+    S_world_cam_initial: dict[int, np.ndarray]  # (4, 4) [[s R, c], [0, 1]] initial values
+    loop_edge_weights: dict[tuple[int, int], float]  # (a, b), a < b -> final robust weight in [0, 1]
+    stats: dict = field(default_factory=dict)  # time_ms, n_edges, initial/final_error, start, ...
+
+    def S_world_cam(self, kf_id: int) -> np.ndarray:
+        """The optimised pose of ``kf_id`` as a (4, 4) similarity [[s R, c], [0, 1]]."""
+        S = self.T_world_cam[kf_id].copy()
+        S[:3, :3] *= self.scale[kf_id]
+        return S
+
+
+def similarity_parts(S: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """R (..., 3, 3), c (..., 3) and s (...) of similarities [[s R, c], [0, 1]] (4, 4) or (K, 4, 4);
+    PoseGraphError naming the first one that is not a similarity with s > 0."""
+    S = np.asarray(S, dtype=float)
+    if S.shape[-2:] != (4, 4):
+        raise PoseGraphError(f"poses must be 4x4 similarities, got shape {S.shape}")
+    A = S[..., :3, :3]
+    s = np.cbrt(np.linalg.det(A))
+    gram = np.einsum("...ji,...jk->...ik", A, A)
+    s2 = np.maximum(s, 1e-300)[..., None, None] ** 2
+    ok = (s > 0) & np.isfinite(S).all(axis=(-2, -1)) & (np.abs(gram - s2 * np.eye(3)) <= 1e-6 * s2).all(axis=(-2, -1))
+    if not np.all(ok):
+        bad = S if S.ndim == 2 else S[np.flatnonzero(~ok)[0]]
+        raise PoseGraphError(f"pose {bad.tolist()} is not a similarity [[s R, c], [0, 1]] with s > 0")
+    return A / s[..., None, None], S[..., :3, 3].copy(), s
+
+
+def optimize_essential_graph(
+    poses_before: dict[int, np.ndarray],
+    corrected: dict[int, np.ndarray],
+    edges: list[EssentialEdge],
+    new_loop_edges: list[tuple[int, int]],
+    fixed: set[int],
+    with_scale: bool,
+    config: PoseGraphConfig,
+) -> PoseGraphResult:
+    """Optimise every keyframe of ``poses_before`` over the essential graph (see module docstring).
+
+    ``poses_before``: every keyframe's pose before the correction (4x4, camera -> world; rigid, or
+    similarities); ``corrected``: the corrected neighbourhood's poses (similarities when
+    ``with_scale``); ``edges``: the essential graph's edges (an edge whose pair is also a new loop
+    edge is replaced by it); ``new_loop_edges``: pairs measured from the corrected poses;
+    ``fixed``: keyframes held where they start (at least one: the loop keyframe).
+    """
+    if not fixed or not set(fixed) <= set(poses_before):
+        raise PoseGraphError(f"fixed keyframes {sorted(fixed)} must be non-empty and have poses; hold the loop keyframe")
+    named = {k for e in edges for k in e[:2]} | {k for e in new_loop_edges for k in e} | set(corrected)
+    unknown = sorted(named - set(poses_before))
+    if unknown:
+        raise PoseGraphError(f"keyframes {unknown[:10]} are in the pose graph's edges but have no pose before correction")
+    from zenslam.backend.pose_graph_solver import solve  # gtsam: only where the optimisation runs
+
+    return solve(poses_before, corrected, edges, new_loop_edges, set(fixed), with_scale, config)
+
+
+def correct_points_after_pose_graph(
+    bmap: BackendMap, result: PoseGraphResult, S_world_cam_before: dict[int, np.ndarray] | None = None
+) -> dict[str, int]:
+    """Write the optimised keyframe poses into ``bmap`` and move each point with its reference
+    keyframe (``MapPoint.reference_keyframe_id``): p' = S_after S_before^-1 p.
+
+    ``S_world_cam_before``: the poses the points agree with now (similarities); by default the
+    optimisation's initial values, right when the corrected neighbourhood's points were moved with
+    its corrected poses before the optimisation (ORB-SLAM's CorrectLoop). Keyframes missing from
+    the result are left as they are, and so are their points. Returns counts of what moved.
+    """
+    before = result.S_world_cam_initial if S_world_cam_before is None else S_world_cam_before
+    correction: dict[int, np.ndarray] = {}
+    for k in bmap.keyframes:
+        if k in result.T_world_cam and k in before:
+            correction[k] = result.S_world_cam(k) @ _inverse_similarity(before[k])
+    by_ref: dict[int, list[int]] = {}
+    for point_id, point in bmap.points.items():
+        ref = point.reference_keyframe_id
+        if ref in correction:
+            by_ref.setdefault(ref, []).append(point_id)
+    moved = 0
+    for ref in sorted(by_ref):
+        ids = by_ref[ref]
+        C = correction[ref]
+        p = np.array([bmap.points[i].p_world for i in ids])
+        bmap.set_point_positions(ids, p @ C[:3, :3].T + C[:3, 3])
+        moved += len(ids)
+    for k in sorted(correction):
+        bmap.set_keyframe_pose(k, result.T_world_cam[k])
+    return {"keyframes": len(correction), "points": moved}
+
+
+def _inverse_similarity(S: np.ndarray) -> np.ndarray:
+    """Inverse of [[s R, c], [0, 1]]: [[R^T / s, -R^T c / s], [0, 1]]."""
+    R, c, s = similarity_parts(S)
+    s = float(s)
+    out = np.eye(4)
+    out[:3, :3] = R.T / s
+    out[:3, 3] = -R.T @ c / s
+    return out
