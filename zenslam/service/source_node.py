@@ -44,6 +44,7 @@ from zenslam.schemas import codec, keys
 from zenslam.service.sources import SensorFrame, open_source
 from zenslam.service.sources.config import SourceConfig
 from zenslam.service.sources.faults import FaultInjector
+from zenslam.service.sources.sensor_selection import mono_calibration
 from zenslam.service.sources.frame_stream import SkippedFrame, frame_stream
 
 if TYPE_CHECKING:
@@ -221,8 +222,10 @@ def main(argv: list[str] | None = None) -> int:
         config = load_section(args.config, STAGE, SourceConfig)
         bus_config = load_section(args.config, "bus", bus.BusConfig)
         rerun_config = load_section(args.config, "rerun", rerun_log.RerunConfig)
-        source = open_source(args.source or config.spec)
+        source = open_source(args.source or config.spec, config.sensor)
         calibration = config.calibration or source.calibration
+        if source.sensor == "mono":
+            calibration = mono_calibration(calibration)  # settings files of stereo cameras state a baseline
 
         with (
             rerun_log.open_stage_recording(STAGE, args.session, args.config, rerun_config) as recording,

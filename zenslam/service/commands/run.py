@@ -93,6 +93,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--live", dest="pacing", action="store_const", const="live",
         help="play at the recorded rate (see --rate) like a camera; a slow stage skips frames",
     )
+    parser.add_argument(
+        "--sensor", choices=("mono", "stereo", "rgbd"), default=None,
+        help="play the source as this sensor (source.sensor): mono runs a stereo or RGB-D dataset on its left images; "
+        "a synthetic scene renders any (default: the source's own)",
+    )
     parser.add_argument("--rate", type=float, default=None, help="live playback speed, multiple of the recorded rate (0: fastest)")
     parser.add_argument("--max-frames", type=int, default=None, help="stop after this many frames")
     parser.add_argument(
@@ -133,6 +138,8 @@ def resolve_config(args: argparse.Namespace) -> RunConfig:
     source = config.source
     if args.source is not None:
         source = dataclasses.replace(source, spec=args.source)
+    if args.sensor is not None:
+        source = dataclasses.replace(source, sensor=args.sensor)
     if args.rate is not None:
         source = dataclasses.replace(source, rate=args.rate)
     if args.max_frames is not None:
@@ -429,7 +436,7 @@ def run(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace, stop: StopFlag) -> int:
     """``run`` with the installed stop flag ``stop``."""
     config = resolve_config(args)
-    source = open_source(config.source.spec)
+    source = open_source(config.source.spec, config.source.sensor)
     config = fit_calibration_to_images(config, source.calibration.width, source.calibration.height)
     run_id = args.run_id or new_run_id()
     run_dir = prepare_run_dir(args.output, run_id)

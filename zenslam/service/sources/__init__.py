@@ -6,25 +6,37 @@ Spec strings (what ``zenslam run SOURCE`` and ``zenslam inspect SOURCE`` take):
 corridor, corridor_aliased, optionally followed by ``/<sensor>`` (stereo, rgbd, mono), e.g.
 ``synthetic:figure_eight/rgbd``;
 ``mcap:<recording>`` replays the sensor frames of a run's ``run.mcap``.
+
+``sensor`` (``zenslam run --sensor``, ``source.sensor``) plays a source as another sensor than its
+own where it can give it: a stereo or RGB-D dataset as mono (sources/sensor_selection.py); a
+synthetic scene renders whichever is asked.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
+from zenslam.camera import SensorKind
 from zenslam.errors import SourceSpecError
 from zenslam.service.sources.frame import ImuSamples, SensorFrame, Source
+from zenslam.service.sources.sensor_selection import as_sensor
 
 __all__ = ["ImuSamples", "SensorFrame", "Source", "open_source", "SOURCE_KINDS"]
 
 SOURCE_KINDS = ("kitti", "euroc", "tum", "synthetic", "mcap")
 
 
-def open_source(spec: str) -> Source:
-    """Open the source named by ``spec``; raises SourceSpecError naming the accepted forms."""
+def open_source(spec: str, sensor: SensorKind | None = None) -> Source:
+    """Open the source named by ``spec``, played as ``sensor`` (None: its own); raises SourceSpecError
+    naming the accepted forms, or the sensors the source can give."""
     kind, _, argument = spec.partition(":")
     if kind == "synthetic":
-        return _open_synthetic(argument)
+        return _open_synthetic(argument, sensor)
+    source = _open_dataset(spec, kind, argument)
+    return source if sensor is None else as_sensor(source, sensor)
+
+
+def _open_dataset(spec: str, kind: str, argument: str) -> Source:
     if kind not in SOURCE_KINDS:
         raise SourceSpecError(
             f"unknown source {spec!r}: use one of kitti:<root>/sequences/NN, euroc:<folder>, tum:<folder>, "
@@ -50,7 +62,7 @@ def open_source(spec: str) -> Source:
     return TumSource(path)
 
 
-def _open_synthetic(argument: str) -> Source:
+def _open_synthetic(argument: str, sensor_choice: SensorKind | None) -> Source:
     from zenslam.service.sources.synthetic import SCENE_NAMES, SyntheticSource, scene_config
 
     scene, _, sensor = (argument or "loop").partition("/")
@@ -59,5 +71,7 @@ def _open_synthetic(argument: str) -> Source:
     sensors = ("stereo", "rgbd", "mono")
     if sensor and sensor not in sensors:
         raise SourceSpecError(f"unknown synthetic sensor {sensor!r}: choose one of {list(sensors)}")
+    if sensor_choice is not None:
+        sensor = sensor_choice  # a scene renders any sensor; the choice overrides the spec's
     overrides = {"sensor": sensor} if sensor else {}
     return SyntheticSource(scene_config(scene, **overrides))

@@ -6,7 +6,7 @@ import math
 from dataclasses import dataclass
 from typing import Literal
 
-from zenslam.camera import PinholeCalibration
+from zenslam.camera import PinholeCalibration, SensorKind
 from zenslam.errors import ConfigError
 from zenslam.service.sources.faults import FrameFault, check_faults
 
@@ -16,6 +16,9 @@ class SourceConfig:
     """What the source process plays and how (the ``source`` section)."""
 
     spec: str = "synthetic"  # kitti:<root>/sequences/NN | euroc:<folder> | tum:<folder> | synthetic[:<scene>[/<sensor>]]
+    # Play the source as this sensor (None: its own): mono runs a stereo or RGB-D dataset on its left
+    # images; a synthetic scene renders any of mono, stereo, rgbd (``zenslam run --sensor``).
+    sensor: SensorKind | None = None
     rate: float = 1.0  # live mode: playback speed as a multiple of the recorded rate; 0 = as fast as possible
     max_frames: int | None = None  # frames; stop after this many (None: the whole sequence)
     depth_encoding: Literal["float32_m", "uint16_mm"] = "float32_m"  # how RGB-D depth travels on the bus
@@ -35,6 +38,8 @@ class SourceConfig:
 
     def __post_init__(self) -> None:
         check_faults(self.faults)
+        if self.sensor not in (None, "mono", "stereo", "rgbd"):
+            raise ConfigError(f"source.sensor={self.sensor!r} must be mono, stereo, rgbd, or null for the source's own")
         if not (math.isfinite(self.rate) and self.rate >= 0):
             raise ConfigError(f"source.rate={self.rate} must be >= 0 (1 = recorded rate, 0 = as fast as possible)")
         if self.frames_in_flight < 1:
