@@ -55,7 +55,7 @@ class StubPipeline:
             keyframe=None if lost or index % 2 else _keyframe(index, stamp_ns),
             timings_ms={"extraction": 1.0, "total": 2.0 + index},
             reference_keyframe_id=-1 if lost else index // 2, T_reference_cam=None if lost else make_T(np.eye(3), [0, 0, index]),
-            relocalised=False,
+            relocalised=False, earlier_keyframes=(),
         )
 
 
@@ -81,7 +81,8 @@ def test_handle_encodes_pose_state_and_keyframe():
     assert (state.index, state.state, state.n_tracked, state.has_pose, state.keyframe_id) == (0, "ok", 100, True, 0)
     assert state.reference_keyframe_id == 0 and np.allclose(state.T_reference_cam, np.eye(4))
     assert state.timings_ms == {"extraction": 1.0, "total": 2.0}
-    kf = codec.decode_keyframe(out0.keyframe)
+    (kf_bytes,) = out0.keyframes
+    kf = codec.decode_keyframe(kf_bytes)
     assert (kf.id, kf.frame_index, len(kf.keypoints_px), len(kf.new_point_ids)) == (0, 0, 5, 2)
     np.testing.assert_allclose(kf.scale_factors, 1.2 ** np.arange(8))
     assert codec.decode_pose_in_frame(out0.pose).frame_id == "world"
@@ -90,7 +91,7 @@ def test_handle_encodes_pose_state_and_keyframe():
     lost = codec.decode_tracking_state(out.state)
     assert (lost.index, lost.state, lost.lost_reason, lost.has_pose) == (7, "lost", "stub says lost", False)
     assert lost.reference_keyframe_id == -1 and lost.T_reference_cam is None
-    assert out.pose is None and out.keyframe is None
+    assert out.pose is None and out.keyframes == ()
     assert len(pipelines) == 1 and node.frames == 8 and node.keyframes == 4
 
 

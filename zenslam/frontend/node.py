@@ -84,7 +84,7 @@ CandidateSource = Callable[[RelocalisationQuery], "RelocalisationCandidates | No
 class FrontendMessages:
     """The encoded messages one frame produces, in the order they are sent."""
 
-    keyframe: bytes | None  # frontend/keyframe, when the frame made a keyframe
+    keyframes: tuple[bytes, ...]  # frontend/keyframe: the keyframes made at this frame's step, in order
     pose: bytes | None  # frontend/pose, when tracking gave a pose
     state: bytes  # frontend/state, always (sent last: it tells lockstep sources the frame is done)
     step_ms: float  # wall time of the tracking step, milliseconds
@@ -184,12 +184,10 @@ class FrontendNode:
         self.frames += 1
         if self.rerun is not None:
             self._unlogged = (message, out)  # logged by log_last_frame once its messages are out
-        keyframe_bytes, keyframe_id = None, -1
-        if out.keyframe is not None:
-            keyframe_id = int(out.keyframe.id)
-            kf = keyframe_message(out.keyframe, message.calibration, message.sensor)
-            keyframe_bytes = codec.encode_keyframe(kf)
-            self.keyframes += 1
+        made = [*out.earlier_keyframes, *([out.keyframe] if out.keyframe is not None else [])]
+        keyframe_bytes = tuple(codec.encode_keyframe(keyframe_message(kf, message.calibration, message.sensor)) for kf in made)
+        self.keyframes += len(made)
+        keyframe_id = int(out.keyframe.id) if out.keyframe is not None else -1
         pose_bytes = None
         if out.T_world_cam is not None:
             pose_bytes = codec.encode_pose_in_frame(codec.StampedPose(frame.stamp_ns, np.asarray(out.T_world_cam), "world"))
@@ -248,8 +246,8 @@ class _Outputs:
         self.status = bus.declare_publisher(session, keys.status(session_name, STAGE), codec.STAGE_STATUS, "lossless")
 
     def send(self, messages: FrontendMessages) -> None:
-        if messages.keyframe is not None:
-            self.keyframe.put(messages.keyframe)
+        for keyframe in messages.keyframes:
+            self.keyframe.put(keyframe)
         if messages.pose is not None:
             self.pose.put(messages.pose)
         self.state.put(messages.state)

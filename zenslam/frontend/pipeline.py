@@ -12,7 +12,7 @@ import numpy as np
 from zenslam.camera import PinholeCalibration, SensorKind
 from zenslam.errors import ConfigError
 from zenslam.frontend.config import FrontendConfig
-from zenslam.frontend.frame import Frame, make_rgbd_frame, make_stereo_frame
+from zenslam.frontend.frame import Frame, make_mono_frame, make_rgbd_frame, make_stereo_frame
 from zenslam.frontend.keyframe import KeyFrame
 from zenslam.frontend.orb_extractor import OrbExtractor
 from zenslam.frontend.relocalisation import BowTransform
@@ -56,6 +56,7 @@ class TrackingOutput:
     reference_keyframe_id: int = -1  # the keyframe the pose is kept relative to, -1 none
     T_reference_cam: np.ndarray | None = None  # (4, 4) the camera in that keyframe's frame
     relocalised: bool = False  # tracking was lost before this frame and found the map again here
+    earlier_keyframes: tuple[KeyFrame, ...] = ()  # made at this step from earlier frames, sent before ``keyframe``
 
 
 @dataclass(frozen=True)
@@ -68,22 +69,18 @@ class PreparedFrame:
 
 
 class FrontendPipeline:
-    """Builds a frame from the images (ORB, stereo or RGB-D depth) and tracks it.
+    """Builds a frame from the images (ORB, and stereo matches or RGB-D depth) and tracks it.
 
-    Monocular tracking needs a two-view initialisation that does not exist yet: a mono sensor is
-    a ConfigError. With a ``vocabulary``, a lost frame is relocalised against the candidates of the
-    source ``step`` is given.
+    With a ``vocabulary``, a lost frame is relocalised against the candidates of the source ``step``
+    is given.
     """
 
     def __init__(
         self, config: FrontendConfig, calibration: PinholeCalibration, sensor: SensorKind, vocabulary: BowTransform | None = None
     ) -> None:
-        if sensor not in ("stereo", "rgbd"):
-            raise ConfigError(
-                f"the frontend tracks stereo or rgbd cameras; sensor {sensor!r} is not supported yet "
-                "(monocular initialisation is not implemented): use a stereo or RGB-D source"
-            )
-        if calibration.baseline_m is None:
+        if sensor not in ("stereo", "rgbd", "mono"):
+            raise ConfigError(f"the frontend tracks stereo, rgbd or mono cameras, not sensor {sensor!r}")
+        if sensor != "mono" and calibration.baseline_m is None:
             raise ConfigError(
                 f"a {sensor} frontend needs calibration.baseline_m (stereo baseline or RGB-D virtual baseline)"
             )
@@ -145,6 +142,7 @@ class FrontendPipeline:
             reference_keyframe_id=result.reference_keyframe_id,
             T_reference_cam=result.T_reference_cam,
             relocalised=result.relocalised,
+            earlier_keyframes=result.earlier_keyframes,
         )
 
     def apply_map_update(self, update: MapUpdate) -> None:
@@ -152,6 +150,8 @@ class FrontendPipeline:
         self.tracker.apply_map_update(update)
 
     def _make_frame(self, index, stamp_ns, left, right, depth_m, timings: dict[str, float]) -> Frame:
+        if self.sensor == "mono":
+            return make_mono_frame(index, stamp_ns, left, self.calibration, self.extractor, timings)
         if self.sensor == "stereo":
             if right is None:
                 raise ConfigError(f"frame {index}: a stereo frontend needs the right image")

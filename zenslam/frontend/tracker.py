@@ -1,10 +1,16 @@
-"""Frame-to-map tracking for stereo and RGB-D: ORB-SLAM2's Tracking.
+"""Frame-to-map tracking for stereo, RGB-D and monocular cameras: ORB-SLAM2's Tracking.
 
 Per frame: predict the pose with the constant-velocity model and match the last frame's points
 by projection (falling back to descriptor matching against the reference keyframe), optimise the
 pose, then track the local map (points of the keyframes covisible with the frame) and optimise
 again; finally decide whether the frame becomes a keyframe, which creates new points from its
-stereo/RGB-D depths.
+stereo/RGB-D depths (a monocular keyframe makes none: local mapping triangulates them).
+
+A stereo/RGB-D map starts on one frame's depths. A monocular map starts on two frames: the first
+frame with enough parallax to a reference frame (``monocular_initialisation``) becomes the
+second keyframe, the reference the first, and both are made at that frame's step (the reference
+one in ``TrackResult.earlier_keyframes``); until then frames report ``initializing`` with a
+reason such as ``waiting_for_parallax``.
 
 Lost frames: a lost frame reports ``lost`` with a reason. With a vocabulary and a source of
 candidates (the backend's keyframe database, passed to ``track``), every following frame is
@@ -43,10 +49,11 @@ from zenslam.frontend.keyframe_decision import (
 )
 from zenslam.frontend.frustum import project_in_frustum
 from zenslam.frontend.local_map import LocalMap, LocalMapConfig
+from zenslam.frontend.monocular_initialisation import InitialMap, MonocularInitialisationConfig, MonocularInitialiser
 from zenslam.frontend.motion_model import ConstantVelocityModel
 from zenslam.frontend.pose_optimizer import PoseOptimizerConfig, optimize_pose
 from zenslam.frontend.relocalisation import BowTransform, RelocalisationConfig, keyframes_to_restore, relocalise
-from zenslam.geometry import invert_T
+from zenslam.geometry import invert_T, transform_points
 from zenslam.map_point_rules import radius_by_viewing_cos
 from zenslam.schemas.map_update import MapUpdate
 from zenslam.schemas.relocalisation import RelocalisationCandidates, RelocalisationQuery
@@ -93,6 +100,7 @@ class TrackingConfig:
     # it) at 3-4x the keyframes; 2 also tracks every scene here at the default 60 baselines.
     reference_min_observations: int = 1
     reinit_after_lost_frames: int = 10  # consecutive frames without a pose before starting over (0 = never)
+    monocular: MonocularInitialisationConfig = field(default_factory=MonocularInitialisationConfig)
     local_map: LocalMapConfig = field(default_factory=LocalMapConfig)
     relocalisation: RelocalisationConfig = field(default_factory=RelocalisationConfig)
 
@@ -112,6 +120,9 @@ class TrackResult:
     reference_keyframe_id: int = -1
     T_reference_cam: np.ndarray | None = None
     relocalised: bool = False  # the frame found the map again after tracking was lost
+    # Keyframes made at this step from earlier frames, to be sent before ``keyframe``: a monocular
+    # map's first keyframe (its reference frame), made when the second one is.
+    earlier_keyframes: tuple[KeyFrame, ...] = ()
 
 
 @dataclass
@@ -122,7 +133,7 @@ class _LastFrame:
 
 
 class Tracker:
-    """Tracks frames of one stereo or RGB-D camera against the frontend's local map."""
+    """Tracks frames of one stereo, RGB-D or monocular camera against the frontend's local map."""
 
     def __init__(
         self,
@@ -143,6 +154,7 @@ class Tracker:
         self.map = LocalMap(self.config.local_map)
         self.eviction = CacheEviction(self.map)
         self.motion = ConstantVelocityModel()
+        self._monocular = MonocularInitialiser(self.config.monocular) if sensor == "mono" else None
         self.th_depth_m = close_depth_threshold_m(calibration.baseline_m or 0.0, self.keyframe_config)
         self.lost_reasons: Counter[str] = Counter()
         self.n_reinitialisations = 0
@@ -177,7 +189,7 @@ class Tracker:
             ("motion_model_tracking", "local_map_tracking", "pose_optimization", "keyframe_decision"), 0.0
         )
         if self._last is None:
-            return self._initialise(frame, np.eye(4), "no_depth_points_for_init")
+            return self._start_map(frame, np.eye(4), "no_depth_points_for_init")
         relocalising = self._lost_streak > 0 and self._relocalises(candidates)
         failure = None
         if relocalising:
@@ -186,7 +198,7 @@ class Tracker:
                 return self._tracked(frame, *found, keyframes_in_flight, relocalised=True)
         if self.config.reinit_after_lost_frames and self._lost_streak >= self.config.reinit_after_lost_frames:
             n_lost = self._lost_streak
-            result = self._initialise(frame, invert_T(self._last.T_cam_world), "no_depth_points_for_reinit")
+            result = self._start_map(frame, invert_T(self._last.T_cam_world), "no_depth_points_for_reinit")
             if result.state == "ok":
                 self.n_reinitialisations += 1
                 logger.warning("tracking restarted at frame %d after %d lost frames", frame.index, n_lost)
@@ -278,6 +290,43 @@ class Tracker:
         return result.T_cam_world, inliers
 
     # ---- initialisation and loss ----------------------------------------------------------------
+    def _start_map(self, frame: Frame, T_world_cam: np.ndarray, reason: str) -> TrackResult:
+        """A new map at ``T_world_cam``: from this frame's depths, or for a monocular camera from two frames."""
+        if self._monocular is None:
+            return self._initialise(frame, T_world_cam, reason)
+        found = self._monocular.try_frame(frame)
+        if isinstance(found, str):
+            self.lost_reasons[found.split(" ")[0]] += 1
+            self._lost_streak += 1
+            return TrackResult("initializing", found, None, 0, None, dict(self._timers))
+        return self._initialise_monocular(found, T_world_cam)
+
+    def _initialise_monocular(self, found: InitialMap, T_world_ref: np.ndarray) -> TrackResult:
+        """The two keyframes of a monocular map: the reference at ``T_world_ref`` with the triangulated
+        points, then the current frame observing them."""
+        start = time.perf_counter()
+        reference, current = found.reference, found.current
+        ref_rows = np.full(reference.n_keypoints, -1, dtype=np.int64)
+        first = self._make_keyframe(
+            reference, invert_T(T_world_ref), ref_rows, found.reference_keypoints, transform_points(T_world_ref, found.p_ref)
+        )
+        T_cam_world = found.T_cur_ref @ invert_T(T_world_ref)
+        rows = np.full(current.n_keypoints, -1, dtype=np.int64)
+        rows[found.current_keypoints] = ref_rows[found.reference_keypoints]
+        second = self._make_keyframe(current, T_cam_world, rows, np.zeros(0, dtype=np.int64), np.zeros((0, 3)))
+        self._timers["keyframe_decision"] += (time.perf_counter() - start) * 1e3
+        self.motion.reset()
+        self._last = _LastFrame(current, rows, T_cam_world)
+        self._lost_streak = 0
+        n_points = len(found.reference_keypoints)
+        logger.info(
+            "monocular map initialised at frames %d and %d (%s, parallax %.1f deg) with %d points",
+            reference.index, current.index, found.model, found.parallax_deg, n_points,
+        )  # fmt: skip
+        return TrackResult(
+            "ok", None, invert_T(T_cam_world), n_points, second, dict(self._timers), earlier_keyframes=(first,)
+        )
+
     def _initialise(self, frame: Frame, T_world_cam: np.ndarray, reason: str) -> TrackResult:
         """A new map from one frame's depths at ``T_world_cam``: one keyframe, a point per depth."""
         n_depth = int(np.count_nonzero(frame.depth_m > 0))
@@ -550,10 +599,19 @@ class Tracker:
         return need_new_keyframe(inputs, self.keyframe_config)
 
     def _make_keyframe(
-        self, frame: Frame, T_cam_world: np.ndarray, rows: np.ndarray, new_kps: np.ndarray | None = None
+        self,
+        frame: Frame,
+        T_cam_world: np.ndarray,
+        rows: np.ndarray,
+        new_kps: np.ndarray | None = None,
+        new_points_world: np.ndarray | None = None,
     ) -> KeyFrame:
-        """Make the frame a keyframe with new points at its near keypoints; updates ``rows`` in place."""
-        if new_kps is None:
+        """Make the frame a keyframe with new points at keypoints ``new_kps`` (default: its near
+        keypoints with depth; none for a monocular camera), at ``new_points_world`` (default: from
+        their depths); updates ``rows`` in place."""
+        if new_kps is None and self.calibration.baseline_m is None:
+            new_kps = np.zeros(0, dtype=np.int64)  # monocular: local mapping triangulates new points
+        elif new_kps is None:
             max_depth_m = self.config.new_points_depth_baselines * self.calibration.baseline_m
             new_kps = select_new_point_keypoints(frame.depth_m, rows >= 0, max_depth_m, self.config.new_points_min)
         T_world_cam = invert_T(T_cam_world)
@@ -573,8 +631,10 @@ class Tracker:
             map_point_ids=point_ids.astype(np.int64),
             new_point_ids=new_ids,
             new_point_keypoints=new_kps.astype(np.int64),
-            new_points_world=unproject_keypoints(
-                feats.px[new_kps], frame.depth_m[new_kps], self.calibration, T_world_cam
+            new_points_world=(
+                unproject_keypoints(feats.px[new_kps], frame.depth_m[new_kps], self.calibration, T_world_cam)
+                if new_points_world is None
+                else np.asarray(new_points_world, dtype=np.float64).reshape(-1, 3)
             ),
         )
         new_rows = self.map.insert_keyframe(keyframe, point_rows=rows)
