@@ -74,7 +74,7 @@ class TwoViewConfig:
     homography_ambiguity_ratio: float = 0.75  # H: refuse when the second-best motion explains above this fraction of the best's points
     fundamental_ambiguity_ratio: float = 0.7  # F: the same, with ORB-SLAM's F value
     refine_rounds: int = 3  # least-squares refits of the chosen model on its inliers (count; 0 is ORB-SLAM)
-    refine_iterations: int = 10  # Levenberg-Marquardt steps on the winning motion's Sampson error (count; 0 is ORB-SLAM)
+    refine_iterations: int = 20  # Levenberg-Marquardt steps on the winning motion's Sampson error (count; 0 is ORB-SLAM)
     seed: int = 0  # seed of the RANSAC sample sets
 
     def __post_init__(self) -> None:
@@ -351,9 +351,11 @@ def _degenerate_reason(H_cur_ref: np.ndarray, K: np.ndarray) -> tuple[RefusalRea
     """Why a homography has no Faugeras decomposition: all singular values equal is a rotation
     (no translation to see), two equal is a translation along the plane normal."""
     d = np.linalg.svd(np.linalg.inv(K) @ H_cur_ref @ K, compute_uv=False)
+    d = d / d[1]
+    values = ", ".join(f"{v:.6f}" for v in d)
     if d[0] / d[2] < _DISTINCT_SINGULAR_RATIO**2:
-        return "low_parallax", f"homography is a pure rotation (singular values {d[0]:.6f}, {d[1]:.6f}, {d[2]:.6f})"
-    return "degenerate", f"homography has repeated singular values {d[0]:.6f}, {d[1]:.6f}, {d[2]:.6f}: motion along the plane normal"
+        return "low_parallax", f"homography is a pure rotation (singular values {values})"
+    return "degenerate", f"homography has repeated singular values ({values}): motion along the plane normal"
 
 
 def _checked_inputs(

@@ -8,10 +8,13 @@ threshold, and is an inlier when it is below in both. The hypothesis with the hi
 there is no early stop, so the result depends only on the matches and the seed.
 
 All hypotheses of one model are fitted and scored together as numpy stacks, (iterations, M).
+``refine_homography``/``refine_fundamental`` go beyond ORB-SLAM: the winner is refitted by least
+squares on its inliers, a minimal set's fit being too coarse to decompose into a usable motion.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -65,14 +68,12 @@ def fit_homographies(xn_ref: np.ndarray, xn_cur: np.ndarray) -> np.ndarray:
     return _null_vectors(A).reshape(-1, 3, 3)
 
 
-def fit_fundamentals(xn_ref: np.ndarray, xn_cur: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+def fit_fundamentals(xn_ref: np.ndarray, xn_cur: np.ndarray) -> np.ndarray:
     """8-point fundamental matrices (S, 3, 3) with x_cur^T F x_ref = 0, forced to rank 2, from
-    stacks of normalised points (S, n, 2), each equation optionally weighted (S, n)."""
+    stacks of normalised points (S, n, 2)."""
     u1, v1 = xn_ref[..., 0], xn_ref[..., 1]
     u2, v2 = xn_cur[..., 0], xn_cur[..., 1]
     A = np.stack([u2 * u1, u2 * v1, u2, v2 * u1, v2 * v1, v2, u1, v1, np.ones_like(u1)], axis=-1)
-    if weights is not None:
-        A = A * weights[..., None]
     F = _null_vectors(A).reshape(-1, 3, 3)
     U, w, Vt = np.linalg.svd(F)
     w[:, 2] = 0.0
@@ -130,6 +131,41 @@ def find_fundamental(x_ref: np.ndarray, x_cur: np.ndarray, sets: np.ndarray, inv
     return _best(F, scores, inliers)
 
 
+def refine_homography(x_ref: np.ndarray, x_cur: np.ndarray, fit: ModelFit, inv_sigma2: np.ndarray, rounds: int) -> ModelFit:
+    """Refit a homography on its inliers by least squares while the score rises, at most ``rounds`` times."""
+    return _refine(x_ref, x_cur, fit, inv_sigma2, rounds, fit_homographies, score_homographies, lambda Tc, M, Tr: adjugate(Tc) @ M @ Tr)
+
+
+def refine_fundamental(x_ref: np.ndarray, x_cur: np.ndarray, fit: ModelFit, inv_sigma2: np.ndarray, rounds: int) -> ModelFit:
+    """Refit a fundamental matrix on its inliers by least squares while the score rises, at most ``rounds`` times."""
+    return _refine(x_ref, x_cur, fit, inv_sigma2, rounds, fit_fundamentals, score_fundamentals, lambda Tc, M, Tr: Tc.T @ M @ Tr)
+
+
+def _refine(
+    x_ref: np.ndarray,
+    x_cur: np.ndarray,
+    fit: ModelFit,
+    inv_sigma2: np.ndarray,
+    rounds: int,
+    fitter: Callable[[np.ndarray, np.ndarray], np.ndarray],
+    scorer: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]],
+    denormalize: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray],
+) -> ModelFit:
+    """Least-squares refits on the inliers, each normalised afresh, kept while the score rises."""
+    for _ in range(rounds):
+        rows = np.flatnonzero(fit.inliers)
+        if len(rows) < SAMPLE_SIZE:
+            break
+        xn_ref, T_ref = normalize_points(x_ref[rows])
+        xn_cur, T_cur = normalize_points(x_cur[rows])
+        M = denormalize(T_cur, fitter(xn_ref[None], xn_cur[None])[0], T_ref)
+        scores, inliers = scorer(M[None], x_ref, x_cur, inv_sigma2)
+        if not scores[0] > fit.score:
+            break
+        fit = ModelFit(M, inliers[0], float(scores[0]))
+    return fit
+
+
 def _best(models: np.ndarray, scores: np.ndarray, inliers: np.ndarray) -> ModelFit | None:
     """The first hypothesis of highest score, as ORB-SLAM keeps the first strictly better one."""
     best = int(np.argmax(scores))
@@ -170,28 +206,3 @@ def adjugate(M: np.ndarray) -> np.ndarray:
     """Adjugate of 3x3 matrices (..., 3, 3): ``det(M) * inv(M)``, defined for singular ones too."""
     r0, r1, r2 = M[..., 0, :], M[..., 1, :], M[..., 2, :]
     return np.stack([np.cross(r1, r2), np.cross(r2, r0), np.cross(r0, r1)], axis=-1)
-
-
-def refine_homography(x_ref: np.ndarray, x_cur: np.ndarray, fit: ModelFit, inv_sigma2: np.ndarray, rounds: int) -> ModelFit:
-    """Refit a homography on its inliers by least squares while the score rises, at most ``rounds`` times."""
-    return _refine(x_ref, x_cur, fit, inv_sigma2, rounds, fit_homographies, score_homographies, lambda Tc, M, Tr: adjugate(Tc) @ M @ Tr)
-
-
-def refine_fundamental(x_ref: np.ndarray, x_cur: np.ndarray, fit: ModelFit, inv_sigma2: np.ndarray, rounds: int) -> ModelFit:
-    """Refit a fundamental matrix on its inliers by least squares while the score rises, at most ``rounds`` times."""
-    return _refine(x_ref, x_cur, fit, inv_sigma2, rounds, fit_fundamentals, score_fundamentals, lambda Tc, M, Tr: Tc.T @ M @ Tr)
-
-
-def _refine(x_ref, x_cur, fit, inv_sigma2, rounds, fitter, scorer, denormalize) -> ModelFit:
-    for _ in range(rounds):
-        rows = np.flatnonzero(fit.inliers)
-        if len(rows) < SAMPLE_SIZE:
-            break
-        xn_ref, T_ref = normalize_points(x_ref[rows])
-        xn_cur, T_cur = normalize_points(x_cur[rows])
-        M = denormalize(T_cur, fitter(xn_ref[None], xn_cur[None])[0], T_ref)
-        scores, inliers = scorer(M[None], x_ref, x_cur, inv_sigma2)
-        if not scores[0] > fit.score:
-            break
-        fit = ModelFit(M, inliers[0], float(scores[0]))
-    return fit

@@ -13,11 +13,15 @@ Levenberg-Marquardt with the Jacobian by forward differences (5 parameters, a ch
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from zenslam.geometry import skew, so3_exp
 
-_TUKEY_C = 4.685  # Tukey's biweight constant in units of sigma (95% efficiency on Gaussian errors)
+# Tukey's kernel ends at the bound of ORB-SLAM's F score, sqrt(5.991) sigma: a wider kernel lets
+# the few outliers that fall near an epipolar line pull the weakly observed translation direction.
+_TUKEY_C = math.sqrt(5.991)
 _STEP = 1e-7  # forward-difference step (radians and unit-direction components)
 _CONVERGED = 1e-10  # relative cost decrease below which the refinement stops
 
