@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from dataclasses import dataclass
@@ -66,13 +67,16 @@ class PreparedFrame:
     frame: Frame
     timings_ms: dict[str, float]  # the frame-building stages of TIMING_KEYS, milliseconds
     elapsed_ms: float  # wall time spent building it, milliseconds
+    for_map_start: bool = False  # built with the monocular initialisation's denser extractor
 
 
 class FrontendPipeline:
     """Builds a frame from the images (ORB, and stereo matches or RGB-D depth) and tracks it.
 
     With a ``vocabulary``, a lost frame is relocalised against the candidates of the source ``step``
-    is given.
+    is given. A monocular camera's frames are extracted with ``monocular.features_factor`` times the
+    keypoints while the tracker looks for its two initial frames (ORB-SLAM3 takes 5 times), so that
+    enough finest-level keypoints match between frames far enough apart.
     """
 
     def __init__(
@@ -80,6 +84,11 @@ class FrontendPipeline:
     ) -> None:
         if sensor not in ("stereo", "rgbd", "mono"):
             raise ConfigError(f"the frontend tracks stereo, rgbd or mono cameras, not sensor {sensor!r}")
+        if sensor == "mono" and calibration.baseline_m is not None:
+            raise ConfigError(
+                f"a mono frontend takes a calibration without baseline, got baseline_m={calibration.baseline_m}: "
+                "drop the baseline (the source does when a stereo dataset is played with --sensor mono)"
+            )
         if sensor != "mono" and calibration.baseline_m is None:
             raise ConfigError(
                 f"a {sensor} frontend needs calibration.baseline_m (stereo baseline or RGB-D virtual baseline)"
@@ -88,6 +97,10 @@ class FrontendPipeline:
         self.calibration = calibration
         self.sensor = sensor
         self.extractor = OrbExtractor(config.orb)
+        self.map_start_extractor = self.extractor
+        if sensor == "mono":
+            factor = config.tracking.monocular.features_factor
+            self.map_start_extractor = OrbExtractor(dataclasses.replace(config.orb, n_features=factor * config.orb.n_features))
         self.tracker = Tracker(calibration, sensor, config.tracking, config.pose, config.keyframe, vocabulary=vocabulary)
         self._first_stamp_ns: int | None = None
         self._rate_known = False
@@ -100,8 +113,9 @@ class FrontendPipeline:
         same frame as in ``step``."""
         start = time.perf_counter()
         timings = {key: 0.0 for key in TIMING_KEYS}
-        frame = self._make_frame(index, stamp_ns, left, right, depth_m, timings)
-        return PreparedFrame(frame, timings, (time.perf_counter() - start) * 1e3)
+        for_map_start = self.sensor == "mono" and self.tracker.starting_map
+        frame = self._make_frame(index, stamp_ns, left, right, depth_m, timings, for_map_start)
+        return PreparedFrame(frame, timings, (time.perf_counter() - start) * 1e3, for_map_start)
 
     def step(
         self,
@@ -122,7 +136,8 @@ class FrontendPipeline:
         timings' total then adds the time it took to the tracking's. ``candidates``: asks the backend
         for relocalisation candidates (called only while tracking is lost).
         """
-        if prepared is None or prepared.frame.index != index:
+        stale = prepared is not None and prepared.for_map_start != (self.sensor == "mono" and self.tracker.starting_map)
+        if prepared is None or prepared.frame.index != index or stale:
             prepared = self.prepare(index, stamp_ns, left, right, depth_m)
         start = time.perf_counter()
         self._update_camera_rate(stamp_ns)
@@ -149,9 +164,10 @@ class FrontendPipeline:
         """Apply the backend's map correction (replacement semantics) before the next ``step``."""
         self.tracker.apply_map_update(update)
 
-    def _make_frame(self, index, stamp_ns, left, right, depth_m, timings: dict[str, float]) -> Frame:
+    def _make_frame(self, index, stamp_ns, left, right, depth_m, timings: dict[str, float], for_map_start: bool = False) -> Frame:
         if self.sensor == "mono":
-            return make_mono_frame(index, stamp_ns, left, self.calibration, self.extractor, timings)
+            extractor = self.map_start_extractor if for_map_start else self.extractor
+            return make_mono_frame(index, stamp_ns, left, self.calibration, extractor, timings)
         if self.sensor == "stereo":
             if right is None:
                 raise ConfigError(f"frame {index}: a stereo frontend needs the right image")

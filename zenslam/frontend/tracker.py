@@ -167,6 +167,12 @@ class Tracker:
         self._lost_streak = 0
         self._timers: dict[str, float] = {}
 
+    @property
+    def starting_map(self) -> bool:
+        """The next frame may start a map: none exists yet, or tracking was lost long enough to start over."""
+        reinit = self.config.reinit_after_lost_frames
+        return self._last is None or bool(reinit and self._lost_streak >= reinit)
+
     # ---- the per-frame entry point ----------------------------------------------------------------
     def track(self, frame: Frame, keyframes_in_flight: int = 0, candidates: CandidateSource | None = None) -> TrackResult:
         """Track one frame: its pose in the world, the inlier count, a keyframe when one is made, and
