@@ -143,8 +143,10 @@ class RunLog:
         return {"total": sum(reasons.values()), "reasons": reasons}
 
     def keyframe_counts(self) -> dict[str, int]:
-        """Keyframes the frontend sent (states with a keyframe) and the backend processed (updates received)."""
-        sent = sum(1 for s in self.states.values() if s.keyframe_id >= 0)
+        """Keyframes the frontend sent and the backend processed (updates received). The frontend numbers
+        its keyframes 0, 1, 2, ... as it makes them, and a state names the keyframe its frame made, so
+        the newest id counts the ones made from earlier frames too (a monocular map's first keyframe)."""
+        sent = 1 + max((s.keyframe_id for s in self.states.values()), default=-1)
         return {"sent": sent, "processed": len(self.updated_keyframes)}
 
     def backend_timing(self) -> dict[str, dict[str, float]]:
