@@ -84,7 +84,7 @@ class MonocularInitialiser:
             config.two_view,
         )
         if not isinstance(result, TwoViewResult):
-            return f"waiting_for_parallax ({result.reason})"
+            return "waiting_for_parallax" if result.reason == "low_parallax" else f"two_view_refused_{result.reason}"
         return self._initial_map(frame, matched, match[matched], result)
 
     def _set_reference(self, frame: Frame) -> None:
@@ -96,7 +96,7 @@ class MonocularInitialiser:
         p_ref = np.asarray(result.p_ref, dtype=np.float64)
         depth = np.median(p_ref[:, 2]) if len(p_ref) else 0.0
         if not depth > 0:
-            return "waiting_for_parallax (points behind the camera)"
+            return "two_view_refused_points_behind"
         scale = self.config.median_depth / depth
         T_cur_ref = np.array(result.T_cur_ref, dtype=np.float64)
         T_cur_ref[:3, 3] *= scale

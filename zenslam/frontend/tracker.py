@@ -302,7 +302,7 @@ class Tracker:
             return self._initialise(frame, T_world_cam, reason)
         found = self._monocular.try_frame(frame)
         if isinstance(found, str):
-            self.lost_reasons[found.split(" ")[0]] += 1
+            self.lost_reasons[found] += 1
             self._lost_streak += 1
             return TrackResult("initializing", found, None, 0, None, dict(self._timers))
         return self._initialise_monocular(found, T_world_cam)

@@ -226,15 +226,19 @@ class RunLog:
         return _timing_table(samples, "frames")
 
     def frame_counts(self) -> dict[str, object]:
-        """The ``frames``, ``lost_frames``, ``lost_reasons`` and ``keyframes`` sections of metrics.json."""
+        """The ``frames``, ``lost_frames``, ``lost_reasons``, ``initializing_*`` and ``keyframes`` sections of metrics.json."""
         states = [self.states[i] for i in sorted(self.states)]
         lost = [s for s in states if s.state == "lost"]
         reasons = Counter(s.lost_reason or "unknown" for s in lost)
+        waiting = Counter(s.lost_reason or "unknown" for s in states if s.state == "initializing" and s.lost_reason)
         return {
             "frames": len(states),
             "tracked_ok": sum(1 for s in states if s.state == "ok"),
             "lost_frames": len(lost),
             "lost_reasons": dict(sorted(reasons.items())),
+            # Frames without a map yet (or starting one over), by what they waited for, e.g. waiting_for_parallax.
+            "initializing_frames": sum(waiting.values()),
+            "initializing_reasons": dict(sorted(waiting.items())),
             "keyframes": sum(1 for s in states if s.keyframe_id >= 0),
         }
 

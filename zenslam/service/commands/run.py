@@ -392,6 +392,9 @@ def _summary(result: RunResult, log: RunLog) -> list[str]:
         f"frames {counts['frames']}: {counts['tracked_ok']} tracked, {counts['lost_frames']} lost, "
         f"{keyframes['sent']} keyframes ({keyframes['processed']} processed by the backend)",
     ]
+    if counts["tracked_ok"] == 0 and counts["initializing_frames"]:
+        reasons = ", ".join(f"{count} {reason}" for reason, count in counts["initializing_reasons"].items())
+        lines.append(f"no map was made: tracking never initialised ({reasons})")
     skipped = log.skipped_frames()
     if skipped["total"]:
         reasons = ", ".join(f"{count} {reason}" for reason, count in skipped["reasons"].items())
