@@ -6,7 +6,6 @@ import pytest
 from zenslam.backend.config import BackendConfig
 from zenslam.backend.local_ba import LocalBundleAdjuster
 from zenslam.backend.local_mapping import LocalMapper, new_backend_map
-from zenslam.backend.triangulation import scene_median_depth
 from zenslam.frontend.config import FrontendConfig
 from zenslam.frontend.node import keyframe_message
 from zenslam.frontend.pipeline import FrontendPipeline
@@ -37,8 +36,8 @@ def test_loop_scene_starts_a_map_of_two_keyframes_at_unit_median_depth():
     assert len(first.new_point_ids) >= 50 and len(second.new_point_ids) == 0
     assert set(first.new_point_ids) <= set(second.map_point_ids[second.map_point_ids >= 0])
     assert np.median(first.new_points_world[:, 2]) == pytest.approx(1.0)
-    # Local mapping's BA of the two keyframes: the motion's direction and rotation match the truth (the
-    # scale is the map's own), and the first keyframe's points are again at median depth 1.
+    # Local mapping's BA of the two keyframes: the motion's direction and rotation match the truth, at the
+    # scale the frontend chose (the distance between the keyframes is kept: their poses are published).
     config = BackendConfig()
     mapper = LocalMapper(new_backend_map(config.local_mapping), config.local_mapping, LocalBundleAdjuster(config.local_ba))
     for kf in (first, second):
@@ -52,7 +51,9 @@ def test_loop_scene_starts_a_map_of_two_keyframes_at_unit_median_depth():
     assert np.degrees(np.arccos(min(cos_t, 1.0))) < 4.0
     R_err = T_true[:3, :3].T @ T_est[:3, :3]
     assert np.degrees(np.arccos(np.clip((np.trace(R_err) - 1) / 2, -1, 1))) < 0.5
-    assert scene_median_depth(mapper.map, mapper.map.keyframes[0]) == pytest.approx(1.0)
+    frontend_baseline = np.linalg.norm(second.T_world_cam[:3, 3] - first.T_world_cam[:3, 3])
+    assert np.linalg.norm(T_est[:3, 3]) == pytest.approx(frontend_baseline)
+    assert not np.allclose(mapper.map.keyframes[1].T_world_cam, second.T_world_cam, atol=1e-4)  # the BA moved it
 
 
 def test_a_still_camera_never_starts_a_map():

@@ -22,7 +22,7 @@ import numpy as np
 from zenslam.backend.ba_problem import BAProblem, BAResult
 from zenslam.backend.keyframe_culling import KeyframeCullingConfig, cull_redundant_keyframes
 from zenslam.backend.map import BackendKeyframe, BackendMap, MapChanges
-from zenslam.backend.monocular_map_start import is_monocular_map_start, rescale_to_median_depth
+from zenslam.backend.monocular_map_start import baseline, is_monocular_map_start, rescale_about_first_keyframe
 from zenslam.backend.point_culling import PointCullingConfig, count_visibility, cull_recent_points
 from zenslam.backend.point_fusion import FusionConfig, fuse_with_neighbours
 from zenslam.backend.triangulation import TriangulationConfig, create_new_points
@@ -244,20 +244,23 @@ class LocalMapper:
         return apply_ba_result(self.map, problem, result, obs_point_ids, obs_kf_ids, self.config.min_keyframes_per_point)
 
     def _map_start_ba(self, kf_id: int) -> dict[str, int]:
-        """BA of a monocular map's two keyframes (the first fixed) and all points, then the first
-        keyframe's median depth set to 1 again (``monocular_map_start``)."""
+        """BA of a monocular map's two keyframes (the first fixed) and all points, then the map scaled
+        back to the keyframes' distance before it (``monocular_map_start``)."""
         kf_ids = sorted(self.map.keyframes)
         point_ids = sorted(p for p, point in self.map.points.items() if point.observations)
         if not point_ids:
             return {}
         is_fixed = np.array([k == self.map.first_keyframe_id for k in kf_ids], dtype=bool)
         calibration = self.map.keyframes[kf_id].calibration
+        published = baseline(self.map)
         problem, obs_point_ids, obs_kf_ids = ba_problem(self.map, kf_ids, point_ids, is_fixed, calibration, self.config.ba_window)
         result = self.bundle_adjuster.optimize(problem)
         self.last_ba_stats = dict(result.stats)
         counts = apply_ba_result(self.map, problem, result, obs_point_ids, obs_kf_ids, self.config.min_keyframes_per_point)
-        scale = rescale_to_median_depth(self.map)
-        logger.info("monocular map start: BA of %d points, scaled by %s", len(point_ids), scale)
+        optimised = baseline(self.map)
+        if optimised > 0:
+            rescale_about_first_keyframe(self.map, published / optimised)
+        logger.info("monocular map start: BA of %d points, baseline %.4f -> %.4f", len(point_ids), published, optimised)
         return counts
 
 
