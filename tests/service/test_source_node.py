@@ -276,3 +276,27 @@ def test_a_frontend_that_ends_its_stream_stops_a_lockstep_source_without_error(s
     assert sent == 2
     assert frames.get(timeout_s=5.0) == codec.EndOfStream(2)
     frames.close()
+
+
+class _SlowStates:
+    """An inbox whose answer to frame ``index`` comes after ``after_s`` seconds."""
+
+    def __init__(self, index: int, after_s: float):
+        self._due, self._index = time.monotonic() + after_s, index
+
+    def get(self, timeout_s: float):
+        time.sleep(min(timeout_s, 0.01))
+        if time.monotonic() < self._due:
+            return None
+        return codec.TrackingStateMessage(index=self._index, stamp_ns=0, state="ok")
+
+
+def test_lockstep_waits_past_the_timeout_while_the_frontend_runs(caplog):
+    with caplog.at_level("WARNING", logger="zenslam.service.source_node"):
+        assert source_node._wait_for_answer(_SlowStates(4, 0.5), 4, 0.1, lambda: False, lambda: True)
+    assert any("no answer to frame 4" in r.getMessage() and "frontend is running" in r.getMessage() for r in caplog.records)
+
+
+def test_lockstep_fails_when_the_frontend_is_gone():
+    with pytest.raises(bus.BusError, match="did not report frame 4 within 0 s .* and is no longer running"):
+        source_node._wait_for_answer(_SlowStates(4, 60.0), 4, 0.1, lambda: False, lambda: False)

@@ -89,10 +89,17 @@ class _Pacer:
             self._sleep(min(remaining, 0.05))
 
 
-def _wait_for_answer(states: bus.Inbox, index: int, timeout_s: float, should_stop: Callable[[], bool]) -> bool:
+def _wait_for_answer(
+    states: bus.Inbox, index: int, timeout_s: float, should_stop: Callable[[], bool], frontend_alive: Callable[[], bool]
+) -> bool:
     """Lockstep: wait for the frontend's state of frame ``index``; False when the frontend ended its
-    stream first (it was stopped: no more answers will come) or ``should_stop()`` turned true."""
+    stream first (it was stopped: no more answers will come) or ``should_stop()`` turned true.
+
+    Every ``timeout_s`` without the answer, the frontend's liveliness is checked: a running frontend
+    may be waiting for the backend (a global BA after a loop runs in place in lockstep and grows with
+    the map), so the wait goes on with a warning; a frontend that is gone is an error."""
     deadline = time.monotonic() + timeout_s
+    waited_s = 0.0
     while not should_stop():
         state = states.get(timeout_s=0.1)
         if isinstance(state, codec.TrackingStateMessage) and state.index == index:
@@ -101,10 +108,17 @@ def _wait_for_answer(states: bus.Inbox, index: int, timeout_s: float, should_sto
             logger.info("the frontend ended its stream before answering frame %d: stopping", index)
             return False
         if time.monotonic() > deadline:
-            raise bus.BusError(
-                f"lockstep: the frontend did not report frame {index} within {timeout_s:.0f} s "
-                "(source.answer_timeout_s); check the frontend's log"
-            )
+            waited_s += timeout_s
+            if not frontend_alive():
+                raise bus.BusError(
+                    f"lockstep: the frontend did not report frame {index} within {waited_s:.0f} s "
+                    "(source.answer_timeout_s) and is no longer running; check the frontend's log"
+                )
+            logger.warning(
+                "lockstep: no answer to frame %d for %.0f s; the frontend is running (it may wait for a long "
+                "global BA in the backend), waiting on", index, waited_s,
+            )  # fmt: skip
+            deadline = time.monotonic() + timeout_s
     return False
 
 
@@ -148,6 +162,10 @@ def play(
         # must still reach the frontend, or it would wait for frames that never come.
         bus.wait_for_subscribers(frame_pub, min(start_timeout_s, _STOPPED_SUBSCRIBER_WAIT_S))
     pacer = _Pacer(0.0 if lockstep else config.rate, should_stop)
+
+    def frontend_alive() -> bool:
+        return "frontend" in bus.alive_processes(session, session_name)
+
     log_cpu_times("at stream start")
     sent = 0
     skipped: Counter[str] = Counter()  # frames not sent, by reason
@@ -171,12 +189,12 @@ def play(
                 rerun.log_frame(frame)  # while the frontend tracks it
             # States come lossless and in frame order: the oldest frame in flight is answered first.
             while answered and states is not None and len(in_flight) >= config.frames_in_flight:
-                answered = _wait_for_answer(states, in_flight.popleft(), config.answer_timeout_s, should_stop)
+                answered = _wait_for_answer(states, in_flight.popleft(), config.answer_timeout_s, should_stop, frontend_alive)
             status = codec.StageStatusMessage(STAGE, "running", sent, (time.perf_counter() - started) * 1e3, skipped=dict(skipped))
             status_pub.put(codec.encode_stage_status(status))
         # The last answers. Stopped, we leave the frames in flight to the frontend: it tracks them before our end of stream.
         while answered and states is not None and in_flight:
-            answered = _wait_for_answer(states, in_flight.popleft(), config.answer_timeout_s, should_stop)
+            answered = _wait_for_answer(states, in_flight.popleft(), config.answer_timeout_s, should_stop, frontend_alive)
         detail = STOPPED if not answered or should_stop() else ""
         final = codec.StageStatusMessage(STAGE, "finished", sent, detail=detail, skipped=dict(skipped))
     except ZenslamError as exc:

@@ -22,7 +22,9 @@ class SourceConfig:
     rate: float = 1.0  # live mode: playback speed as a multiple of the recorded rate; 0 = as fast as possible
     max_frames: int | None = None  # frames; stop after this many (None: the whole sequence)
     depth_encoding: Literal["float32_m", "uint16_mm"] = "float32_m"  # how RGB-D depth travels on the bus
-    answer_timeout_s: float = 120.0  # lockstep: seconds to wait for the frontend's answer to one frame
+    # Lockstep: seconds without the frontend's answer to a frame after which the source checks that the
+    # frontend still runs (then waits on, with a warning) or fails the run (it is gone).
+    answer_timeout_s: float = 120.0
     # Lockstep: frames sent whose frontend/state has not arrived. 2 reads and sends frame i+1 while
     # frame i is tracked, taking the source's reading/decoding off the serial path; the frontend
     # still takes every frame in order, so lockstep outputs are the same at any window. 1 = strict.
