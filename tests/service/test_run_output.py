@@ -127,7 +127,22 @@ def test_timing_table_and_frame_counts():
     assert timing["total"] == {"mean_ms": 12.0, "median_ms": 12.0, "max_ms": 14.0, "frames": 5}
     assert timing["extraction"]["max_ms"] == 5.0
     counts = log.frame_counts()
-    assert counts == {"frames": 5, "tracked_ok": 4, "lost_frames": 1, "lost_reasons": {"too few matches": 1}, "keyframes": 1}
+    assert counts == {
+        "frames": 5, "tracked_ok": 4, "lost_frames": 1, "lost_reasons": {"too few matches": 1},
+        "initializing_frames": 0, "initializing_reasons": {}, "keyframes": 1,
+    }  # fmt: skip
+
+
+def test_frames_waiting_for_a_monocular_map_are_counted_by_reason():
+    log = RunLog()
+    for index, reason in enumerate(["waiting_for_second_frame", "waiting_for_parallax", "waiting_for_parallax"]):
+        log.add_state(codec.TrackingStateMessage(index, index * 10, "initializing", lost_reason=reason))
+    log.add_state(codec.TrackingStateMessage(3, 30, "ok", has_pose=True, keyframe_id=1))
+    counts = log.frame_counts()
+    assert (counts["initializing_frames"], counts["lost_frames"], counts["tracked_ok"]) == (3, 0, 1)
+    assert counts["initializing_reasons"] == {"waiting_for_parallax": 2, "waiting_for_second_frame": 1}
+    # The frame that started the map made two keyframes (0 from the reference frame, 1 its own).
+    assert log.keyframe_counts()["sent"] == 2
 
 
 def test_relocalisation_counts_relocalised_frames_frames_without_a_pose_and_new_maps():
