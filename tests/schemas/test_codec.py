@@ -341,3 +341,17 @@ def test_map_update_carries_the_corrections_that_follow_it():
     update = codec.decode_map_update(codec.encode_map_update(MapUpdate(keyframe_id=5, stamp_ns=9, corrections_following=1)))
     assert update.corrections_following == 1 and update.answers_keyframe
     assert codec.decode_map_update(codec.encode_map_update(MapUpdate(keyframe_id=5, stamp_ns=9))).corrections_following == 0
+
+
+def test_keyframe_trajectory_round_trips_its_culled_keyframes():
+    T = np.stack([make_T(so3_exp(np.array([0.0, 0.1 * k, 0.0])), np.array([k, 0.0, 0.0])) for k in range(3)])
+    sent = codec.KeyframeTrajectoryMessage(
+        np.array([0], np.int64), np.array([5], np.int64), T[:1], keyframes_processed=4, finished=True,
+        culled_keyframe_ids=np.array([2, 3], np.int64), culled_stamps_ns=np.array([20, 30], np.int64), culled_T_world_cam=T[1:],
+    )  # fmt: skip
+    got = codec.decode_keyframe_trajectory(codec.encode_keyframe_trajectory(sent))
+    np.testing.assert_array_equal(got.culled_keyframe_ids, [2, 3])
+    np.testing.assert_array_equal(got.culled_stamps_ns, [20, 30])
+    np.testing.assert_array_equal(got.culled_T_world_cam, T[1:])
+    plain = codec.decode_keyframe_trajectory(codec.encode_keyframe_trajectory(codec.KeyframeTrajectoryMessage(sent.keyframe_ids, sent.stamps_ns, T[:1])))
+    assert plain.culled_keyframe_ids.shape == (0,) and plain.culled_T_world_cam.shape == (0, 4, 4)

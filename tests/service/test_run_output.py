@@ -79,6 +79,24 @@ def test_final_trajectory_follows_the_reference_keyframes_final_poses():
     np.testing.assert_array_equal(final.stamps_ns, [10, 20, 30, 40, 50])
 
 
+def test_final_trajectory_follows_culled_keyframes_where_the_backend_puts_them():
+    """Frame 0 refers to keyframe 3, culled: the backend's answer places it (through its parent), so
+    its last map-update correction no longer counts."""
+    log = RunLog()
+    relative = make_T(so3_exp(np.array([0.0, 0.1, 0.0])), [0.0, 0.0, 0.5])
+    log.add_state(codec.TrackingStateMessage(0, 10, "ok", has_pose=True, reference_keyframe_id=3, T_reference_cam=relative))
+    log.add_pose(codec.StampedPose(10, np.eye(4)))
+    stale = make_T(np.eye(3), [9.0, 9.0, 9.0])
+    log.add_map_update(MapUpdate(keyframe_id=3, stamp_ns=0, keyframes=(KeyframeCorrection(3, stale, np.zeros(0, np.int64)),)))
+    culled_pose = make_T(so3_exp(np.array([0.0, 0.0, 0.3])), [1.0, 2.0, 3.0])
+    log.backend_keyframes = codec.KeyframeTrajectoryMessage(
+        np.array([0]), np.array([5]), np.eye(4)[None],
+        culled_keyframe_ids=np.array([3]), culled_stamps_ns=np.array([8]), culled_T_world_cam=culled_pose[None],
+    )  # fmt: skip
+    np.testing.assert_allclose(log.final_trajectory().T_world_cam[0], culled_pose @ relative, atol=1e-12)
+    np.testing.assert_array_equal(log.keyframe_trajectory().stamps_ns, [5])  # keyframes.tum: the map's keyframes
+
+
 def test_without_the_backends_answer_keyframes_take_its_updates_and_lose_the_culled():
     """An interrupted run: keyframes 0-2 made by the frontend, keyframe 1 moved by a map update, keyframe 2 culled."""
     log = RunLog()

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from zenslam.backend.covisibility import CovisibilityGraph
+from zenslam.backend.culled_keyframes import CulledKeyframes
 from zenslam.backend.essential_graph import EssentialGraph
 from zenslam.backend.spanning_tree import SpanningTree, choose_parent
 from zenslam.camera import PinholeCalibration, SensorKind
@@ -242,6 +243,7 @@ class BackendMap:
         self.essential_graph = EssentialGraph(self.spanning_tree, self.covisibility, essential_min_weight)
         self.point_id_allocator = IdAllocator(point_id_start)
         self.first_keyframe_id: int | None = None  # the gauge keyframe, never removed
+        self.culled = CulledKeyframes()  # removed keyframes, each relative to its parent then
         self.changes = MapChanges()
         self._next_serial = 0
         self._replaced: dict[int, int] = {}  # fused point id -> the id that replaced it
@@ -398,10 +400,14 @@ class BackendMap:
 
     def remove_keyframe(self, kf_id: int) -> list[int]:
         """Delete a keyframe (not the first): its observations, its node in the graphs; its spanning-tree
-        children are re-attached. Returns the ids of the points that lost an observation."""
+        children are re-attached; it is kept relative to its parent in ``culled``. Returns the ids of
+        the points that lost an observation."""
         if kf_id == self.first_keyframe_id:
             raise MapError(f"keyframe {kf_id} is the first keyframe (the gauge) and is never removed")
         point_ids = self.keyframe_point_ids(kf_id).tolist()
+        kf, parent = self.keyframes[kf_id], self.spanning_tree.parent(kf_id)
+        if parent is not None:
+            self.culled.record(kf_id, kf.stamp_ns, parent, self.keyframes[parent].T_world_cam, kf.T_world_cam)
         for point_id in point_ids:
             self.remove_observation(point_id, kf_id)
         self.covisibility.remove_keyframe(kf_id)

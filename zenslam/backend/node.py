@@ -174,14 +174,19 @@ class BackendNode:
         return dict(self.mapper.last_timings_ms)
 
     def trajectory(self) -> codec.KeyframeTrajectoryMessage:
-        """The poses (T_world_cam) of the keyframes in the map now, in insertion order."""
+        """The poses (T_world_cam) of the keyframes in the map now, in insertion order, and of the
+        culled ones, each where its parent is now."""
         kfs = list(self.map.keyframes.values())
+        culled_ids, culled_stamps, culled_T = self.map.culled.poses({kf.id: kf.T_world_cam for kf in kfs})
         return codec.KeyframeTrajectoryMessage(
             keyframe_ids=np.array([kf.id for kf in kfs], dtype=np.int64),
             stamps_ns=np.array([kf.stamp_ns for kf in kfs], dtype=np.int64),
             T_world_cam=np.array([kf.T_world_cam for kf in kfs], dtype=float).reshape(-1, 4, 4),
             keyframes_processed=self.processed,
             finished=self.finished,
+            culled_keyframe_ids=culled_ids,
+            culled_stamps_ns=culled_stamps,
+            culled_T_world_cam=culled_T,
         )
 
     def relocalisation_candidates(self, query: RelocalisationQuery) -> RelocalisationCandidates:

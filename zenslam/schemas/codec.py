@@ -92,7 +92,10 @@ ARRAY_FIELDS: dict[str, dict[str, ArrayLayout]] = {
         "min_distance_m": ("<f8", ()), "max_distance_m": ("<f8", ()), "removed_point_ids": ("<i8", ()),
         "removed_keyframe_ids": ("<i8", ()),
     },
-    KEYFRAME_TRAJECTORY: {"keyframe_ids": ("<i8", ()), "stamps_ns": ("<i8", ()), "T_world_cam": ("<f8", (4, 4))},
+    KEYFRAME_TRAJECTORY: {
+        "keyframe_ids": ("<i8", ()), "stamps_ns": ("<i8", ()), "T_world_cam": ("<f8", (4, 4)),
+        "culled_keyframe_ids": ("<i8", ()), "culled_stamps_ns": ("<i8", ()), "culled_T_world_cam": ("<f8", (4, 4)),
+    },  # fmt: skip
     MAP_SNAPSHOT: {"point_ids": ("<i8", ()), "p_world": ("<f8", (3,))},
     RELOCALISATION_QUERY: {"word_ids": ("<i8", ()), "weights": ("<f8", ())},
     "zenslam.MapKeyframe": {
@@ -197,6 +200,10 @@ class KeyframeTrajectoryMessage:
     T_world_cam: np.ndarray  # (K, 4, 4) camera -> world
     keyframes_processed: int = 0  # keyframes the backend had processed when it answered
     finished: bool = False  # the backend had processed its input's end of stream
+    # Keyframes culled from the map (C), each where its spanning-tree parent's correction put it.
+    culled_keyframe_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # (C,) int64
+    culled_stamps_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # (C,) int64
+    culled_T_world_cam: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4)))  # (C, 4, 4)
 
 
 @dataclass(frozen=True)
@@ -722,16 +729,30 @@ def _trajectory_to_pb(trajectory: KeyframeTrajectoryMessage, out: pb.KeyframeTra
     out.keyframe_ids = _pack(trajectory.keyframe_ids, "<i8", (), "keyframe trajectory keyframe_ids")
     out.stamps_ns = _pack(trajectory.stamps_ns, "<i8", (), "keyframe trajectory stamps_ns")
     out.T_world_cam = _pack(trajectory.T_world_cam, "<f8", (4, 4), "keyframe trajectory T_world_cam")
+    c = len(trajectory.culled_keyframe_ids)
+    if len(trajectory.culled_stamps_ns) != c or np.shape(trajectory.culled_T_world_cam) != (c, 4, 4):
+        raise MessageError(
+            f"keyframe trajectory: {c} culled ids, {len(trajectory.culled_stamps_ns)} stamps and poses of shape "
+            f"{np.shape(trajectory.culled_T_world_cam)} do not agree (expected ({c}, 4, 4))"
+        )
+    if c:
+        out.num_culled = c
+        out.culled_keyframe_ids = _pack(trajectory.culled_keyframe_ids, "<i8", (), "keyframe trajectory culled_keyframe_ids")
+        out.culled_stamps_ns = _pack(trajectory.culled_stamps_ns, "<i8", (), "keyframe trajectory culled_stamps_ns")
+        out.culled_T_world_cam = _pack(trajectory.culled_T_world_cam, "<f8", (4, 4), "keyframe trajectory culled_T_world_cam")
 
 
 def _trajectory_from_pb(msg: pb.KeyframeTrajectory) -> KeyframeTrajectoryMessage:
-    k = msg.num_keyframes
+    k, c = msg.num_keyframes, msg.num_culled
     return KeyframeTrajectoryMessage(
         keyframe_ids=_unpack(msg.keyframe_ids, "<i8", (k,), "keyframe trajectory keyframe_ids"),
         stamps_ns=_unpack(msg.stamps_ns, "<i8", (k,), "keyframe trajectory stamps_ns"),
         T_world_cam=_unpack(msg.T_world_cam, "<f8", (k, 4, 4), "keyframe trajectory T_world_cam"),
         keyframes_processed=msg.keyframes_processed,
         finished=msg.finished,
+        culled_keyframe_ids=_unpack(msg.culled_keyframe_ids, "<i8", (c,), "keyframe trajectory culled_keyframe_ids"),
+        culled_stamps_ns=_unpack(msg.culled_stamps_ns, "<i8", (c,), "keyframe trajectory culled_stamps_ns"),
+        culled_T_world_cam=_unpack(msg.culled_T_world_cam, "<f8", (c, 4, 4), "keyframe trajectory culled_T_world_cam"),
     )
 
 

@@ -181,12 +181,15 @@ class RunLog:
 
     def final_trajectory(self) -> Trajectory | None:
         """ORB-SLAM's saved trajectory: every frame tracked ok as its reference keyframe's final pose
-        times the camera in that keyframe's frame. A keyframe's final pose is the backend's answer,
-        else (culled keyframes) its last corrected pose; a frame whose keyframe was never corrected
-        keeps the pose it was tracked with (then nothing moved that keyframe)."""
+        times the camera in that keyframe's frame. A keyframe's final pose is the backend's answer
+        (for a culled keyframe, where its spanning-tree parent now puts it), else its last corrected
+        pose; a frame whose keyframe was never corrected keeps the pose it was tracked with (then
+        nothing moved that keyframe)."""
         final = dict(self.corrected_poses)
-        if self.backend_keyframes is not None:
-            final.update(zip(np.asarray(self.backend_keyframes.keyframe_ids).tolist(), self.backend_keyframes.T_world_cam))
+        backend = self.backend_keyframes
+        if backend is not None:
+            final.update(zip(np.asarray(backend.culled_keyframe_ids).tolist(), backend.culled_T_world_cam))
+            final.update(zip(np.asarray(backend.keyframe_ids).tolist(), backend.T_world_cam))
         live = self.trajectory()
         if live is None:
             return None
