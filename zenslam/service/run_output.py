@@ -307,7 +307,10 @@ def write_outputs(
     sections["backend_queue_depth_max"] = log.backend_queue_max
     if final_evaluation is not None:
         sections["ate_final"] = final_evaluation.to_json()["ate"]
-    sections["loops"] = {**acceptance_counts(log.loops, ground_truth), **loops_section(evaluation, final_evaluation)}
+    metres_per_unit = evaluation.ate.scale if evaluation is not None and evaluation.ate.scale else 1.0  # Sim(3): monocular
+    sections["loops"] = {
+        **acceptance_counts(log.loops, ground_truth, metres_per_unit), **loops_section(evaluation, final_evaluation)
+    }
     sections.update(extra or {})
     if error is not None:
         sections["evaluation_error"] = error

@@ -38,3 +38,12 @@ def test_a_loop_matching_the_truth_is_true_and_one_off_by_half_a_metre_is_false(
 
 def test_without_ground_truth_only_counts_are_reported() -> None:
     assert acceptance_counts([loop(15, 2, np.eye(4))], None) == {"candidates": 1, "accepted": 1, "rejected": 0}
+
+
+def test_a_monocular_loop_is_judged_in_metres_through_the_maps_scale() -> None:
+    gt = truth()
+    in_units = invert_T(gt.T_world_cam[15]) @ gt.T_world_cam[2]
+    in_units[:3, 3] /= 4.0  # a map whose unit is 4 m
+    assert acceptance_counts([loop(15, 2, in_units)], gt)["false_accepted"] == 1
+    section = acceptance_counts([loop(15, 2, in_units)], gt, metres_per_unit=4.0)
+    assert section["false_accepted"] == 0 and section["accepted_loops"][0]["error_m"] < 1e-9

@@ -3,6 +3,8 @@
 An accepted loop says where the current keyframe is relative to the loop keyframe
 (``T_cur_loop``). With ground truth at both keyframes' stamps, the loop is a false accept when
 that relative pose is off the truth's by more than ``max_translation_m`` or ``max_rotation_deg``.
+A monocular map has a scale of its own: its translations are taken to metres with the scale of the
+run's Sim(3) alignment to the ground truth (metres per map unit).
 """
 
 from __future__ import annotations
@@ -28,21 +30,26 @@ def _pose_at(ground_truth: Trajectory, stamp_ns: int) -> np.ndarray | None:
     return np.asarray(ground_truth.T_world_cam[best]) if abs(int(stamps[best]) - stamp_ns) <= MAX_STAMP_DIFF_NS else None
 
 
-def loop_error(loop: codec.LoopMessage, ground_truth: Trajectory) -> tuple[float, float] | None:
-    """(translation m, rotation deg) between an accepted loop's ``T_cur_loop`` and the truth's, or
-    None without ground truth at both stamps."""
+def loop_error(loop: codec.LoopMessage, ground_truth: Trajectory, metres_per_unit: float = 1.0) -> tuple[float, float] | None:
+    """(translation m, rotation deg) between an accepted loop's ``T_cur_loop`` (its translation times
+    ``metres_per_unit``) and the truth's, or None without ground truth at both stamps."""
     T_world_cur = _pose_at(ground_truth, loop.stamp_ns)
     T_world_loop = _pose_at(ground_truth, loop.loop_stamp_ns)
     if T_world_cur is None or T_world_loop is None:
         return None
     T_true = invert_T(T_world_cur) @ T_world_loop
-    T_error = invert_T(T_true) @ np.asarray(loop.T_cur_loop)
+    T_cur_loop = np.array(loop.T_cur_loop, dtype=float)
+    T_cur_loop[:3, 3] *= metres_per_unit
+    T_error = invert_T(T_true) @ T_cur_loop
     return float(np.linalg.norm(T_error[:3, 3])), float(np.degrees(np.linalg.norm(so3_log(T_error[:3, :3]))))
 
 
-def acceptance_counts(loops: list[codec.LoopMessage], ground_truth: Trajectory | None) -> dict[str, object]:
+def acceptance_counts(
+    loops: list[codec.LoopMessage], ground_truth: Trajectory | None, metres_per_unit: float = 1.0
+) -> dict[str, object]:
     """Counts of verified candidates, accepted and rejected loops; with ground truth, the accepted
-    loops that are false (``false_accepted``) and each accepted loop's error."""
+    loops that are false (``false_accepted``) and each accepted loop's error (``metres_per_unit``:
+    the map's scale, 1 for stereo/RGB-D)."""
     accepted = [loop for loop in loops if loop.accepted]
     section: dict[str, object] = {
         "candidates": len(loops),
@@ -51,7 +58,7 @@ def acceptance_counts(loops: list[codec.LoopMessage], ground_truth: Trajectory |
     }
     if ground_truth is None:
         return section
-    errors = [(loop, loop_error(loop, ground_truth)) for loop in accepted]
+    errors = [(loop, loop_error(loop, ground_truth, metres_per_unit)) for loop in accepted]
     judged = [(loop, e) for loop, e in errors if e is not None]
     section["false_accepted"] = sum(1 for _, (t, r) in judged if t > MAX_TRANSLATION_M or r > MAX_ROTATION_DEG)
     section["accepted_without_ground_truth"] = len(errors) - len(judged)
