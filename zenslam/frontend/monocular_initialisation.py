@@ -26,7 +26,7 @@ class MonocularInitialisationConfig:
     """ORB-SLAM's monocular initialisation thresholds."""
 
     min_keypoints: int = 100  # a reference frame (and its partner) needs more keypoints than this
-    features_factor: int = 5  # frames looking for the initial pair are extracted with this many times orb.n_features
+    features_factor: int = 8  # frames looking for the initial pair are extracted with this many times orb.n_features
     min_matches: int = 100  # fewer matches to the reference: the current frame becomes the reference
     median_depth: float = 1.0  # the map's scale: median depth of the first points in the reference camera (map units)
     matching: InitialisationMatchingConfig = field(default_factory=InitialisationMatchingConfig)
