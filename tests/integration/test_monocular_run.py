@@ -10,7 +10,7 @@ import pytest
 
 pytestmark = pytest.mark.integration
 
-FRAMES = 30  # the loop scene starts its monocular map at about frame 7
+FRAMES = 20  # the loop scene starts its monocular map at about frame 7
 
 
 @pytest.mark.slow(60)
