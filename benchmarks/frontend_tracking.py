@@ -65,7 +65,7 @@ def run(name: str, source) -> dict:
         "frames_per_s": len(outputs) / wall_s,
         "states": {s: sum(o.state == s for o in outputs) for s in ("ok", "lost", "initializing")},
         "lost_reasons": dict(tracker.lost_reasons),
-        "keyframes": sum(len(o.earlier_keyframes) + (o.keyframe is not None) for o in outputs),
+        "keyframes": sum(len(o.keyframes_made) for o in outputs),
         "map_points": tracker.map.n_valid_points,
         "n_tracked_median": statistics.median(o.n_tracked for o in outputs if o.state == "ok"),
         "timing_ms": {key: summary([o.timings_ms[key] for o in outputs]) for key in TIMING_KEYS},
@@ -90,7 +90,7 @@ def _map_keyframes(mapper, pipeline, out, source) -> None:
     from zenslam.frontend.node import keyframe_message
     from zenslam.schemas import codec
 
-    for keyframe in [*out.earlier_keyframes, *([out.keyframe] if out.keyframe is not None else [])]:
+    for keyframe in out.keyframes_made:
         message = codec.decode_keyframe(codec.encode_keyframe(keyframe_message(keyframe, source.calibration, source.sensor)))
         pipeline.apply_map_update(mapper.process(message))
 

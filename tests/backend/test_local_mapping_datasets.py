@@ -40,8 +40,7 @@ def run_lockstep(source, with_backend: bool, max_frames: int | None = None) -> t
         if out.T_world_cam is not None:
             stamps.append(out.stamp_ns)
             poses.append(out.T_world_cam)
-        made = [*out.earlier_keyframes, *([out.keyframe] if out.keyframe is not None else [])]
-        for keyframe in made if with_backend else []:
+        for keyframe in out.keyframes_made if with_backend else []:
             message = keyframe_message(keyframe, source.calibration, source.sensor)
             update = mapper.process(codec.decode_keyframe(codec.encode_keyframe(message)))
             pipeline.apply_map_update(codec.decode_map_update(codec.encode_map_update(update)))

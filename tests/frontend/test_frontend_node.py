@@ -49,13 +49,14 @@ class StubPipeline:
         self.seen.append(index)
         self.in_flight.append(keyframes_in_flight)
         lost = index % 10 == 7
+        keyframe = None if lost or index % 2 else _keyframe(index, stamp_ns)
         return SimpleNamespace(
             index=index, stamp_ns=stamp_ns, state="lost" if lost else "ok", lost_reason="stub says lost" if lost else None,
             T_world_cam=None if lost else make_T(np.eye(3), [index * 0.1, 0, 0]), n_tracked=0 if lost else 100 + index,
-            keyframe=None if lost or index % 2 else _keyframe(index, stamp_ns),
+            keyframe=keyframe, keyframes_made=() if keyframe is None else (keyframe,),
             timings_ms={"extraction": 1.0, "total": 2.0 + index},
             reference_keyframe_id=-1 if lost else index // 2, T_reference_cam=None if lost else make_T(np.eye(3), [0, 0, index]),
-            relocalised=False, earlier_keyframes=(),
+            relocalised=False,
         )
 
 

@@ -184,7 +184,7 @@ class FrontendNode:
         self.frames += 1
         if self.rerun is not None:
             self._unlogged = (message, out)  # logged by log_last_frame once its messages are out
-        made = [*out.earlier_keyframes, *([out.keyframe] if out.keyframe is not None else [])]
+        made = out.keyframes_made
         keyframe_bytes = tuple(codec.encode_keyframe(keyframe_message(kf, message.calibration, message.sensor)) for kf in made)
         self.keyframes += len(made)
         keyframe_id = int(out.keyframe.id) if out.keyframe is not None else -1

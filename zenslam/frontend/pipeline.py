@@ -59,6 +59,11 @@ class TrackingOutput:
     relocalised: bool = False  # tracking was lost before this frame and found the map again here
     earlier_keyframes: tuple[KeyFrame, ...] = ()  # made at this step from earlier frames, sent before ``keyframe``
 
+    @property
+    def keyframes_made(self) -> tuple[KeyFrame, ...]:
+        """Every keyframe made at this step, in the order the backend takes them."""
+        return (*self.earlier_keyframes, *((self.keyframe,) if self.keyframe is not None else ()))
+
 
 @dataclass(frozen=True)
 class PreparedFrame:
@@ -114,7 +119,7 @@ class FrontendPipeline:
         same frame as in ``step``."""
         start = time.perf_counter()
         timings = {key: 0.0 for key in TIMING_KEYS}
-        for_map_start = self.sensor == "mono" and self.tracker.starting_map
+        for_map_start = self._frames_for_map_start()
         frame = self._make_frame(index, stamp_ns, left, right, depth_m, timings, for_map_start)
         return PreparedFrame(frame, timings, (time.perf_counter() - start) * 1e3, for_map_start)
 
@@ -137,7 +142,7 @@ class FrontendPipeline:
         timings' total then adds the time it took to the tracking's. ``candidates``: asks the backend
         for relocalisation candidates (called only while tracking is lost).
         """
-        stale = prepared is not None and prepared.for_map_start != (self.sensor == "mono" and self.tracker.starting_map)
+        stale = prepared is not None and prepared.for_map_start != self._frames_for_map_start()
         if prepared is None or prepared.frame.index != index or stale:
             prepared = self.prepare(index, stamp_ns, left, right, depth_m)
         start = time.perf_counter()
@@ -164,6 +169,10 @@ class FrontendPipeline:
     def apply_map_update(self, update: MapUpdate) -> None:
         """Apply the backend's map correction (replacement semantics) before the next ``step``."""
         self.tracker.apply_map_update(update)
+
+    def _frames_for_map_start(self) -> bool:
+        """The next frame is built with the monocular initialisation's denser extractor."""
+        return self.sensor == "mono" and self.tracker.starting_map
 
     def _make_frame(self, index, stamp_ns, left, right, depth_m, timings: dict[str, float], for_map_start: bool = False) -> Frame:
         if self.sensor == "mono":
