@@ -389,7 +389,7 @@ def main(argv: list[str] | None = None) -> int:
 
         with (
             rerun_log.open_stage_recording(STAGE, args.session, args.config, rerun_config) as recording,
-            bus.open_session(bus_config_with(bus_config, args.connect)) as session,
+            bus.open_session(bus_config_with(bus_config, args.connect, args.bus_config)) as session,
         ):
             node.rerun = rerun_log.BackendLog(recording) if recording is not None else None
             bus.require_alive(session, args.session, args.wait_for, bus_config.start_timeout_s, stop.keep_going)

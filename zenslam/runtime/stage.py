@@ -47,6 +47,11 @@ def add_process_arguments(parser: argparse.ArgumentParser) -> None:
         "--connect", action="append", default=[], metavar="ENDPOINT",
         help="zenoh endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable; added to bus.connect)",
     )
+    parser.add_argument(
+        "--bus-config", type=Path, default=None, metavar="FILE",
+        help="zenoh JSON5 config file (bus.zenoh_config_file): mode, endpoints, TLS, access control; for a stage on "
+        "another machine than the run's other stages",
+    )
     parser.add_argument("--parent-pid", type=int, default=None, help="stop when this process is no longer our parent")
     parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
 
@@ -68,8 +73,11 @@ def load_mode(path: Path | None) -> RunMode:
     return mode
 
 
-def bus_config_with(config: bus.BusConfig, connect: list[str]) -> bus.BusConfig:
-    """``config`` with extra endpoints to connect to."""
+def bus_config_with(config: bus.BusConfig, connect: list[str], zenoh_config_file: Path | None = None) -> bus.BusConfig:
+    """``config`` with extra endpoints to connect to, and the zenoh config file ``zenoh_config_file``
+    (a stage's ``--bus-config``) in place of the one it names, when given."""
+    if zenoh_config_file is not None:
+        config = dataclasses.replace(config, zenoh_config_file=str(zenoh_config_file))
     if not connect:
         return config
     return dataclasses.replace(config, connect=tuple(config.connect) + tuple(connect))

@@ -18,7 +18,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -46,8 +46,33 @@ class ProcessSpec:
 MALLOC_TUNABLES = "glibc.malloc.mmap_threshold=33554432:glibc.malloc.trim_threshold=16777216"
 
 
+def stage_environment(env: Mapping[str, str]) -> dict[str, str]:
+    """The environment a stage process starts with: ``env`` plus the settings below (variables ``env``
+    already sets keep their values, except the pinned math kernels). They must be in place before
+    numpy loads, hence the environment, and hold for a stage started by hand (``zenslam stage``) too."""
+    stage_env = dict(env)
+    # Stages run their own threads where it pays (ORB on left/right); library thread pools on a
+    # 2-core machine stalled small BLAS products for 10-60 ms under load, and single-threaded
+    # numerics keep lockstep runs deterministic.
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        stage_env.setdefault(var, "1")
+    # glibc serves blocks above 128 KiB (a 1 MB camera frame, a BA window's arrays) with fresh
+    # mmaps that it unmaps on free, so every frame faults its pages in again. Keeping them in
+    # the heap cut the stages' system CPU on the KITTI clip (lockstep) from 1.41 s to 0.64 s,
+    # for at most trim_threshold of memory held per process.
+    stage_env.setdefault("GLIBC_TUNABLES", MALLOC_TUNABLES)
+    return cpu_kernels.with_pinned_kernels(stage_env)  # same bits on any x86-64 CPU: see cpu_kernels
+
+
+def stage_command(module: str, args: Iterable[str]) -> list[str]:
+    """The command line of a stage process: this interpreter running ``module`` with ``args``."""
+    # -P: the current directory is not put on sys.path, so a stage imports the installed zenslam
+    # even when started from another checkout's root.
+    return [sys.executable, "-P", "-m", module, *args]
+
+
 @contextmanager
-def _stop_signals_blocked() -> Iterator[None]:
+def stop_signals_blocked() -> Iterator[None]:
     """Block SIGINT and SIGTERM in this thread meanwhile: a child forked here inherits the mask
     through exec. One arriving meanwhile for this process stays pending and is handled on exit."""
     previous = signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
@@ -72,18 +97,7 @@ class Supervisor:
         self.session_name = session_name
         self.config_path = Path(config_path)
         self.hub_endpoint = hub_endpoint
-        self.env = dict(os.environ if env is None else env)
-        # Stages run their own threads where it pays (ORB on left/right); library thread pools on a
-        # 2-core machine stalled small BLAS products for 10-60 ms under load, and single-threaded
-        # numerics keep lockstep runs deterministic. Must be set before numpy loads: hence the env.
-        for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-            self.env.setdefault(var, "1")
-        # glibc serves blocks above 128 KiB (a 1 MB camera frame, a BA window's arrays) with fresh
-        # mmaps that it unmaps on free, so every frame faults its pages in again. Keeping them in
-        # the heap cut the stages' system CPU on the KITTI clip (lockstep) from 1.41 s to 0.64 s,
-        # for at most trim_threshold of memory held per process.
-        self.env.setdefault("GLIBC_TUNABLES", MALLOC_TUNABLES)
-        self.env = cpu_kernels.with_pinned_kernels(self.env)  # same bits on any x86-64 CPU: see cpu_kernels
+        self.env = stage_environment(os.environ if env is None else env)
         self._children: dict[str, _Child] = {}
 
     def __enter__(self) -> Supervisor:
@@ -99,11 +113,9 @@ class Supervisor:
         log_dir = self.run_dir / "logs"
         log_dir.mkdir(parents=True, exist_ok=True)
         log_path = log_dir / f"{spec.name}.log"
-        # -P: the current directory is not put on sys.path, so a stage imports the installed zenslam
-        # even when started from another checkout's root.
-        command = [sys.executable, "-P", "-m", spec.module, *self.common_args(), *spec.args]
+        command = stage_command(spec.module, [*self.common_args(), *spec.args])
         logger.debug("starting %s: %s", spec.name, " ".join(command))
-        with open(log_path, "wb") as log, _stop_signals_blocked():
+        with open(log_path, "wb") as log, stop_signals_blocked():
             try:
                 popen = subprocess.Popen(
                     command, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=self.env, process_group=0

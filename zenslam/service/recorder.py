@@ -55,6 +55,7 @@ from zenslam.schemas import codec, keys
 from zenslam.schemas.map_update import MapUpdate
 from zenslam.service import mcap_io
 from zenslam.service.recorder_config import RecorderConfig
+from zenslam.service.stages import STAGE_MODULES, stage_args
 
 if TYPE_CHECKING:
     from zenslam.service.run_config import RunConfig
@@ -63,7 +64,6 @@ logger = logging.getLogger(__name__)
 
 STAGE = "recorder"
 RECORDING_NAME = "run.mcap"
-FOLLOWED_STAGES = ("source", "frontend", "backend")
 CAMERA_TOPICS = mcap_io.CAMERA_TOPICS
 TF_TOPIC = "/tf"
 MAP_POINTS_TOPIC = "/map/points"
@@ -169,6 +169,7 @@ class Recorder:
         self.undecodable = 0  # messages recorded raw whose derived channels could not be made
         self._map_written_ns: int | None = None  # log time of the last /map/points cloud
         self._map_changed_ns: int | None = None  # log time of a map change no cloud shows yet
+        self.ended_topics: set[str] = set()  # topics whose end-of-stream message has been recorded
 
     def record(self, key: str, encoding: str, data: bytes) -> None:
         """Record the message ``data`` that arrived on zenoh ``key`` with ``encoding`` (which names its schema)."""
@@ -192,6 +193,8 @@ class Recorder:
         elif isinstance(decoded, codec.FrameMessage) and self.config.frame_images == "png":
             stored = codec.sensor_frame_as_png(data, self.config.png_compression)
         self.writer.write(topic, schema, stored, log_time)
+        if isinstance(decoded, codec.EndOfStream):
+            self.ended_topics.add(topic)
         if decoded is not None:
             self._derive(decoded, data, log_time)
 
@@ -252,19 +255,38 @@ class _Followed:
             elif name in self.seen:
                 self.gone.add(name)
 
-    def done(self) -> bool:
-        """Every followed stage has appeared and gone (False when following none)."""
+    def done(self, ignored: frozenset[str] = frozenset()) -> bool:
+        """Every followed stage but the ``ignored`` has appeared and gone (False when following none)."""
         self._take()
-        return self._subscriber is not None and self.stages <= self.gone
+        return self._subscriber is not None and self.stages - ignored <= self.gone
 
-    def none_running(self) -> bool:
-        """No followed stage is up now (those never seen are not waited for)."""
+    def none_running(self, ignored: frozenset[str] = frozenset()) -> bool:
+        """No followed stage but the ``ignored`` is up now (those never seen are not waited for)."""
         self._take()
-        return (self.stages & self.seen) <= self.gone
+        return (self.stages & self.seen) - ignored <= self.gone
 
     def close(self) -> None:
         if self._subscriber is not None:
             self._subscriber.undeclare()
+
+
+class _BackendEnd:
+    """Calls ``at_backend_end`` once the backend's map-update stream has been recorded to its end."""
+
+    def __init__(self, recorder: Recorder, at_backend_end: Callable[[], None] | None):
+        self._recorder = recorder
+        self._at_backend_end = at_backend_end
+        self._topic = mcap_io.topic_for_key(keys.backend_map_update(recorder.session), recorder.session)
+        self.called = False
+
+    def check(self) -> None:
+        if self._at_backend_end is not None and not self.called and self._topic in self._recorder.ended_topics:
+            self.called = True
+            self._at_backend_end()
+
+    def left_alone(self) -> frozenset[str]:
+        """The stages not to wait for: the backend, once it has been asked what was wanted of it."""
+        return frozenset({"backend"}) if self.called else frozenset()
 
 
 class _Worker:
@@ -309,9 +331,14 @@ def record(
     follow: Iterable[str] = (),
     max_drain_s: float = 5.0,
     stop_grace_s: float = 5.0,
+    at_backend_end: Callable[[], None] | None = None,
 ) -> dict[str, int]:
     """Record the session's messages to the MCAP file ``path`` until every stage in ``follow`` has come
     and gone, or ``should_stop()``; returns the messages written per topic.
+
+    ``at_backend_end`` is called once, on this thread, when the backend's map-update stream has
+    ended (a backend then lingers, answering queries: the moment to ask it for its final map); the
+    recording then ends without waiting for the backend to exit.
 
     Stopped, it still records for up to ``stop_grace_s`` seconds while a followed stage is up: a
     stop reaches the stages too, and what they send as they stop (their last results, their ends
@@ -330,10 +357,13 @@ def record(
             with bus.declare_alive(session, session_name, STAGE):
                 logger.info("recording %s to %s", keys.everything(session_name), path)
                 log_cpu_times("at stream start")
-                while not should_stop() and not followed.done() and worker.error is None:
+                ended = _BackendEnd(recorder, at_backend_end)
+                while not should_stop() and not followed.done(ended.left_alone()) and worker.error is None:
+                    ended.check()
                     time.sleep(0.02)
+                ended.check()
                 stop_until = time.monotonic() + stop_grace_s
-                while not followed.none_running() and time.monotonic() < stop_until and worker.error is None:
+                while not followed.none_running(ended.left_alone()) and time.monotonic() < stop_until and worker.error is None:
                     time.sleep(0.02)
                 drain_until = time.monotonic() + max_drain_s
                 while time.monotonic() - worker.last_arrival < config.quiet_s and time.monotonic() < drain_until:
@@ -366,19 +396,24 @@ def start_recorder(
     if not config.recorder.enabled:
         return None
     path = Path(run_dir) / RECORDING_NAME
-    args = ["--output", str(path)]
-    for stage in FOLLOWED_STAGES:
-        args += ["--follow", stage]
-    supervisor.start(ProcessSpec(STAGE, "zenslam.service.recorder", tuple(args)))
+    args = ("--output", str(path), *stage_args(STAGE, recorder=True))
+    supervisor.start(ProcessSpec(STAGE, STAGE_MODULES[STAGE], args))
     supervisor.wait_until_alive(session, [STAGE], config.bus.start_timeout_s, keep_waiting)
     return path
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point: ``python -m zenslam.service.recorder --session S --output run.mcap [--follow STAGE] ...``."""
+    """Entry point: ``python -m zenslam.service.recorder --session S --output run.mcap [--follow STAGE] ...``
+    (``--run-dir DIR`` instead of ``--output``: the run folder's outputs too, see ``recorded_run``)."""
     parser = argparse.ArgumentParser(prog="zenslam-recorder", description=__doc__.splitlines()[0])
     add_process_arguments(parser)
-    parser.add_argument("--output", type=Path, required=True, help="the MCAP file to write (e.g. recordings/<run-id>/run.mcap)")
+    target = parser.add_mutually_exclusive_group(required=True)
+    target.add_argument("--output", type=Path, help="the MCAP file to write (e.g. recordings/<run-id>/run.mcap)")
+    target.add_argument(
+        "--run-dir", type=Path,
+        help="the run folder: write run.mcap there and, once the stages are done, the run's outputs (trajectory.tum, "
+        "keyframes.tum, metrics.json, ...) as `zenslam run` does; for stages started with `zenslam stage`",
+    )
     parser.add_argument(
         "--follow", action="append", default=[], metavar="STAGE",
         help="stage to follow: once every followed stage has appeared and exited, finish (repeatable)",
@@ -389,12 +424,45 @@ def main(argv: list[str] | None = None) -> int:
     try:
         config = load_section(args.config, STAGE, RecorderConfig)
         bus_config = load_section(args.config, "bus", bus.BusConfig)
-        with bus.open_session(bus_config_with(bus_config, args.connect)) as session:
-            record(session, args.session, args.output, config, stop, args.follow)
+        with bus.open_session(bus_config_with(bus_config, args.connect, args.bus_config)) as session:
+            if args.run_dir is None:
+                record(session, args.session, args.output, config, stop, args.follow)
+            else:
+                _record_run(session, args, config, stop)
     except ZenslamError as exc:
         logger.error("%s", exc)
         return 2
     return 0
+
+
+_QUERY_TIMEOUT_S = 10.0  # seconds to wait for the backend's answer to the final trajectory query
+
+
+def _record_run(session: zenoh.Session, args: argparse.Namespace, config: RecorderConfig, stop: StopFlag) -> None:
+    """Record to ``args.run_dir``/run.mcap, ask the backend for its final keyframe poses when its stream
+    ends, then write the run's outputs from the recording."""
+    from zenslam.backend.queries import query_trajectory
+    from zenslam.service.recorded_run import write_recorded_outputs
+    from zenslam.service.run_config import load_run_config
+    from zenslam.service.run_output import write_config
+
+    run_config = load_run_config(args.config)
+    path = Path(args.run_dir) / RECORDING_NAME
+    if path.exists():
+        raise mcap_io.RecordingError(f"{path} exists already; runs never overwrite: give another --run-dir")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if args.config is None or Path(args.config).resolve() != (path.parent / "config.yaml").resolve():
+        write_config(path.parent, run_config)
+    answers: list[codec.KeyframeTrajectoryMessage | None] = []
+
+    def ask_backend() -> None:
+        answers.append(query_trajectory(session, args.session, _QUERY_TIMEOUT_S))
+        if answers[-1] is None:
+            logger.warning("the backend did not answer the trajectory query; keyframes.tum has the frontend's keyframes")
+
+    record(session, args.session, path, config, stop, args.follow, at_backend_end=ask_backend)
+    result = write_recorded_outputs(path.parent, path, run_config, args.session, answers[0] if answers else None, stop())
+    logger.info("wrote %s", ", ".join(p.name for p in result.files))
 
 
 if __name__ == "__main__":

@@ -41,6 +41,7 @@ from zenslam.runtime.stage import (
     setup_process_logging,
 )
 from zenslam.schemas import codec, keys
+from zenslam.service.recorded_ground_truth import publish_ground_truth
 from zenslam.service.sources import SensorFrame, open_source
 from zenslam.service.sources.config import SourceConfig
 from zenslam.service.sources.faults import FaultInjector
@@ -231,6 +232,11 @@ def main(argv: list[str] | None = None) -> int:
         "--wait-for", action="append", default=[], metavar="STAGE",
         help="stage whose liveliness token must be present before the first frame (repeatable)",
     )
+    parser.add_argument(
+        "--publish-ground-truth", action="store_true",
+        help="send the source's ground truth on source/ground_truth once the stages waited for are up (for the "
+        "recorder; ``zenslam run`` sends it itself, a source started with ``zenslam stage`` does)",
+    )
     args = parser.parse_args(argv)
     setup_process_logging(args.verbose, STAGE)
     stop = StopFlag(args.parent_pid).install()
@@ -247,12 +253,14 @@ def main(argv: list[str] | None = None) -> int:
 
         with (
             rerun_log.open_stage_recording(STAGE, args.session, args.config, rerun_config) as recording,
-            bus.open_session(bus_config_with(bus_config, args.connect)) as session,
+            bus.open_session(bus_config_with(bus_config, args.connect, args.bus_config)) as session,
         ):
             rerun = rerun_log.SourceLog(recording) if recording is not None else None
             with bus.declare_alive(session, args.session, STAGE):
                 timeout_s = bus_config.start_timeout_s
                 bus.require_alive(session, args.session, args.wait_for, timeout_s, stop.keep_going)
+                if args.publish_ground_truth and (ground_truth := source.ground_truth()) is not None:
+                    publish_ground_truth(session, args.session, ground_truth)
                 injector = FaultInjector(config.faults)
                 for fault in injector.beyond(len(source)):
                     logger.warning("source.faults %s starts past the last frame (%d); it is never applied", fault.describe(), len(source) - 1)

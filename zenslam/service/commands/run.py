@@ -26,8 +26,9 @@ from pathlib import Path
 from tqdm import tqdm
 
 from zenslam.backend.queries import query_trajectory
-from zenslam.errors import ProcessError
+from zenslam.errors import ConfigError, ProcessError
 from zenslam.runtime import bus
+from zenslam.runtime.session_file import SessionInfo, write_session_file
 from zenslam.runtime.stage import log_cpu_times
 from zenslam.runtime.stop import EXIT_INTERRUPTED, StopFlag
 from zenslam.runtime.supervisor import ProcessSpec, Supervisor
@@ -53,6 +54,7 @@ from zenslam.service.run_output import (
     write_outputs,
 )
 from zenslam.service.sources import Source, open_source
+from zenslam.service.stages import STAGE_MODULES, stage_args
 from zenslam.trajectory import Trajectory
 
 logger = logging.getLogger(__name__)
@@ -111,6 +113,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--run-id", default=None, help="name of the run folder and bus session (default: date-time-pid)")
     parser.add_argument("--bus-config", type=Path, default=None, help="zenoh JSON5 config file (routers, other machines)")
+    parser.add_argument(
+        "--listen", default=None, metavar="ENDPOINT",
+        help="zenoh endpoint of the run's hub, e.g. tcp/127.0.0.1:7447, for other programs to connect to (default: a "
+        "free loopback port; either way <run folder>/session.json names it with the session)",
+    )
+    parser.add_argument(
+        "--wait-for", action="append", default=[], metavar="NAME",
+        help="before publishing anything, the stages wait for the process announcing NAME on the run's session "
+        "(a zenslam.client; repeatable): it then receives every message",
+    )
     parser.add_argument(
         "--plane", choices=PLANES, default="auto",
         help="world axes of trajectory_top.png (default auto: the ground plane of the ground-truth cameras, held "
@@ -229,25 +241,22 @@ def _check_source(log: RunLog) -> None:
 
 
 def _start_stages(
-    supervisor: Supervisor, session, config: RunConfig, run_dir: Path, stop: StopFlag, ground_truth: Trajectory | None
+    supervisor: Supervisor, session, config: RunConfig, run_dir: Path, stop: StopFlag, ground_truth: Trajectory | None,
+    wait_for: tuple[str, ...] = (),
 ) -> bool:
     """Start the recorder, backend, frontend and source, each once the one it needs is up; False when
     interrupted first (those started are then told to stop, and no other is started). ``ground_truth``
-    (the source's) goes into the recording, so a replay of it is scored too."""
+    (the source's) goes into the recording, so a replay of it is scored too. ``wait_for``: clients'
+    liveliness names the publishing stages wait for (``--wait-for``)."""
     timeout_s = config.bus.start_timeout_s
-    heard: tuple[str, ...] = ()
     if not stop() and config.recorder.enabled:
         # The recorder comes first, and each stage waits until it sees the recorder's token before
         # publishing: then the recorder's subscription has reached it too.
         start_recorder(supervisor, session, config, run_dir, stop.keep_going)
-        heard = ("--wait-for", "recorder")
         if ground_truth is not None:
             publish_ground_truth(session, supervisor.session_name, ground_truth)
-    stages = (
-        ProcessSpec("backend", "zenslam.backend.node", heard),
-        ProcessSpec("frontend", "zenslam.frontend.node", ("--map-updates", "--wait-for", "backend", *heard)),
-        ProcessSpec("source", "zenslam.service.source_node", ("--wait-for", "frontend", *heard)),
-    )
+    recorder = config.recorder.enabled
+    stages = [ProcessSpec(name, STAGE_MODULES[name], stage_args(name, recorder, wait_for)) for name in ("backend", "frontend", "source")]
     for spec in stages:
         if stop():
             supervisor.request_stop()
@@ -346,26 +355,34 @@ def _report_exits(supervisor: Supervisor, stop: StopFlag, statuses: dict[str, in
 
 def track(
     config: RunConfig, run_id: str, run_dir: Path, config_path: Path, source: Source, progress: bool,
-    stop: StopFlag | None = None, ground_truth: Trajectory | None = None,
+    stop: StopFlag | None = None, ground_truth: Trajectory | None = None, listen: str | None = None,
+    wait_for: tuple[str, ...] = (),
 ) -> tuple[RunLog, bool]:
     """Start the stages, follow them to the end of stream, and see them exit; returns (log, completed).
+
+    The hub listens on ``listen`` (a zenoh endpoint; default a free loopback port) and writes it with
+    the session to ``run_dir/session.json``; the stages wait for the processes named in ``wait_for``
+    (clients) before publishing.
 
     ``stop`` (installed; default: one installed here) ends the run early: the stages wind down in
     order, so every pose the frontend published is in the log, and completed is False.
     ``ground_truth`` (the source's) goes into the recording, so a replay of it is scored too.
     """
-    hub = None if config.bus.zenoh_config_file else bus.free_tcp_endpoint()
+    if listen is not None and config.bus.zenoh_config_file:
+        raise ConfigError(f"--listen {listen} and a zenoh config file ({config.bus.zenoh_config_file}): give the endpoint in that file")
+    hub = None if config.bus.zenoh_config_file else listen or bus.free_tcp_endpoint()
     hub_bus = config.bus if hub is None else dataclasses.replace(config.bus, listen=(hub,))
     total = len(source) if config.source.max_frames is None else min(len(source), config.source.max_frames)
     owned = stop is None
     stop = StopFlag(quiet=True).install() if stop is None else stop
     try:
         with bus.open_session(hub_bus) as session:
+            write_session_file(run_dir, SessionInfo(run_id, () if hub is None else (hub,)))
             follower = _Follower(session, run_id, config, total, progress)
             try:
                 supervisor = Supervisor(run_dir, run_id, config_path, hub, env=_child_env(config))
                 with supervisor, bus.declare_alive(session, run_id, "run"):
-                    started = _start_stages(supervisor, session, config, run_dir, stop, ground_truth)
+                    started = _start_stages(supervisor, session, config, run_dir, stop, ground_truth, wait_for)
                     if started:
                         log_cpu_times("at stream start")
                         _follow(follower, supervisor, stop)
@@ -447,7 +464,10 @@ def _run(args: argparse.Namespace, stop: StopFlag) -> int:
     logger.info("run %s: %s (%s, %d frames) -> %s", run_id, source.name, source.sensor, len(source), run_dir)
     total = len(source) if config.source.max_frames is None else min(len(source), config.source.max_frames)
     ground_truth = source.ground_truth()
-    log, completed = track(config, run_id, run_dir, config_path, source, not args.no_progress, stop, ground_truth)
+    log, completed = track(
+        config, run_id, run_dir, config_path, source, not args.no_progress, stop, ground_truth,
+        listen=getattr(args, "listen", None), wait_for=tuple(getattr(args, "wait_for", ())),
+    )
     recording = run_dir / RECORDING_NAME
     if config.recorder.enabled and not recording.exists():
         mcap_io.RecordingWriter(recording).finish()  # stopped before the recorder started: nothing crossed the bus
