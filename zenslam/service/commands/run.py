@@ -3,6 +3,10 @@
 This process is the run's hub: it opens the session the stages connect to, subscribes to
 frontend/pose, frontend/state, backend/map_update and the stages' statuses (the source's carry the
 frames it skipped, by reason, and a strict source's failure) like any other consumer would, starts and supervises the stage processes, and shows progress from the states arriving.
+It writes its session name and listening endpoint (``--listen``; default a free loopback port) to
+``session.json`` in the run folder, for clients (``zenslam.client``); ``--wait-for NAME`` makes the
+stages wait for a client announced as NAME before publishing anything. The stages are those
+``zenslam stage`` starts one by one on several machines (``service.stages``).
 After the frontend's end of stream it waits, in live mode too, until the backend has processed
 every keyframe (its map-update stream ends), asks it for its final keyframe poses
 (backend/trajectory), lets the stages exit and writes the outputs.
