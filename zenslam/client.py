@@ -116,6 +116,14 @@ class Client:
         )
         self._session_context = bus.open_session(config)
         self.session: zenoh.Session = self._session_context.__enter__()
+        try:
+            self._start()
+        except BaseException:
+            self._session_context.__exit__(None, None, None)
+            raise
+
+    def _start(self) -> None:
+        """The client's state, its states subscription and its thread (the session is open)."""
         self._lock = threading.Lock()
         self._streams: dict[str, _Stream] = {}
         self._progress = _Progress()
@@ -125,7 +133,7 @@ class Client:
         self._error: BaseException | None = None
         self._closing = threading.Event()
         # States are always followed: they say when tracking has ended and which poses to expect.
-        self._subscribe(keys.frontend_state(session), codec.decode_tracking_state, None)
+        self._subscribe(keys.frontend_state(self.session_name), codec.decode_tracking_state, None)
         self._thread = threading.Thread(target=self._dispatch, name="zenslam-client", daemon=True)
         self._thread.start()
 
@@ -275,7 +283,7 @@ class Client:
                 streams = list(self._streams.items())
             busy = False
             for key, stream in streams:
-                while self._error is None and (message := stream.inbox.get(0)) is not None:
+                while (message := stream.inbox.get(0)) is not None:
                     busy = True
                     self._deliver(key, stream, message)
             if not busy:
@@ -287,7 +295,9 @@ class Client:
                 stream.ended = True
             return
         try:
-            if stream.callback is not None:
+            # After a failed callback messages are still taken, uncalled: a stuck client must not
+            # hold the run's publishers back.
+            if stream.callback is not None and self._error is None:
                 stream.callback(message)
         except Exception as exc:  # raised to the user by wait_for_end
             logger.exception("a zenslam client callback failed on %s", key)
