@@ -68,7 +68,13 @@ def test_publication_round_trip_with_attachment_and_graph_tokens(ros_graph):
                 seen.add(str(sample.key_expr))
             return expected_tokens <= seen
 
-        _wait_for(tokens_arrived, "the node's and the publisher's liveliness tokens")
+        subscription = node.announce_subscription("/camera/image_rect", cdr.IMAGE, keys.Qos(reliability="best_effort", depth=5))
+        expected_tokens.add(
+            f"@ros2_lv/0/{zid}/0/2/MS/%/%/zenslam/%camera%image_rect/sensor_msgs::msg::dds_::Image_/"
+            "RIHS01_d31d41a9a4c4bc8eae9be757b0beed306564f7526c88ea6a4588fb9582527d47/2::,5:,:,:,,"
+        )
+        _wait_for(tokens_arrived, "the node's, the publisher's and the subscription's liveliness tokens")
+        subscription.undeclare()
         _wait_for(lambda: publisher.has_subscribers, "the subscription to reach the publisher")
         for i in range(3):
             publisher.put(encode_pose_stamped(1000 + i, "map", np.eye(4)), source_timestamp_ns=5_000 + i)

@@ -94,6 +94,13 @@ class Ros2Node:
         self._publishers.append(publisher)
         return publisher
 
+    def announce_subscription(self, topic: str, ros_type: str, qos: keys.Qos = keys.Qos()) -> zenoh.LivelinessToken:
+        """Declare the liveliness token of a subscription of this node to ``topic`` (the zenoh subscriber
+        itself is the caller's, on ``keys.topic_subscription_key``); undeclare it to leave the graph."""
+        key = keys.subscription_token_key(self.identity, self._next_entity_id, topic, ros_type, cdr.type_hash(ros_type), qos)
+        self._next_entity_id += 1
+        return self._session.liveliness().declare_token(key)
+
     def close(self) -> None:
         for publisher in self._publishers:
             publisher.close()
