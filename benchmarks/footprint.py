@@ -6,7 +6,10 @@ resident set) of every process in the run's tree: the ``zenslam run`` hub and it
 backend and recorder. A process's last sample is its peak up to that moment; the interval only
 matters for growth in a process's last moments. The sum of the per-process peaks is the figure
 the issue's target is about (processes peak at different times, so the real simultaneous peak is
-lower). Then it sums the run folder per file and run.mcap per topic: the messages' own bytes
+lower). It also sums, at every sample, the processes' PSS (proportional set size: pages several
+processes map, such as the rerun, gtsam and OpenCV libraries every stage loads, are shared out among
+them instead of counted in full in each) and reports the largest such sum: the memory the run
+holds at its fullest moment. Then it sums the run folder per file and run.mcap per topic: the messages' own bytes
 (uncompressed) and their share of the file's compressed chunks (each chunk's compressed size
 split across topics in proportion to what each topic's bytes in it compress to alone, with the
 chunk's codec: PNG images that do not shrink are not credited with the map updates' compression).
@@ -68,10 +71,25 @@ def process_name(proc: psutil.Process) -> str:
     return f"{Path(cmdline[0]).name if cmdline else 'pid'}:{proc.pid}"
 
 
-def run_sampled(command: list[str], interval_s: float) -> tuple[dict[str, int], float, subprocess.CompletedProcess]:
-    """Run ``command``, sampling the peak RSS of it and all its descendants; (peak bytes per stage, wall s, result)."""
+def pss_bytes(pid: int) -> int | None:
+    """The proportional set size of process ``pid`` (bytes: its private pages plus its share of pages
+    mapped by several processes, such as the libraries every stage loads), or None once it is gone."""
+    try:
+        with open(f"/proc/{pid}/smaps_rollup") as rollup:
+            for line in rollup:
+                if line.startswith("Pss:"):
+                    return int(line.split()[1]) * 1024
+    except (FileNotFoundError, ProcessLookupError, PermissionError):
+        return None
+    return None
+
+
+def run_sampled(command: list[str], interval_s: float) -> tuple[dict[str, int], int, float, subprocess.CompletedProcess]:
+    """Run ``command``, sampling the peak RSS of it and all its descendants; (peak bytes per stage, the
+    largest sum of the processes' PSS in any one sample, wall s, result)."""
     peaks: dict[int, int] = {}
     names: dict[int, str] = {}
+    pss_peak = 0
     start = time.perf_counter()
     with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
         popen = subprocess.Popen(command, stdout=out, stderr=err)
@@ -81,6 +99,7 @@ def run_sampled(command: list[str], interval_s: float) -> tuple[dict[str, int], 
                 tree = [root, *root.children(recursive=True)]
             except psutil.Error:
                 tree = []
+            pss_peak = max(pss_peak, sum(pss_bytes(proc.pid) or 0 for proc in tree))
             for proc in tree:
                 hwm = vm_hwm_bytes(proc.pid)
                 if hwm is None:
@@ -97,7 +116,7 @@ def run_sampled(command: list[str], interval_s: float) -> tuple[dict[str, int], 
     per_stage: dict[str, int] = {}
     for pid, peak in peaks.items():
         per_stage[names[pid]] = per_stage.get(names[pid], 0) + peak
-    return per_stage, wall_s, result
+    return per_stage, pss_peak, wall_s, result
 
 
 def folder_sizes(run_dir: Path) -> dict[str, int]:
@@ -163,7 +182,7 @@ def main() -> None:
         if args.config is not None:
             command += ["--config", str(args.config)]
         load = os.getloadavg()[0]
-        peaks, wall_s, result = run_sampled(command, args.interval)
+        peaks, pss_peak, wall_s, result = run_sampled(command, args.interval)
         if result.returncode != 0:
             raise SystemExit(f"{' '.join(command)} failed:\n{result.stdout[-2000:]}\n{result.stderr[-3000:]}")
         run_dir = output / run_id
@@ -182,6 +201,7 @@ def main() -> None:
         },
         "peak_rss_mb": {name: round(peak / _MB, 1) for name, peak in sorted(peaks.items())},
         "peak_rss_sum_mb": round(sum(peaks.values()) / _MB, 1),
+        "peak_pss_together_mb": round(pss_peak / _MB, 1),
     }
     print(f"{report['command']}\nwall {wall_s:.1f} s (load {load:.1f} before)")
     print(f"run folder {report['folder_mb']:.1f} MB")
@@ -194,7 +214,8 @@ def main() -> None:
     print("peak RSS (VmHWM)")
     for name, mb in report["peak_rss_mb"].items():
         print(f"  {name:<12} {mb:7.1f} MB")
-    print(f"  {'sum':<12} {report['peak_rss_sum_mb']:7.1f} MB")
+    print(f"  {'sum':<12} {report['peak_rss_sum_mb']:7.1f} MB (each process at its own peak)")
+    print(f"peak of the processes' PSS summed at one moment: {report['peak_pss_together_mb']:.1f} MB (shared pages counted once)")
     args.results.parent.mkdir(parents=True, exist_ok=True)
     args.results.write_text(json.dumps(report, indent=2) + "\n")
     print(f"wrote {args.results}")

@@ -231,17 +231,38 @@ def test_map_update_round_trip():
     for got, want in zip(decoded.keyframes, update.keyframes):
         np.testing.assert_array_equal(got.map_point_ids, want.map_point_ids)
         np.testing.assert_allclose(got.T_world_cam, want.T_world_cam, atol=1e-12)
-    for name in ("point_ids", "p_world", "descriptors", "normals", "min_distance_m", "max_distance_m",
-                 "removed_point_ids", "removed_keyframe_ids"):
+    for name in ("point_ids", "p_world", "descriptors", "removed_point_ids", "removed_keyframe_ids"):
         np.testing.assert_array_equal(getattr(decoded, name), getattr(update, name), err_msg=name)
+    # Viewing directions and scale-invariance distances travel as float32, and decode as float64.
+    for name in ("normals", "min_distance_m", "max_distance_m"):
+        assert getattr(decoded, name).dtype == np.float64, name
+        np.testing.assert_array_equal(getattr(decoded, name), getattr(update, name).astype(np.float32), err_msg=name)
     msg = pb.MapUpdate.FromString(codec.encode_map_update(update))
     for name in codec.ARRAY_FIELDS[codec.MAP_UPDATE]:
-        np.testing.assert_array_equal(codec.array_field(msg, name), getattr(update, name), err_msg=name)
-        assert codec.array_field(msg, name).dtype == np.asarray(getattr(update, name)).dtype, name
+        if not getattr(msg, name):
+            continue  # the float64 fields of older recordings
+        want = getattr(update, name.removesuffix("_f32"))
+        np.testing.assert_array_equal(codec.array_field(msg, name), want.astype(codec.array_field(msg, name).dtype), err_msg=name)
+        assert codec.array_field(msg, name).dtype == (np.float32 if name.endswith("_f32") else np.asarray(want).dtype), name
     np.testing.assert_array_equal(codec.array_field(msg.keyframes[1], "map_point_ids"), update.keyframes[1].map_point_ids)
     empty = codec.decode_map_update(codec.encode_map_update(MapUpdate(keyframe_id=1, stamp_ns=2)))
     assert empty.keyframes == () and empty.p_world.shape == (0, 3) and empty.descriptors.shape == (0, 32)
 
+
+def test_map_update_of_an_older_recording_decodes_its_float64_fields():
+    """Recordings made before the float32 fields existed carry normals and distances as float64."""
+    rng = np.random.default_rng(3)
+    p = 5
+    msg = pb.MapUpdate(keyframe_id=1, stamp_ns=2, num_points=p)
+    msg.point_ids = np.arange(p, dtype="<i8").tobytes()
+    msg.p_world = rng.normal(size=(p, 3)).astype("<f8").tobytes()
+    msg.descriptors = rng.integers(0, 256, (p, 32), dtype=np.uint8).tobytes()
+    normals, near = rng.normal(size=(p, 3)), rng.uniform(0.5, 1.0, p)
+    msg.normals, msg.min_distance_m, msg.max_distance_m = normals.tobytes(), near.tobytes(), (near * 10).tobytes()
+    decoded = codec.decode_map_update(msg.SerializeToString())
+    np.testing.assert_array_equal(decoded.normals, normals)
+    np.testing.assert_array_equal(decoded.min_distance_m, near)
+    np.testing.assert_array_equal(decoded.max_distance_m, near * 10)
 
 
 def test_array_field_reads_every_array_with_the_codecs_dtype_and_row_shape():

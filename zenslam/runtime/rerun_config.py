@@ -14,7 +14,9 @@ class RerunConfig:
     """What the stage processes log to rerun (the ``rerun`` section): ``<run>/<stage>.rrd``, one recording per run."""
 
     enabled: bool = True  # every stage process writes its .rrd next to the run's config.yaml
-    image_every_n: int = 1  # frames; the source logs every n-th left image (keypoints and poses are logged every frame)
+    # frames; the source logs every n-th left image (keypoints and poses are logged every frame). Every
+    # second image keeps the viewer's video smooth enough to follow and halves source.rrd, the largest .rrd.
+    image_every_n: int = 2
     # JPEG-compressed images: a third of the CPU and of the file size of raw images.
     jpeg: bool = True
     # JPEG quality 1-100 (jpeg true): 50 keeps the features under the keypoints visible at about half

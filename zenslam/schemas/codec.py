@@ -90,7 +90,8 @@ ARRAY_FIELDS: dict[str, dict[str, ArrayLayout]] = {
     MAP_UPDATE: {
         "point_ids": ("<i8", ()), "p_world": ("<f8", (3,)), "descriptors": ("u1", (32,)), "normals": ("<f8", (3,)),
         "min_distance_m": ("<f8", ()), "max_distance_m": ("<f8", ()), "removed_point_ids": ("<i8", ()),
-        "removed_keyframe_ids": ("<i8", ()),
+        "removed_keyframe_ids": ("<i8", ()), "normals_f32": ("<f4", (3,)), "min_distance_m_f32": ("<f4", ()),
+        "max_distance_m_f32": ("<f4", ()),
     },
     KEYFRAME_TRAJECTORY: {
         "keyframe_ids": ("<i8", ()), "stamps_ns": ("<i8", ()), "T_world_cam": ("<f8", (4, 4)),
@@ -586,9 +587,9 @@ def encode_map_update(update: MapUpdate) -> bytes:
     msg.point_ids = _pack(update.point_ids, "<i8", (), f"{where} point_ids")
     msg.p_world = _pack(update.p_world, "<f8", (3,), f"{where} p_world")
     msg.descriptors = _pack(update.descriptors, "u1", (32,), f"{where} descriptors")
-    msg.normals = _pack(update.normals, "<f8", (3,), f"{where} normals")
-    msg.min_distance_m = _pack(update.min_distance_m, "<f8", (), f"{where} min_distance_m")
-    msg.max_distance_m = _pack(update.max_distance_m, "<f8", (), f"{where} max_distance_m")
+    msg.normals_f32 = _pack(update.normals, "<f4", (3,), f"{where} normals")
+    msg.min_distance_m_f32 = _pack(update.min_distance_m, "<f4", (), f"{where} min_distance_m")
+    msg.max_distance_m_f32 = _pack(update.max_distance_m, "<f4", (), f"{where} max_distance_m")
     msg.removed_point_ids = _pack(update.removed_point_ids, "<i8", (), f"{where} removed_point_ids")
     msg.removed_keyframe_ids = _pack(update.removed_keyframe_ids, "<i8", (), f"{where} removed_keyframe_ids")
     return msg.SerializeToString()
@@ -617,14 +618,23 @@ def decode_map_update(data: bytes) -> MapUpdate | EndOfStream:
         point_ids=_unpack(msg.point_ids, "<i8", (p,), f"{where} point_ids"),
         p_world=_unpack(msg.p_world, "<f8", (p, 3), f"{where} p_world"),
         descriptors=_unpack(msg.descriptors, "u1", (p, 32), f"{where} descriptors"),
-        normals=_unpack(msg.normals, "<f8", (p, 3), f"{where} normals"),
-        min_distance_m=_unpack(msg.min_distance_m, "<f8", (p,), f"{where} min_distance_m"),
-        max_distance_m=_unpack(msg.max_distance_m, "<f8", (p,), f"{where} max_distance_m"),
+        normals=_unpack_float(msg, "normals", (p, 3), where),
+        min_distance_m=_unpack_float(msg, "min_distance_m", (p,), where),
+        max_distance_m=_unpack_float(msg, "max_distance_m", (p,), where),
         removed_point_ids=_unpack(msg.removed_point_ids, "<i8", (len(msg.removed_point_ids) // 8,), f"{where} removed_point_ids"),
         removed_keyframe_ids=_unpack(
             msg.removed_keyframe_ids, "<i8", (len(msg.removed_keyframe_ids) // 8,), f"{where} removed_keyframe_ids"
         ),
     )
+
+
+def _unpack_float(msg: pb.MapUpdate, name: str, shape: tuple[int, ...], where: str) -> np.ndarray:
+    """Float64 values of map-update field ``name``: from its float32 field, or from the float64 one of
+    recordings made before the float32 fields existed."""
+    narrow = getattr(msg, f"{name}_f32")
+    if narrow or not getattr(msg, name):
+        return _unpack(narrow, "<f4", shape, f"{where} {name}").astype(np.float64)
+    return _unpack(getattr(msg, name), "<f8", shape, f"{where} {name}")
 
 
 def encode_loop(loop: LoopMessage) -> bytes:

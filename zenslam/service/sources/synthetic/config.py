@@ -166,7 +166,7 @@ def _preset(name: str) -> dict[str, Any]:
         "depth_noise_per_m": 0.008,
     }
     presets: dict[str, dict[str, Any]] = {
-        "loop": {"trajectory": "loop", "duration_s": 30.0, "laps": 1},
+        "loop": {"trajectory": "loop", "duration_s": 30.0, "laps": 1, "frame_rate_hz": 10.0},
         "figure_eight": {"trajectory": "figure_eight", "duration_s": 60.0, "laps": 2},
         "still": {"trajectory": "still", "duration_s": 5.0, "laps": 1},
         "corridor": corridor,
