@@ -1,12 +1,10 @@
-"""One arrangement of the stages for ``zenslam run`` and ``zenslam stage``: modules, waits, and what ``zenslam stage`` adds."""
+"""One arrangement of the stages for ``zenslam run`` and ``zenslam stage``: their modules and what each waits for."""
 
 from __future__ import annotations
 
 import pytest
 
 from zenslam.errors import ConfigError
-from zenslam.service.commands.stage import stage_argv
-from zenslam.service.run_config import RecorderConfig, RunConfig
 from zenslam.service.stages import STAGE_MODULES, STAGE_NAMES, stage_args
 
 
@@ -31,16 +29,3 @@ def test_every_stage_has_a_module_and_an_unknown_one_is_refused():
     assert set(STAGE_MODULES) == set(STAGE_NAMES) == {"source", "frontend", "backend", "recorder"}
     with pytest.raises(ConfigError, match="'tracker'"):
         stage_args("tracker", recorder=True)
-
-
-def test_zenslam_stage_gives_the_run_arrangement_then_the_users_arguments():
-    given = ["--session", "field1", "--bus-config", "robot.json5", "--wait-for", "logger"]
-    argv = stage_argv("source", given, RunConfig())
-    assert argv == [*stage_args("source", recorder=True), "--publish-ground-truth", *given]
-    without_recorder = RunConfig(recorder=RecorderConfig(enabled=False))
-    assert _waits(stage_argv("frontend", given, without_recorder)) == ["backend", "logger"]
-
-
-def test_a_recorder_stage_records_into_the_sessions_run_folder_unless_told_otherwise():
-    assert stage_argv("recorder", ["--session", "field1"], RunConfig())[-4:] == ["--run-dir", "recordings/field1", "--session", "field1"]
-    assert "--run-dir" not in stage_argv("recorder", ["--session", "field1", "--output", "x.mcap"], RunConfig())

@@ -1,0 +1,24 @@
+"""``zenslam stage ROLE``: the arguments it gives a stage started by hand."""
+
+from __future__ import annotations
+
+from zenslam.service.commands.stage import stage_argv
+from zenslam.service.run_config import RecorderConfig, RunConfig
+from zenslam.service.stages import stage_args
+
+
+def _waits(args: list[str]) -> list[str]:
+    return [args[i + 1] for i, arg in enumerate(args) if arg == "--wait-for"]
+
+
+def test_zenslam_stage_gives_the_run_arrangement_then_the_users_arguments():
+    given = ["--session", "field1", "--bus-config", "robot.json5", "--wait-for", "logger"]
+    argv = stage_argv("source", given, RunConfig())
+    assert argv == [*stage_args("source", recorder=True), "--publish-ground-truth", *given]
+    without_recorder = RunConfig(recorder=RecorderConfig(enabled=False))
+    assert _waits(stage_argv("frontend", given, without_recorder)) == ["backend", "logger"]
+
+
+def test_a_recorder_stage_records_into_the_sessions_run_folder_unless_told_otherwise():
+    assert stage_argv("recorder", ["--session", "field1"], RunConfig())[-4:] == ["--run-dir", "recordings/field1", "--session", "field1"]
+    assert "--run-dir" not in stage_argv("recorder", ["--session", "field1", "--output", "x.mcap"], RunConfig())
