@@ -21,7 +21,8 @@ from zenslam.schemas.map_update import MapUpdate
 from zenslam.service import mcap_io
 from zenslam.service.evaluation.trajectory_io import write_tum
 from zenslam.service.recorder import MapAccumulator
-from zenslam.service.run_output import FINAL_TRAJECTORY_FILENAME, RunLog
+from zenslam.service.recorded_run import run_log_from_recording
+from zenslam.service.run_output import FINAL_TRAJECTORY_FILENAME
 from zenslam.trajectory import Trajectory
 
 logger = logging.getLogger(__name__)
@@ -65,18 +66,7 @@ def read_poses(recording: Path) -> Trajectory | None:
 def read_final_trajectory(recording: Path) -> Trajectory | None:
     """``RunLog.final_trajectory`` of the recorded states, poses and map updates (arrival order);
     None when no state names a reference keyframe (recordings made before states carried one)."""
-    log = RunLog()
-    topics = [STATE_TOPIC, POSE_TOPIC, MAP_UPDATE_TOPIC]
-    for message in mcap_io.iter_messages(recording, topics, log_time_order=False):
-        decoded = mcap_io.decode(message)
-        if isinstance(decoded, codec.EndOfStream):
-            continue
-        if message.topic == STATE_TOPIC:
-            log.add_state(decoded)
-        elif message.topic == POSE_TOPIC:
-            log.add_pose(decoded)
-        else:
-            log.add_map_update(decoded)
+    log = run_log_from_recording(recording)
     if not any(s.reference_keyframe_id >= 0 for s in log.states.values()):
         return None
     return log.final_trajectory()
