@@ -106,25 +106,29 @@ class CameraPublisher:
         return True
 
     def publish(self, frame: SensorFrame, calibration: PinholeCalibration, source_name: str = "") -> None:
-        """Send ``frame`` (calibrations first, then images, the left one last)."""
-        put = {key: publisher.put for key, publisher in self._publishers.items()}
+        """Send ``frame``: its calibrations first, then its images, the left one last."""
+        for key, payload in self.messages(frame, calibration, source_name).items():
+            self._publishers[key].put(payload)
+
+    def messages(self, frame: SensorFrame, calibration: PinholeCalibration, source_name: str = "") -> dict[str, bytes]:
+        """Key -> payload of every message of ``frame``, in the order they are sent."""
         if self.format == "zenslam":
-            put[self.key](codec.encode_sensor_frame(frame, calibration, self.sensor, source_name, image_encoding="png"))
-            return
-        stamp, frame_id = frame.stamp_ns, self.key
+            return {self.key: codec.encode_sensor_frame(frame, calibration, self.sensor, source_name, image_encoding="png")}
+        stamp, key = frame.stamp_ns, self.key
         encode = fox.encode_raw_image if self.image_format == "raw" else fox.encode_png_image
         if self.sensor == "stereo":
-            put[f"{self.key}/left/calibration"](fox.encode_camera_calibration(stamp, calibration, f"{frame_id}/left"))
-            right = fox.encode_camera_calibration(stamp, calibration, f"{frame_id}/right", calibration.baseline_m)
-            put[f"{self.key}/right/calibration"](right)
-            put[f"{self.key}/right/image"](encode(stamp, frame.right, f"{frame_id}/right"))
-            put[f"{self.key}/left/image"](encode(stamp, frame.left, f"{frame_id}/left"))
-            return
+            return {
+                f"{key}/left/calibration": fox.encode_camera_calibration(stamp, calibration, f"{key}/left"),
+                f"{key}/right/calibration": fox.encode_camera_calibration(stamp, calibration, f"{key}/right", calibration.baseline_m),
+                f"{key}/right/image": encode(stamp, frame.right, f"{key}/right"),
+                f"{key}/left/image": encode(stamp, frame.left, f"{key}/left"),
+            }
         virtual_baseline = calibration.baseline_m if self.sensor == "rgbd" else None
-        put[f"{self.key}/calibration"](fox.encode_camera_calibration(stamp, calibration, frame_id, virtual_baseline))
+        out = {f"{key}/calibration": fox.encode_camera_calibration(stamp, calibration, key, virtual_baseline)}
         if self.sensor == "rgbd":
-            put[f"{self.key}/depth"](fox.encode_raw_image(stamp, frame.depth_m.astype("float32"), f"{frame_id}/depth"))
-        put[f"{self.key}/image"](encode(stamp, frame.left, frame_id))
+            out[f"{key}/depth"] = fox.encode_raw_image(stamp, frame.depth_m.astype("float32"), f"{key}/depth")
+        out[f"{key}/image"] = encode(stamp, frame.left, key)
+        return out
 
 
 def publish_source(

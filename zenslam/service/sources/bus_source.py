@@ -75,12 +75,13 @@ class BusFrames:
         self._roles = family.subscriptions()
         keys_by_role = {role: key for key, role in self._roles.items()}
         self.assembler = FrameAssembler(
-            family.name, keys_by_role, config.calibration, config.sensor, round(config.pair_tolerance_ms * 1e6), config.pending
+            family.name, keys_by_role, config.calibration, config.sensor, round(config.pair_tolerance_ms * 1e6)
         )
         self._lock = threading.Lock()
         self._pending: dict[str, deque[tuple[str, bytes, str | None]]] = {key: deque() for key in self._roles}
         self._evicted: Counter[Role] = Counter()  # messages pushed out of a full key before they were looked at
         self._oversized = 0
+        self._messages = 0  # messages received on the family's keys
         self._tokens: set[str] = set()
         self._tokens_seen = False
         self._last_message_at: float | None = None
@@ -92,6 +93,12 @@ class BusFrames:
         """Frames passed over for a newer one (tracking was busy), so far."""
         primary = self._evicted["frame"] + self._evicted["image"] + self._evicted["left_image"]
         return self.assembler.dropped + primary
+
+    @property
+    def messages(self) -> int:
+        """Messages received on the family's keys so far (read or not, usable or not)."""
+        with self._lock:
+            return self._messages
 
     @property
     def rejected(self) -> dict[str, int]:
@@ -133,6 +140,7 @@ class BusFrames:
             now = self._clock()
             with self._lock:
                 self._last_message_at = now
+                self._messages += 1
                 if len(sample.payload) > limit:
                     self._oversized += 1
                     return

@@ -35,6 +35,10 @@ _LAYOUT_OF: dict[Role, Layout] = {"frame": "frame", "left_image": "stereo", "rig
 _PRIMARY: dict[Layout, Role] = {"frame": "frame", "stereo": "left_image", "camera": "image"}
 
 
+def _stamp(message: BusImage | codec.FrameMessage) -> int:
+    return message.frame.stamp_ns if isinstance(message, codec.FrameMessage) else message.stamp_ns
+
+
 class FrameAssembler:
     """Builds frames from messages (``add``) and gives the newest complete one (``take_newest``).
 
@@ -162,22 +166,22 @@ class FrameAssembler:
         if self._layout is None or self._sensor is None and self._layout != "frame":
             return None
         chosen = None
-        for position in range(len(self._primary) - 1, -1, -1):
-            index, message = self._primary[position]
+        for index, message in sorted(self._primary, key=lambda item: _stamp(item[1]), reverse=True):
             partner = self._partner(message.stamp_ns) if self._needs_partner() else None
             if not self._needs_partner() or partner is not None:
-                chosen = (position, index, message, partner)
+                chosen = (index, message, partner)
                 break
         if chosen is None:
             return None
-        position, index, message, partner = chosen
+        index, message, partner = chosen
         if isinstance(message, BusImage) and self._camera() is None:
             return None  # kept, with the older ones, until a calibration arrives
-        for _ in range(position + 1):
-            _, old = self._primary.popleft()
-            if old is not message:
-                self._pass_over(old)
-        self._drop_secondaries_until(message.stamp_ns + self._tolerance_ns)
+        stamp_ns = _stamp(message)
+        older = [item for item in self._primary if _stamp(item[1]) <= stamp_ns and item[1] is not message]
+        self._primary = deque(item for item in self._primary if _stamp(item[1]) > stamp_ns)
+        for _, old in older:
+            self._pass_over(old)
+        self._drop_secondaries_until(stamp_ns + self._tolerance_ns)
         if isinstance(message, codec.FrameMessage):
             return self._from_frame_message(index, message)
         return self._frame(index, message, partner)
