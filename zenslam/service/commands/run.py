@@ -37,6 +37,7 @@ from zenslam.service import mcap_io
 from zenslam.service.evaluation.plot import PLANES
 from zenslam.service.recorded_ground_truth import publish_ground_truth
 from zenslam.service.recorder import RECORDING_NAME, start_recorder
+from zenslam.service.ros2.run_bridge import Ros2RunBridge, add_ros2_publish_arguments, open_run_bridge, ros2_publish_config
 from zenslam.service.run_config import (
     RunConfig,
     apply_orbslam_settings,
@@ -131,6 +132,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "upright; else the two axes along which the ground truth varies most)",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_ros2_publish_arguments(parser)
     parser.set_defaults(handler=run, stop_flag=True)  # args.stop: the CLI's Ctrl-C flag, held from its start
 
 
@@ -189,9 +191,12 @@ def _child_env(config: RunConfig) -> dict[str, str]:
 
 class _Follower:
     """Receives frontend/state, frontend/pose, backend/map_update and the stages' statuses into a
-    RunLog, with a progress bar."""
+    RunLog, with a progress bar; ``ros2`` (--ros2-publish) republishes the poses and keyframe path."""
 
-    def __init__(self, session, run_id: str, config: RunConfig, total: int | None, progress: bool):
+    def __init__(
+        self, session, run_id: str, config: RunConfig, total: int | None, progress: bool, ros2: Ros2RunBridge | None = None
+    ):
+        self.ros2 = ros2
         capacity = max(config.bus.lossless_queue, 256)
         # Lossless: every pose and state is needed for the trajectory and the metrics, every map update
         # and backend status for the keyframe counts and timings, every stage's last status to know
@@ -210,6 +215,8 @@ class _Follower:
         """Take what has arrived (waiting up to ``timeout_s`` seconds for a state)."""
         while (pose := self.poses.get(0)) is not None:
             self.log.add_pose(pose)
+            if self.ros2 is not None:
+                self.ros2.publish_pose(pose)
         self.poll_backend()
         state = self.states.get(timeout_s)
         if isinstance(state, codec.EndOfStream):
@@ -221,8 +228,12 @@ class _Follower:
 
     def poll_backend(self) -> None:
         """Take the map updates and stage statuses that have arrived."""
+        updated = False
         while (update := self.updates.get(0)) is not None:
             self.log.add_map_update(update)
+            updated = True
+        if updated and self.ros2 is not None:
+            self.ros2.publish_path(self.log.keyframe_trajectory())
         while (status := self.statuses.get(0)) is not None:
             self.log.add_status(status)
         while (loop := self.loops.get(0)) is not None:
@@ -369,7 +380,7 @@ def _report_exits(supervisor: Supervisor, stop: StopFlag, statuses: dict[str, in
 
 def track(
     config: RunConfig, run_id: str, run_dir: Path, config_path: Path, source: Source | None, progress: bool,
-    stop: StopFlag | None = None, ground_truth: Trajectory | None = None,
+    stop: StopFlag | None = None, ground_truth: Trajectory | None = None, ros2: Ros2RunBridge | None = None,
 ) -> tuple[RunLog, bool]:
     """Start the stages, follow them to the end of stream, and see them exit; returns (log, completed).
 
@@ -377,6 +388,7 @@ def track(
     order, so every pose the frontend published is in the log, and completed is False.
     ``ground_truth`` (the source's) goes into the recording, so a replay of it is scored too.
     ``source`` None: frames from the bus, their number unknown.
+    ``ros2`` publishes the poses and keyframe path on ROS 2 topics as they arrive.
     """
     hub = None if config.bus.zenoh_config_file else bus.free_tcp_endpoint()
     hub_bus = config.bus if hub is None else dataclasses.replace(config.bus, listen=(hub,))
@@ -387,7 +399,7 @@ def track(
     stop = StopFlag(quiet=True).install() if stop is None else stop
     try:
         with bus.open_session(hub_bus) as session:
-            follower = _Follower(session, run_id, config, total, progress)
+            follower = _Follower(session, run_id, config, total, progress, ros2)
             try:
                 supervisor = Supervisor(run_dir, run_id, config_path, hub, env=_child_env(config))
                 with supervisor, bus.declare_alive(session, run_id, "run"):
@@ -478,7 +490,10 @@ def _run(args: argparse.Namespace, stop: StopFlag) -> int:
     count = "frames from the bus" if given.total is None else f"{given.total} frames"
     logger.info("run %s: %s (%s, %s) -> %s", run_id, given.name, given.sensor or "sensor of the input", count, run_dir)
     total, ground_truth = given.total, given.ground_truth
-    log, completed = track(config, run_id, run_dir, config_path, given.source, not args.no_progress, stop, ground_truth)
+    with open_run_bridge(ros2_publish_config(args)) as ros2:
+        log, completed = track(config, run_id, run_dir, config_path, given.source, not args.no_progress, stop, ground_truth, ros2)
+        if ros2 is not None:
+            ros2.publish_path(log.keyframe_trajectory())  # the backend's final keyframe poses
     recording = run_dir / RECORDING_NAME
     if config.recorder.enabled and not recording.exists():
         mcap_io.RecordingWriter(recording).finish()  # stopped before the recorder started: nothing crossed the bus
