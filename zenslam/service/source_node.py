@@ -267,7 +267,7 @@ def _play_bus_input(
     ``source.connect``, where the publisher is; frames are taken as they come (never paced)."""
     from zenslam.runtime import rerun_log
 
-    family = open_bus_family(spec)
+    family = open_bus_family(spec, config.ros_domain)
     with (
         rerun_log.open_stage_recording(STAGE, args.session, args.config, rerun_config) as recording,
         bus.open_session(bus_config_with(bus_config, [*args.connect, *config.connect])) as session,

@@ -37,7 +37,7 @@ from zenslam.service import mcap_io
 from zenslam.service.evaluation.plot import PLANES
 from zenslam.service.recorded_ground_truth import publish_ground_truth
 from zenslam.service.recorder import RECORDING_NAME, start_recorder
-from zenslam.service.ros2.run_bridge import Ros2RunBridge, add_ros2_publish_arguments, open_run_bridge, ros2_publish_config
+from zenslam.service.ros2.run_bridge import Ros2RunBridge, domain_id_from, add_ros2_publish_arguments, open_run_bridge, ros2_publish_config
 from zenslam.service.run_config import (
     RunConfig,
     apply_orbslam_settings,
@@ -166,6 +166,8 @@ def resolve_config(args: argparse.Namespace) -> RunConfig:
         source = dataclasses.replace(source, faults=())
     if getattr(args, "connect", None):
         source = dataclasses.replace(source, connect=tuple(args.connect))
+    if source.spec.startswith("ros2:") and hasattr(args, "ros_domain"):
+        source = dataclasses.replace(source, ros_domain=domain_id_from(args.ros_domain))
     bus_config = config.bus
     if args.bus_config is not None:
         bus_config = dataclasses.replace(bus_config, zenoh_config_file=str(args.bus_config))

@@ -28,7 +28,7 @@ from zenslam.service.sources.sensor_selection import as_sensor
 __all__ = ["ImuSamples", "SensorFrame", "Source", "open_source", "open_bus_family", "is_bus_spec", "SOURCE_KINDS"]
 
 SOURCE_KINDS = ("kitti", "euroc", "tum", "synthetic", "mcap")
-BUS_KINDS = ("zenoh",)
+BUS_KINDS = ("zenoh", "ros2")
 
 
 def is_bus_spec(spec: str) -> bool:
@@ -36,16 +36,23 @@ def is_bus_spec(spec: str) -> bool:
     return spec.partition(":")[0] in BUS_KINDS
 
 
-def open_bus_family(spec: str) -> MessageFamily:
-    """The message family of a bus source spec (which keys, which messages); SourceSpecError if it is none."""
+def open_bus_family(spec: str, ros_domain: int = 0) -> MessageFamily:
+    """The message family of a bus source spec (which keys, which messages; ``ros_domain`` for ``ros2:``);
+    SourceSpecError if it is none."""
     kind, _, argument = spec.partition(":")
+    if kind == "ros2":
+        from zenslam.service.sources.ros2_family import Ros2Family
+
+        if not argument:
+            raise SourceSpecError(f"source {spec!r} needs a camera namespace after 'ros2:', e.g. ros2:/camera")
+        return Ros2Family(argument, ros_domain)
     if kind == "zenoh":
         from zenslam.service.sources.zenoh_family import ZenohFamily
 
         if not argument:
             raise SourceSpecError(f"source {spec!r} needs a key after 'zenoh:', e.g. zenoh:cam/front")
         return ZenohFamily(argument)
-    raise SourceSpecError(f"source {spec!r} is not a bus source: use zenoh:<key>")
+    raise SourceSpecError(f"source {spec!r} is not a bus source: use zenoh:<key> or ros2:<namespace>")
 
 
 def open_source(spec: str, sensor: SensorKind | None = None) -> Source:

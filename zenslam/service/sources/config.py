@@ -52,6 +52,7 @@ class SourceConfig:
     pair_tolerance_ms: float = 0.5  # largest stamp difference of a stereo (or image/depth) pair, milliseconds
     pending: int = 4  # newest messages kept per key while tracking is busy, messages
     max_message_bytes: int = 64 * 2**20  # larger payloads are rejected unread, bytes
+    ros_domain: int = 0  # ``ros2:<namespace>`` sources: the ROS domain id (``zenslam run --ros-domain``)
 
     def __post_init__(self) -> None:
         check_faults(self.faults)
