@@ -13,12 +13,13 @@ import numpy as np
 import pytest
 
 from zenslam.service.evaluation.trajectory_io import read_tum
+from zenslam.service.sources.synthetic import scene_config
 
 pytestmark = pytest.mark.integration
 
 FRAMES = 80
 BLACK = (30, 45)  # 16 black frames, more than reinit_after_lost_frames (10)
-PERIOD_NS = 50_000_000  # the synthetic loop's 20 Hz
+PERIOD_NS = round(1e9 / scene_config("loop").frame_rate_hz)  # nanoseconds between the synthetic loop's frames
 ATE_BOUND_M = 0.02  # as test_run_synthetic: the loop tracks to a few mm over its first frames
 
 

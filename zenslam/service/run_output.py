@@ -11,7 +11,11 @@ frontend's when no backend answered), ``metrics.json`` (ATE/RPE of the tracked t
 the final one as ``ate_final``, when there is ground truth; ``loops``: loop candidates verified,
 accepted and rejected (with ``false_accepted`` against ground truth) and the error where the path
 returns to its start, see ``evaluation.loops``; tracking and backend timing, frame and keyframe
-counts, ``skipped_frames``: ``{"total": N, "reasons": {"corrupt": n, ...}}``, ``relocalisation``:
+counts, ``skipped_frames``: ``{"total": N, "reasons": {"corrupt": n, ...}}`` (a bus source adds the
+messages it could not use: ``malformed``, ``oversized``, ``unpaired``, ...), ``dropped_frames``:
+``{"total": N, "source": n, "frontend": n}`` (frames that arrived while tracking was busy, passed
+over for a newer one: by a bus source before sending, or by a live-mode frontend: the frames it never
+saw, less those the source skipped), ``relocalisation``:
 ``{"count": N, "frames_lost": N, "new_maps": N}``) and ``trajectory_top.png``.
 """
 
@@ -25,6 +29,7 @@ from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import get_args
 
 import numpy as np
 
@@ -38,6 +43,7 @@ from zenslam.service.evaluation.plot import Plane, save_evaluation_plot
 from zenslam.service.evaluation.report import METRICS_FILENAME, write_metrics
 from zenslam.service.evaluation.trajectory_io import write_tum
 from zenslam.service.run_config import RunConfig, run_config_to_yaml
+from zenslam.service.sources.frame_stream import SkipReason
 from zenslam.trajectory import Trajectory
 
 logger = logging.getLogger(__name__)
@@ -89,7 +95,8 @@ class RunLog:
     """The tracking states and poses a run received, keyed by frame index and stamp, and what it heard
     from the backend."""
 
-    def __init__(self) -> None:
+    def __init__(self, live: bool = False) -> None:
+        self.live = live  # a live-mode run: the frontend's own drops count (else its gaps are the source's skips)
         self.states: dict[int, codec.TrackingStateMessage] = {}
         self.poses: dict[int, np.ndarray] = {}  # stamp_ns -> T_world_cam
         self.ended = False  # the frontend's end of stream arrived
@@ -102,6 +109,7 @@ class RunLog:
         self.backend_queue_max = 0  # most keyframes the backend reported waiting in its inbox after a step
         self.source_skipped: dict[str, int] = {}  # frames the source did not send, by reason (its latest count)
         self.source_failure: str | None = None  # what the source said when it failed (e.g. strict and a bad frame)
+        self.dropped: dict[str, int] = {}  # stage -> frames it passed over for a newer one (its latest status)
         self.stopped_stages: list[str] = []  # stages whose last status says they stopped before their input's end
         self.loops: list[codec.LoopMessage] = []  # backend/loop: every verified loop candidate, in order
 
@@ -120,6 +128,8 @@ class RunLog:
         """Note a stage that ended before its input did; keep the backend's per-keyframe timings."""
         if status.state == "finished" and status.detail == STOPPED and status.stage not in self.stopped_stages:
             self.stopped_stages.append(status.stage)
+        if status.stage in ("source", "frontend") and status.dropped:
+            self.dropped[status.stage] = int(status.dropped)  # each status carries the total so far
         if status.stage == "backend":
             self.add_backend_status(status)
         elif status.stage == "source":
@@ -141,6 +151,14 @@ class RunLog:
         """The ``skipped_frames`` section of metrics.json: the total and the count per reason."""
         reasons = {reason: int(count) for reason, count in sorted(self.source_skipped.items())}
         return {"total": sum(reasons.values()), "reasons": reasons}
+
+    def dropped_frames(self) -> dict[str, int]:
+        """The ``dropped_frames`` section of metrics.json: the total, by the source and by the frontend."""
+        source, frontend = self.dropped.get("source", 0), 0
+        if self.live:  # the frontend counts gaps in the frame numbers: frames it dropped, and frames never sent
+            not_sent = sum(n for reason, n in self.source_skipped.items() if reason in get_args(SkipReason))
+            frontend = max(0, self.dropped.get("frontend", 0) - not_sent)
+        return {"total": source + frontend, "source": source, "frontend": frontend}
 
     def keyframe_counts(self) -> dict[str, int]:
         """Keyframes the frontend sent and the backend processed (updates received). The frontend numbers
@@ -301,6 +319,7 @@ def write_outputs(
     sections: dict[str, object] = {"timing": log.timing(), **log.frame_counts()}
     sections["keyframes"] = log.keyframe_counts()
     sections["skipped_frames"] = log.skipped_frames()
+    sections["dropped_frames"] = log.dropped_frames()
     sections["relocalisation"] = log.relocalisation_counts()
     sections["keyframes_from"] = "backend" if log.backend_keyframes is not None else "frontend"
     sections["backend_timing"] = log.backend_timing()

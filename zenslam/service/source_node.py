@@ -12,11 +12,18 @@ sent: each is logged once as a warning and counted, and the counts by reason tra
 totals, which ``zenslam run`` writes to metrics.json as ``skipped_frames``). Lockstep never waits
 for a frame it did not send. With ``source.strict`` the first bad frame ends the stream instead,
 with a "failed" status whose detail names the frame and the problem.
+
+A bus source (``zenoh:<key>``, sources/bus_source.py) is live input: frames come when another
+program publishes them, each with its calibration, and are never paced here. The frontend's answers
+still set the pace (the window of ``source.frames_in_flight``), and each frame sent is the newest
+that arrived: those passed over are counted in the ``dropped`` field of every source/status, the
+messages that could not be used in its ``skipped`` map (reasons ``malformed``, ``oversized``, ...).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import sys
 import time
@@ -41,8 +48,10 @@ from zenslam.runtime.stage import (
     setup_process_logging,
 )
 from zenslam.schemas import codec, keys
+from zenslam.service.pacer import Pacer as _Pacer
 from zenslam.service.recorded_ground_truth import publish_ground_truth
-from zenslam.service.sources import SensorFrame, open_source
+from zenslam.service.sources import SensorFrame, is_bus_spec, open_bus_family, open_source
+from zenslam.service.sources.bus_source import BusFrames
 from zenslam.service.sources.config import SourceConfig
 from zenslam.service.sources.faults import FaultInjector
 from zenslam.service.sources.sensor_selection import mono_calibration
@@ -55,39 +64,6 @@ logger = logging.getLogger(__name__)
 
 STAGE = "source"
 _STOPPED_SUBSCRIBER_WAIT_S = 5.0  # stopped at start-up: seconds to wait for the frontend's subscription
-
-
-class _Pacer:
-    """Sleeps until each frame's recorded time, scaled by ``rate`` (0: never sleeps).
-
-    ``clock`` (seconds, monotonic) and ``sleep`` are the time module's unless a test plays on a fake clock.
-    """
-
-    def __init__(
-        self,
-        rate: float,
-        should_stop: Callable[[], bool],
-        clock: Callable[[], float] = time.monotonic,
-        sleep: Callable[[float], None] = time.sleep,
-    ):
-        self._rate = rate
-        self._should_stop = should_stop
-        self._clock = clock
-        self._sleep = sleep
-        self._origin: tuple[float, int] | None = None  # (clock s, stamp ns) of the first frame
-
-    def wait_for(self, stamp_ns: int) -> None:
-        if self._rate == 0:
-            return
-        if self._origin is None:
-            self._origin = (self._clock(), stamp_ns)
-            return
-        due = self._origin[0] + (stamp_ns - self._origin[1]) * 1e-9 / self._rate
-        while not self._should_stop():
-            remaining = due - self._clock()
-            if remaining <= 0:
-                return
-            self._sleep(min(remaining, 0.05))
 
 
 def _wait_for_answer(
@@ -126,15 +102,16 @@ def _wait_for_answer(
 def play(
     session: zenoh.Session,
     session_name: str,
-    frames: Iterable[SensorFrame | SkippedFrame],
-    calibration: PinholeCalibration,
-    sensor: SensorKind,
+    frames: Iterable[SensorFrame | codec.FrameMessage | SkippedFrame],
+    calibration: PinholeCalibration | None,
+    sensor: SensorKind | None,
     config: SourceConfig,
     should_stop: Callable[[], bool],
     source_name: str = "",
     rerun: SourceLog | None = None,
     mode: RunMode = "lockstep",
     start_timeout_s: float = 60.0,
+    bus_input: BusFrames | None = None,
 ) -> int:
     """Publish ``frames`` on sensor/frame, then an end-of-stream message; returns the frames sent.
 
@@ -144,6 +121,9 @@ def play(
     a real source could not notice). ``rerun`` logs each frame sent. In lockstep and pipelined mode
     every frame waits for the frontend's answers (a window of ``config.frames_in_flight``); live
     mode plays at the recorded rate. ``start_timeout_s``: seconds to wait for the frontend's subscription.
+    A codec.FrameMessage (a bus source's frame) brings its own calibration and sensor (then
+    ``calibration`` and ``sensor`` may be None); ``bus_input``'s drops and rejected messages go
+    into every status.
     """
     lockstep = mode != "live"
     key = keys.sensor_frame(session_name)
@@ -172,18 +152,27 @@ def play(
     skipped: Counter[str] = Counter()  # frames not sent, by reason
     in_flight: deque[int] = deque()  # lockstep: indices of the frames sent and not answered, oldest first
     answered = True  # False once the frontend stops answering (it ended its stream) or we are stopped
-    final = codec.StageStatusMessage(STAGE, "failed", detail="the source stopped on an unexpected error")
+
+    def status(state: codec.StageStateName, step_ms: float = 0.0, detail: str = "") -> codec.StageStatusMessage:
+        counts = dict(skipped) if bus_input is None else {**skipped, **bus_input.rejected}
+        dropped = 0 if bus_input is None else bus_input.dropped
+        return codec.StageStatusMessage(STAGE, state, sent, step_ms, dropped=dropped, detail=detail, skipped=counts)
+
+    final = status("failed", detail="the source stopped on an unexpected error")
     try:
         for frame in frames:
             if not answered or should_stop() or (config.max_frames is not None and sent >= config.max_frames):
                 break
             if isinstance(frame, SkippedFrame):
                 _skip(frame, skipped, config.strict, source_name)
-                status_pub.put(codec.encode_stage_status(codec.StageStatusMessage(STAGE, "running", sent, skipped=dict(skipped))))
+                status_pub.put(codec.encode_stage_status(status("running")))
                 continue
+            camera, sensor_kind = calibration, sensor
+            if isinstance(frame, codec.FrameMessage):
+                camera, sensor_kind, frame = frame.calibration, frame.sensor, frame.frame
             pacer.wait_for(frame.stamp_ns)
             started = time.perf_counter()
-            frame_pub.put(codec.encode_sensor_frame(frame, calibration, sensor, source_name, config.depth_encoding))
+            frame_pub.put(codec.encode_sensor_frame(frame, camera, sensor_kind, source_name, config.depth_encoding))
             sent += 1
             in_flight.append(frame.index)
             if rerun is not None:
@@ -191,15 +180,14 @@ def play(
             # States come lossless and in frame order: the oldest frame in flight is answered first.
             while answered and states is not None and len(in_flight) >= config.frames_in_flight:
                 answered = _wait_for_answer(states, in_flight.popleft(), config.answer_timeout_s, should_stop, frontend_alive)
-            status = codec.StageStatusMessage(STAGE, "running", sent, (time.perf_counter() - started) * 1e3, skipped=dict(skipped))
-            status_pub.put(codec.encode_stage_status(status))
+            status_pub.put(codec.encode_stage_status(status("running", (time.perf_counter() - started) * 1e3)))
         # The last answers. Stopped, we leave the frames in flight to the frontend: it tracks them before our end of stream.
         while answered and states is not None and in_flight:
             answered = _wait_for_answer(states, in_flight.popleft(), config.answer_timeout_s, should_stop, frontend_alive)
         detail = STOPPED if not answered or should_stop() else ""
-        final = codec.StageStatusMessage(STAGE, "finished", sent, detail=detail, skipped=dict(skipped))
+        final = status("finished", detail=detail)
     except ZenslamError as exc:
-        final = codec.StageStatusMessage(STAGE, "failed", sent, detail=str(exc), skipped=dict(skipped))
+        final = status("failed", detail=str(exc))
         raise
     finally:
         # The final status goes first: whoever sees the end of stream can already have the totals.
@@ -207,8 +195,10 @@ def play(
         end_pub.put(codec.encode_end_of_stream(codec.SENSOR_FRAME, sent))
         if states is not None:
             states.close()
-    if skipped:
-        logger.warning("skipped %d frame(s): %s", sum(skipped.values()), dict(sorted(skipped.items())))
+    if final.skipped:
+        logger.warning("skipped %d frame(s) or message(s): %s", sum(final.skipped.values()), dict(sorted(final.skipped.items())))
+    if final.dropped:
+        logger.info("dropped %d frame(s) that arrived while tracking was busy (the newest is tracked)", final.dropped)
     logger.info("sent %d frames and the end of stream on %s", sent, key)
     return sent
 
@@ -246,7 +236,10 @@ def main(argv: list[str] | None = None) -> int:
         config = load_section(args.config, STAGE, SourceConfig)
         bus_config = load_section(args.config, "bus", bus.BusConfig)
         rerun_config = load_section(args.config, "rerun", rerun_log.RerunConfig)
-        source = open_source(args.source or config.spec, config.sensor)
+        spec = args.source or config.spec
+        if is_bus_spec(spec):
+            return _play_bus_input(args, spec, config, bus_config, rerun_config, stop)
+        source = open_source(spec, config.sensor)
         calibration = config.calibration or source.calibration
         if source.sensor == "mono":
             calibration = mono_calibration(calibration)  # settings files of stereo cameras state a baseline
@@ -272,6 +265,31 @@ def main(argv: list[str] | None = None) -> int:
     except ZenslamError as exc:
         logger.error("%s", exc)
         return 2
+    return 0
+
+
+def _play_bus_input(
+    args: argparse.Namespace, spec: str, config: SourceConfig, bus_config: bus.BusConfig, rerun_config: object, stop: StopFlag
+) -> int:
+    """Play the frames another program publishes (a bus source): the run's session also connects to
+    ``source.connect``, where the publisher is; frames are taken as they come (never paced)."""
+    from zenslam.runtime import rerun_log
+
+    family = open_bus_family(spec, config.ros_domain)
+    with (
+        rerun_log.open_stage_recording(STAGE, args.session, args.config, rerun_config) as recording,
+        bus.open_session(bus_config_with(bus_config, [*args.connect, *config.connect], args.bus_config)) as session,
+    ):
+        rerun = rerun_log.SourceLog(recording) if recording is not None else None
+        with bus.declare_alive(session, args.session, STAGE):
+            timeout_s = bus_config.start_timeout_s
+            bus.require_alive(session, args.session, args.wait_for, timeout_s, stop.keep_going)
+            bus_input = BusFrames(session, family, config, stop)
+            live = dataclasses.replace(config, rate=0.0)  # the publisher keeps the time
+            play(
+                session, args.session, bus_input.frames(), None, None, live, stop, family.name, rerun,
+                mode=load_mode(args.config), start_timeout_s=timeout_s, bus_input=bus_input,
+            )
     return 0
 
 

@@ -9,7 +9,7 @@ import argparse
 import importlib
 
 # Order is the order shown in ``zenslam --help``.
-COMMAND_MODULES = ("run", "stage", "inspect", "generate", "eval", "view", "recover", "export", "replay", "vocab")
+COMMAND_MODULES = ("run", "stage", "publish", "inspect", "generate", "eval", "view", "recover", "export", "replay", "vocab")
 
 
 def register_all(subparsers: argparse._SubParsersAction) -> None:

@@ -30,6 +30,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from zenslam.backend.queries import query_trajectory
+from zenslam.config import load_yaml
 from zenslam.errors import ConfigError, ProcessError
 from zenslam.runtime import bus
 from zenslam.runtime.session_file import SessionInfo, write_session_file
@@ -41,7 +42,7 @@ from zenslam.service import mcap_io
 from zenslam.service.evaluation.plot import PLANES
 from zenslam.service.recorded_ground_truth import publish_ground_truth
 from zenslam.service.recorder import RECORDING_NAME, start_recorder
-from zenslam.service.ros2.run_bridge import Ros2RunBridge, add_ros2_publish_arguments, open_run_bridge, ros2_publish_config
+from zenslam.service.ros2.run_bridge import Ros2RunBridge, domain_id_from, add_ros2_publish_arguments, open_run_bridge, ros2_publish_config
 from zenslam.service.run_config import (
     RunConfig,
     apply_orbslam_settings,
@@ -58,7 +59,9 @@ from zenslam.service.run_output import (
     write_config,
     write_outputs,
 )
-from zenslam.service.sources import Source, open_source
+from zenslam.service.run_input import recorded_sensor, run_input
+from zenslam.service.sources import Source, is_bus_spec
+from zenslam.service.sources.config import DEFAULT_BUS_INPUT
 from zenslam.service.stages import STAGE_MODULES, stage_args
 from zenslam.trajectory import Trajectory
 
@@ -81,7 +84,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "source", nargs="?", default=None,
         help="kitti:<root>/sequences/NN | euroc:<folder> | tum:<folder> | synthetic[:<scene>[/<sensor>]] | mcap:<run.mcap> "
+        "| zenoh:<key> (frames another program publishes, e.g. `zenslam publish`) "
         "(default: source.spec of the config, which defaults to synthetic)",
+    )
+    parser.add_argument(
+        "--connect", action="append", default=None, metavar="ENDPOINT",
+        help=f"zenoh:<key> sources: zenoh endpoint where the frames are published (repeatable; source.connect, "
+        f"default {DEFAULT_BUS_INPUT}, where `zenslam publish` listens)",
+    )
+    parser.add_argument(
+        "--ground-truth", default=None, metavar="FILE|SPEC",
+        help="ground truth to score the run against, e.g. for a zenoh: source: a trajectory file (TUM, EuRoC) or the "
+        "spec of the dataset being published (kitti:<root>/sequences/NN)",
     )
     parser.add_argument("--output", type=Path, default=Path("recordings"), help="folder of the run folders (default recordings)")
     parser.add_argument("--config", type=Path, default=None, help=_config_help())
@@ -166,11 +180,22 @@ def resolve_config(args: argparse.Namespace) -> RunConfig:
         source = dataclasses.replace(source, strict=True)
     if args.no_faults:
         source = dataclasses.replace(source, faults=())
+    if getattr(args, "connect", None):
+        source = dataclasses.replace(source, connect=tuple(args.connect))
+    if source.spec.startswith("ros2:") and hasattr(args, "ros_domain"):
+        source = dataclasses.replace(source, ros_domain=domain_id_from(args.ros_domain))
     bus_config = config.bus
     if args.bus_config is not None:
         bus_config = dataclasses.replace(bus_config, zenoh_config_file=str(args.bus_config))
     mode = config.mode if args.pacing is None else args.pacing
+    if args.pacing is None and is_bus_spec(source.spec) and not _config_names_mode(args.config):
+        mode = "pipelined"  # live input: mapping in parallel, so tracking keeps up with the camera
     return dataclasses.replace(config, mode=mode, source=source, bus=bus_config)
+
+
+def _config_names_mode(path: Path | None) -> bool:
+    """True when the YAML file ``path`` sets the run mode itself."""
+    return path is not None and "mode" in load_yaml(path)
 
 
 def _child_env(config: RunConfig) -> dict[str, str]:
@@ -201,7 +226,7 @@ class _Follower:
         self.updates = bus.subscribe(session, keys.backend_map_update(run_id), codec.decode_map_update, "lossless", update_capacity)
         self.statuses = bus.subscribe(session, keys.all_status(run_id), codec.decode_stage_status, "lossless", capacity)
         self.loops = bus.subscribe(session, keys.backend_loop(run_id), codec.decode_loop, "lossless", capacity)
-        self.log = RunLog()
+        self.log = RunLog(live=config.mode == "live")
         self.bar = tqdm(total=total, unit="frame", desc="tracking", disable=not progress)
 
     def poll(self, timeout_s: float) -> None:
@@ -369,7 +394,7 @@ def _report_exits(supervisor: Supervisor, stop: StopFlag, statuses: dict[str, in
 
 
 def track(
-    config: RunConfig, run_id: str, run_dir: Path, config_path: Path, source: Source, progress: bool,
+    config: RunConfig, run_id: str, run_dir: Path, config_path: Path, source: Source | None, progress: bool,
     stop: StopFlag | None = None, ground_truth: Trajectory | None = None, ros2: Ros2RunBridge | None = None,
     listen: str | None = None, wait_for: tuple[str, ...] = (),
 ) -> tuple[RunLog, bool]:
@@ -382,13 +407,16 @@ def track(
     ``stop`` (installed; default: one installed here) ends the run early: the stages wind down in
     order, so every pose the frontend published is in the log, and completed is False.
     ``ground_truth`` (the source's) goes into the recording, so a replay of it is scored too.
+    ``source`` None: frames from the bus, their number unknown.
     ``ros2`` publishes the poses and keyframe path on ROS 2 topics as they arrive.
     """
     if listen is not None and config.bus.zenoh_config_file:
         raise ConfigError(f"--listen {listen} and a zenoh config file ({config.bus.zenoh_config_file}): give the endpoint in that file")
     hub = None if config.bus.zenoh_config_file else listen or bus.free_tcp_endpoint()
     hub_bus = config.bus if hub is None else dataclasses.replace(config.bus, listen=(hub,))
-    total = len(source) if config.source.max_frames is None else min(len(source), config.source.max_frames)
+    total = None if source is None else len(source)
+    if config.source.max_frames is not None:
+        total = config.source.max_frames if total is None else min(total, config.source.max_frames)
     owned = stop is None
     stop = StopFlag(quiet=True).install() if stop is None else stop
     try:
@@ -432,6 +460,9 @@ def _summary(result: RunResult, log: RunLog) -> list[str]:
     if skipped["total"]:
         reasons = ", ".join(f"{count} {reason}" for reason, count in skipped["reasons"].items())
         lines.append(f"frames skipped by the source: {skipped['total']} ({reasons})")
+    dropped = log.dropped_frames()
+    if dropped["total"]:
+        lines.append(f"frames dropped because tracking was busy (the newest was tracked): {dropped['total']}")
     if result.evaluation is not None:
         ate, rpe = result.evaluation.ate, result.evaluation.rpe
         lines.append(f"ATE RMSE {ate.rmse_m:.4f} m ({ate.alignment} alignment, {ate.matched_poses} poses)")
@@ -442,13 +473,14 @@ def _summary(result: RunResult, log: RunLog) -> list[str]:
     return lines
 
 
-def _interrupted_line(log: RunLog, total: int, run_dir: Path, here: bool) -> str:
+def _interrupted_line(log: RunLog, total: int | None, run_dir: Path, here: bool) -> str:
     """The one line an interrupted run ends with; ``here``: this process got the signal (else a stage did)."""
     frames = log.frame_counts()["frames"]
+    of_total = "" if total is None else f" of {total}"
     trajectory = log.trajectory()
     by = "" if here else f" (the {' and the '.join(log.stopped_stages)} stopped by a signal of its own)"
     return (
-        f"interrupted at frame {frames} of {total}{by}: wrote the {0 if trajectory is None else len(trajectory)} tracked "
+        f"interrupted at frame {frames}{of_total}{by}: wrote the {0 if trajectory is None else len(trajectory)} tracked "
         f"poses to {run_dir} (metrics.json run.completed: false)"
     )
 
@@ -472,17 +504,18 @@ def run(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace, stop: StopFlag) -> int:
     """``run`` with the installed stop flag ``stop``."""
     config = resolve_config(args)
-    source = open_source(config.source.spec, config.source.sensor)
-    config = fit_calibration_to_images(config, source.calibration.width, source.calibration.height)
+    given = run_input(config.source.spec, config.source.sensor, config.source.max_frames, getattr(args, "ground_truth", None))
+    if given.image_size is not None:
+        config = fit_calibration_to_images(config, *given.image_size)  # a bus source's is fitted to its first frame
     run_id = args.run_id or new_run_id()
     run_dir = prepare_run_dir(args.output, run_id)
     config_path = write_config(run_dir, config)
-    logger.info("run %s: %s (%s, %d frames) -> %s", run_id, source.name, source.sensor, len(source), run_dir)
-    total = len(source) if config.source.max_frames is None else min(len(source), config.source.max_frames)
-    ground_truth = source.ground_truth()
+    count = "frames from the bus" if given.total is None else f"{given.total} frames"
+    logger.info("run %s: %s (%s, %s) -> %s", run_id, given.name, given.sensor or "sensor of the input", count, run_dir)
+    total, ground_truth = given.total, given.ground_truth
     with open_run_bridge(ros2_publish_config(args)) as ros2:
         log, completed = track(
-            config, run_id, run_dir, config_path, source, not args.no_progress, stop, ground_truth, ros2,
+            config, run_id, run_dir, config_path, given.source, not args.no_progress, stop, ground_truth, ros2,
             listen=getattr(args, "listen", None), wait_for=tuple(getattr(args, "wait_for", ())),
         )
         if ros2 is not None:
@@ -493,7 +526,8 @@ def _run(args: argparse.Namespace, stop: StopFlag) -> int:
     extra = {"run": {
         "run_id": run_id, "source": config.source.spec, "mode": config.mode, "completed": completed,
     }}
-    evaluation_config = evaluation_config_for(config.evaluation, source.sensor)
+    sensor = given.sensor or recorded_sensor(recording) or "stereo"  # a bus source's sensor: what was recorded
+    evaluation_config = evaluation_config_for(config.evaluation, sensor)
     result = write_outputs(run_dir, log, ground_truth, evaluation_config, extra, plane=args.plane)
     for line in _summary(result, log):
         print(line)

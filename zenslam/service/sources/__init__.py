@@ -5,7 +5,10 @@ Spec strings (what ``zenslam run SOURCE`` and ``zenslam inspect SOURCE`` take):
 ``synthetic`` (the loop scene) or ``synthetic:<scene>`` with scene one of loop, figure_eight, still,
 corridor, corridor_aliased, optionally followed by ``/<sensor>`` (stereo, rgbd, mono), e.g.
 ``synthetic:figure_eight/rgbd``;
-``mcap:<recording>`` replays the sensor frames of a run's ``run.mcap``.
+``mcap:<recording>`` replays the sensor frames of a run's ``run.mcap``;
+``zenoh:<key>`` takes the frames another program publishes under that key (sources/zenoh_family.py
+states the keys and messages): a *bus source*, opened by the source process with ``open_bus_family``,
+live, with no length and no ground truth.
 
 ``sensor`` (``zenslam run --sensor``, ``source.sensor``) plays a source as another sensor than its
 own where it can give it: a stereo or RGB-D dataset as mono (sources/sensor_selection.py); a
@@ -18,12 +21,38 @@ from pathlib import Path
 
 from zenslam.camera import SensorKind
 from zenslam.errors import SourceSpecError
+from zenslam.service.sources.bus_messages import MessageFamily
 from zenslam.service.sources.frame import ImuSamples, SensorFrame, Source
 from zenslam.service.sources.sensor_selection import as_sensor
 
-__all__ = ["ImuSamples", "SensorFrame", "Source", "open_source", "SOURCE_KINDS"]
+__all__ = ["ImuSamples", "SensorFrame", "Source", "open_source", "open_bus_family", "is_bus_spec", "SOURCE_KINDS"]
 
 SOURCE_KINDS = ("kitti", "euroc", "tum", "synthetic", "mcap")
+BUS_KINDS = ("zenoh", "ros2")
+
+
+def is_bus_spec(spec: str) -> bool:
+    """True when ``spec`` names frames from the bus (``zenoh:<key>``) rather than a dataset or scene."""
+    return spec.partition(":")[0] in BUS_KINDS
+
+
+def open_bus_family(spec: str, ros_domain: int = 0) -> MessageFamily:
+    """The message family of a bus source spec (which keys, which messages; ``ros_domain`` for ``ros2:``);
+    SourceSpecError if it is none."""
+    kind, _, argument = spec.partition(":")
+    if kind == "ros2":
+        from zenslam.service.sources.ros2_family import Ros2Family
+
+        if not argument:
+            raise SourceSpecError(f"source {spec!r} needs a camera namespace after 'ros2:', e.g. ros2:/camera")
+        return Ros2Family(argument, ros_domain)
+    if kind == "zenoh":
+        from zenslam.service.sources.zenoh_family import ZenohFamily
+
+        if not argument:
+            raise SourceSpecError(f"source {spec!r} needs a key after 'zenoh:', e.g. zenoh:cam/front")
+        return ZenohFamily(argument)
+    raise SourceSpecError(f"source {spec!r} is not a bus source: use zenoh:<key> or ros2:<namespace>")
 
 
 def open_source(spec: str, sensor: SensorKind | None = None) -> Source:
@@ -32,6 +61,11 @@ def open_source(spec: str, sensor: SensorKind | None = None) -> Source:
     kind, _, argument = spec.partition(":")
     if kind == "synthetic":
         return _open_synthetic(argument, sensor)
+    if is_bus_spec(spec):
+        raise SourceSpecError(
+            f"{spec!r} is a live bus source: its frames exist only while a publisher sends them, so it has no length "
+            "to inspect or replay; `zenslam run` takes it"
+        )
     source = _open_dataset(spec, kind, argument)
     return source if sensor is None else as_sensor(source, sensor)
 
@@ -40,7 +74,7 @@ def _open_dataset(spec: str, kind: str, argument: str) -> Source:
     if kind not in SOURCE_KINDS:
         raise SourceSpecError(
             f"unknown source {spec!r}: use one of kitti:<root>/sequences/NN, euroc:<folder>, tum:<folder>, "
-            "synthetic[:<scene>[/<sensor>]], mcap:<run.mcap>"
+            "synthetic[:<scene>[/<sensor>]], mcap:<run.mcap>, zenoh:<key>"
         )
     if not argument:
         raise SourceSpecError(f"source {spec!r} needs a path after '{kind}:', e.g. {kind}:/data/{kind}/sequence")
