@@ -173,13 +173,13 @@ def test_disparity_mismatch_is_detected(stereo_source: SyntheticSource) -> None:
 
 
 def test_same_seed_gives_identical_frames_and_other_seed_different_textures() -> None:
-    config = small_config("loop", sensor="stereo", duration_s=1.0, texels_per_m=64.0)
+    config = small_config("loop", sensor="stereo", duration_s=1.0, frame_rate_hz=20.0, texels_per_m=64.0)
     a, b = SyntheticSource(config), SyntheticSource(config)  # each builds its own textures
     for index in (0, 7, 20):
         fa, fb = a.frame(index), b.frame(index)
         assert fa.left.tobytes() == fb.left.tobytes()
         assert fa.right.tobytes() == fb.right.tobytes()
-    other = SyntheticSource(small_config("loop", sensor="stereo", duration_s=1.0, texels_per_m=64.0, seed=1))
+    other = SyntheticSource(small_config("loop", sensor="stereo", duration_s=1.0, frame_rate_hz=20.0, texels_per_m=64.0, seed=1))
     diff = np.abs(a.frame(0).left.astype(int) - other.frame(0).left.astype(int))
     assert diff.mean() > 20, "a different seed must give different textures"
     np.testing.assert_array_equal(a.ground_truth().T_world_cam, other.ground_truth().T_world_cam)
@@ -222,7 +222,7 @@ def test_orb_finds_many_well_spread_keypoints_along_the_loop(full_size_source: S
 
 def test_photometric_effects_change_the_image_deterministically(small_scene: Scene) -> None:
     def left_image(**photometric) -> np.ndarray:
-        config = small_config("loop", sensor="mono", duration_s=2.0, photometric=photometric)
+        config = small_config("loop", sensor="mono", duration_s=2.0, frame_rate_hz=20.0, photometric=photometric)
         return SyntheticSource(config, scene=small_scene).frame(30).left
 
     def sharpness(img: np.ndarray) -> float:

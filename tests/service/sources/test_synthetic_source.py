@@ -22,7 +22,7 @@ def test_presets_and_defaults() -> None:
     loop = scene_config("loop")
     assert loop.texture.default and loop.world == "room"
     assert (loop.width, loop.height, loop.fx, loop.cx, loop.cy) == (640, 480, 460.0, 319.5, 239.5)
-    assert (loop.frame_rate_hz, loop.duration_s, loop.baseline_m, loop.imu_rate_hz) == (20.0, 30.0, 0.10, 200.0)
+    assert (loop.frame_rate_hz, loop.duration_s, loop.baseline_m, loop.imu_rate_hz) == (10.0, 30.0, 0.10, 200.0)
     assert not loop.photometric.enabled
     assert scene_config("figure_eight").laps >= 2
     assert scene_config("still", sensor="rgbd").sensor == "rgbd"
@@ -61,15 +61,15 @@ def test_calibration_and_frame_contents_per_sensor(sensor: str, baseline: float 
 def test_stamps_ground_truth_and_length() -> None:
     source = SyntheticSource(scene_config("loop", start_stamp_ns=1_000_000_000))
     stamps = source.stamps_ns()
-    assert len(source) == len(stamps) == 601  # 30 s at 20 Hz, both ends included
-    assert stamps[0] == 1_000_000_000 and np.all(np.diff(stamps) == 50_000_000)
+    assert len(source) == len(stamps) == 301  # 30 s at 10 Hz, both ends included
+    assert stamps[0] == 1_000_000_000 and np.all(np.diff(stamps) == 100_000_000)
     gt = source.ground_truth()
     np.testing.assert_array_equal(gt.stamps_ns, stamps)
     np.testing.assert_allclose(gt.T_world_cam[-1], gt.T_world_cam[0], atol=1e-9)
     assert gt.path_length_m() == pytest.approx(12.9, abs=0.5)  # ellipse perimeter ~12.8 m plus height changes
     assert source.imu().stamps_ns[0] == 1_000_000_000
     with pytest.raises(ConfigError, match="out of range"):
-        source.frame(601)
+        source.frame(301)
 
 
 def test_a_scene_built_for_other_settings_is_refused() -> None:
