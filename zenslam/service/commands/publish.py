@@ -6,6 +6,11 @@ that goes when the last frame is out. By default this process listens on tcp/127
 (zenoh's default port), where ``zenslam run zenoh:K`` connects: the two meet on one machine with
 multicast scouting off. ``--connect`` joins a router (or a publisher of frames elsewhere) instead;
 ``--bus-config`` takes a whole zenoh JSON5 configuration.
+
+With ``--ros2 NAMESPACE`` it is a ROS 2 camera driver on rmw_zenoh instead: sensor_msgs/Image and
+CameraInfo on ``NAMESPACE/image_rect`` and ``NAMESPACE/camera_info`` (stereo: ``left/...`` and
+``right/...``), in rmw_zenoh's keys, CDR payloads and graph tokens (service/ros2/frames.py), which
+``zenslam run ros2:NAMESPACE`` and ROS 2 nodes on rmw_zenoh read.
 """
 
 from __future__ import annotations
@@ -14,12 +19,14 @@ import argparse
 import dataclasses
 import logging
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
+from zenslam.errors import FrameReadError
 from zenslam.runtime import bus
 from zenslam.runtime.stop import EXIT_INTERRUPTED, StopFlag
 from zenslam.service.bus_publisher import CameraPublisher, PublishOptions, publish_source
-from zenslam.service.sources import open_source
+from zenslam.service.sources import SensorFrame, Source, open_source
 from zenslam.service.sources.config import DEFAULT_BUS_INPUT
 from zenslam.service.sources.zenoh_family import check_prefix
 
@@ -33,7 +40,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description=__doc__.split("\n\n")[1].replace("\n", " "),
     )
     parser.add_argument("source", help="kitti:<root>/sequences/NN | euroc:<folder> | tum:<folder> | synthetic[:<scene>[/<sensor>]] | mcap:<run.mcap>")
-    parser.add_argument("--key", required=True, help="key prefix, e.g. cam/kitti (images on cam/kitti/left/image, ...)")
+    target = parser.add_mutually_exclusive_group(required=True)
+    target.add_argument("--key", help="key prefix, e.g. cam/kitti (images on cam/kitti/left/image, ...)")
+    target.add_argument(
+        "--ros2", metavar="NAMESPACE",
+        help="publish as a ROS 2 camera driver on rmw_zenoh under NAMESPACE, e.g. /cam (read by `zenslam run ros2:/cam`)",
+    )
+    parser.add_argument("--ros-domain", type=int, default=None, help="ROS 2 domain id (--ros2; default ROS_DOMAIN_ID, else 0)")
     parser.add_argument("--rate", type=float, default=1.0, help="multiple of the recorded rate (default 1; 0: as fast as possible)")
     parser.add_argument(
         "--format", choices=("foxglove", "zenslam"), default="foxglove",
@@ -64,8 +77,10 @@ def bus_config_of(args: argparse.Namespace) -> bus.BusConfig:
 def run(args: argparse.Namespace) -> int:
     """Open the source, declare the camera, publish every frame, print what was published."""
     stop: StopFlag = args.stop
-    check_prefix(args.key.strip("/"), f"--key {args.key}")
     source = open_source(args.source, args.sensor)
+    if args.ros2 is not None:
+        return _publish_ros2(args, source, stop)
+    check_prefix(args.key.strip("/"), f"--key {args.key}")
     options = PublishOptions(
         key=args.key, format=args.format, image_format=args.image_format, rate=args.rate,
         max_frames=args.max_frames, wait_for_subscriber=not args.no_wait,
@@ -85,3 +100,32 @@ def run(args: argparse.Namespace) -> int:
         elapsed = time.monotonic() - started
     print(f"published {sent} frames in {elapsed:.1f} s at {args.rate:g}x the recorded rate")
     return EXIT_INTERRUPTED if stop() else 0
+
+
+def _publish_ros2(args: argparse.Namespace, source: Source, stop: StopFlag) -> int:
+    """``--ros2 NAMESPACE``: the frames as a ROS 2 camera driver on rmw_zenoh publishes them."""
+    from zenslam.service.ros2.frames import publish_frames_ros2
+    from zenslam.service.ros2.run_bridge import domain_id_from
+
+    config = bus_config_of(args)
+    domain = domain_id_from(args.ros_domain)
+    total = len(source) if args.max_frames is None else min(len(source), args.max_frames)
+    print(f"publishing {source.name}: {total} {source.sensor} frames as ROS 2 topics under {args.ros2} (domain {domain})")
+    started = time.monotonic()
+    with bus.open_session(config) as session:
+        sent = publish_frames_ros2(
+            session, _readable_frames(source, total), source.calibration, args.ros2, domain, args.rate,
+            wait_for_subscribers_s=0.0 if args.no_wait else config.start_timeout_s, stop=stop,
+        )  # fmt: skip
+    print(f"published {sent} frames in {time.monotonic() - started:.1f} s at {args.rate:g}x the recorded rate")
+    return EXIT_INTERRUPTED if stop() else 0
+
+
+def _readable_frames(source: Source, count: int) -> Iterator[SensorFrame]:
+    """The first ``count`` frames of ``source``; one that cannot be read is skipped with a warning, as a
+    camera does not resend a frame it failed to capture."""
+    for index in range(count):
+        try:
+            yield source.frame(index)
+        except FrameReadError as exc:
+            logger.warning("not publishing %s", exc)

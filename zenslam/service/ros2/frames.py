@@ -31,6 +31,8 @@ from zenslam.service.ros2.publisher import Ros2Node, Ros2Publisher
 
 logger = logging.getLogger(__name__)
 
+_LOSSLESS = keys.Qos(history="keep_all")  # reliable keep-all: rmw_zenoh's publisher blocks rather than drops
+
 
 @dataclass(frozen=True)
 class CameraTopics:
@@ -57,8 +59,10 @@ def frame_topics(topic_prefix: str) -> dict[str, CameraTopics]:
 
 class _CameraPublisher:
     def __init__(self, node: Ros2Node, topics: CameraTopics, frame_id: str, calibration: PinholeCalibration, right: bool):
-        self.image = node.publisher(topics.image, cdr.IMAGE)
-        self.info = node.publisher(topics.camera_info, cdr.CAMERA_INFO)
+        # Reliable keep-all: a test or demo camera loses no frame on the way, as zenslam publish's
+        # foxglove publisher does not (a lagging tracker still drops frames, counted, on its side).
+        self.image = node.publisher(topics.image, cdr.IMAGE, _LOSSLESS)
+        self.info = node.publisher(topics.camera_info, cdr.CAMERA_INFO, _LOSSLESS)
         self._frame_id, self._calibration, self._right = frame_id, calibration, right
 
     def put(self, stamp_ns: int, image) -> None:

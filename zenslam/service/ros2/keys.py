@@ -45,30 +45,42 @@ _ZID = re.compile(r"^[0-9a-f]{1,32}$")
 # rmw's enum values (rmw/types.h) as rmw_zenoh writes them into the QoS chunk.
 _RELIABILITY = {"reliable": 1, "best_effort": 2}
 _DURABILITY = {"transient_local": 1, "volatile": 2}
+_HISTORY = {"keep_last": 1, "keep_all": 2}
 _DEFAULT_DEPTH = 42  # rmw_zenoh's default history depth (qos.cpp)
 
 
 @dataclass(frozen=True)
 class Qos:
-    """A ROS 2 QoS profile as far as rmw_zenoh's liveliness token states it (keep-last history)."""
+    """A ROS 2 QoS profile as far as rmw_zenoh's liveliness token states it."""
 
     reliability: Literal["reliable", "best_effort"] = "reliable"
     durability: Literal["volatile", "transient_local"] = "volatile"
     depth: int = 10  # messages kept (keep-last history); rclcpp's default QoS depth
+    # keep_all with reliable: rmw_zenoh's publisher blocks instead of dropping when a subscriber lags
+    history: Literal["keep_last", "keep_all"] = "keep_last"
 
     def __post_init__(self) -> None:
-        if self.reliability not in _RELIABILITY or self.durability not in _DURABILITY or self.depth < 1:
+        if (
+            self.reliability not in _RELIABILITY or self.durability not in _DURABILITY or self.history not in _HISTORY
+            or self.depth < 1
+        ):  # fmt: skip
             raise ConfigError(
                 f"invalid ROS 2 QoS {self}: reliability must be one of {sorted(_RELIABILITY)}, "
-                f"durability one of {sorted(_DURABILITY)}, depth at least 1"
+                f"durability one of {sorted(_DURABILITY)}, history one of {sorted(_HISTORY)}, depth at least 1"
             )
+
+    @property
+    def blocks(self) -> bool:
+        """Whether rmw_zenoh's publisher with this QoS blocks (reliable keep-all) rather than drops."""
+        return self.reliability == "reliable" and self.history == "keep_all"
 
     def key_chunk(self) -> str:
         """The QoS chunk of a liveliness token (values equal to rmw_zenoh's defaults left empty)."""
         reliability = "" if self.reliability == "reliable" else str(_RELIABILITY[self.reliability])
         durability = "" if self.durability == "volatile" else str(_DURABILITY[self.durability])
-        depth = "" if self.depth == _DEFAULT_DEPTH else str(self.depth)
-        return f"{reliability}:{durability}:,{depth}:,:,:,,"
+        history = "" if self.history == "keep_last" else str(_HISTORY[self.history])
+        depth = "" if self.depth == _DEFAULT_DEPTH or self.history == "keep_all" else str(self.depth)
+        return f"{reliability}:{durability}:{history},{depth}:,:,:,,"
 
 
 def check_domain_id(domain_id: int) -> int:

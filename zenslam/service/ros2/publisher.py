@@ -42,11 +42,11 @@ class Ros2Publisher:
         self.token_key = keys.publisher_token_key(node, entity_id, topic, ros_type, type_hash, qos)
         self.gid = gid_of(self.token_key)
         reliable = qos.reliability == "reliable"
-        # rmw_zenoh drops rather than blocks unless the QoS is reliable keep-all (zenslam uses keep-last).
+        # As rmw_zenoh: drop rather than block unless the QoS is reliable keep-all.
         self._publisher = session.declare_publisher(
             self.key,
             reliability=zenoh.Reliability.RELIABLE if reliable else zenoh.Reliability.BEST_EFFORT,
-            congestion_control=zenoh.CongestionControl.DROP,
+            congestion_control=zenoh.CongestionControl.BLOCK if qos.blocks else zenoh.CongestionControl.DROP,
         )
         self._token = session.liveliness().declare_token(self.token_key)
         self._sequence_number = 1
