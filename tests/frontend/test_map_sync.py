@@ -58,6 +58,8 @@ def _disagreements(local_map, bmap, update) -> list[str]:
         return problems
     for name in ("p_world", "normals", "min_distance_m", "max_distance_m"):
         expected = np.array([getattr(bmap.points[p], name.removesuffix("s") if name == "normals" else name) for p in update.point_ids.tolist()])
+        if name != "p_world":  # viewing directions and distances travel as float32
+            expected = expected.astype(np.float32).astype(np.float64)
         if not np.array_equal(getattr(local_map, name)[rows], expected.reshape(getattr(local_map, name)[rows].shape)):
             problems.append(f"point {name} differ")
     if not np.array_equal(local_map.descriptors[rows], np.array([bmap.points[p].descriptor for p in update.point_ids.tolist()]).reshape(-1, 32)):

@@ -3,7 +3,8 @@
 Two lockstep runs of a short synthetic sequence (the ``zenslam run --lockstep`` command, and the same
 run followed by this process; both shared with other modules by conftest.py). Each run folder must
 hold source.rrd, frontend.rrd and backend.rrd with the run id as recording id, the documented entity
-paths, every frame on the frame timeline (the source's images, the frontend's poses) and the
+paths, every frame on the frame timeline (the frontend's poses; the source's images of every
+``rerun.image_every_n``-th frame) and the
 backend's entries at its keyframes' frames. On the frame timeline both runs must log identical
 values, measured timings (and the backend's queue depth, which depends on when the inbox is
 looked at) aside.
@@ -16,6 +17,7 @@ from pathlib import Path
 
 import pytest
 
+from zenslam.runtime.rerun_config import RerunConfig
 from zenslam.runtime.rerun_log import read_rrd, recording_ids
 
 pytestmark = pytest.mark.integration
@@ -59,7 +61,8 @@ def test_every_frame_is_on_the_frame_timeline(runs, command_run):
     run_dir, frames = runs[0], command_run.frames
     metrics = json.loads((run_dir / "metrics.json").read_text())
     source, frontend, backend = (read_rrd(run_dir / f"{stage}.rrd") for stage in ("source", "frontend", "backend"))
-    assert _frames(source, "/source/camera/left") == set(range(frames))
+    every_n = RerunConfig().image_every_n  # the source logs every n-th image
+    assert _frames(source, "/source/camera/left") == set(range(0, frames, every_n))
     assert _frames(frontend, "/frontend/pose") == set(range(frames))  # the synthetic loop tracks every frame
     assert _frames(frontend, "/frontend/keypoints") == set(range(frames))
     keyframe_frames = _frames(backend, "/backend/keyframes")
