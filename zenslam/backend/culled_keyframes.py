@@ -38,6 +38,14 @@ class CulledKeyframes:
         T_parent_cam = invert_T(np.asarray(T_world_parent, dtype=float)) @ np.asarray(T_world_cam, dtype=float)
         self._by_id[int(kf_id)] = CulledKeyframe(int(stamp_ns), int(parent_id), T_parent_cam)
 
+    def entries(self) -> list[tuple[int, CulledKeyframe]]:
+        """(id, entry) of every culled keyframe, ids ascending."""
+        return sorted(self._by_id.items())
+
+    def restore(self, kf_id: int, entry: CulledKeyframe) -> None:
+        """Put back an entry of a saved map."""
+        self._by_id[int(kf_id)] = entry
+
     def poses(self, in_map: Mapping[int, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(ids (C,), stamps (C,), T_world_cam (C, 4, 4)) of every culled keyframe, ids ascending: its
         parent's pose now (``in_map``: poses of the keyframes in the map, by id; a culled parent's

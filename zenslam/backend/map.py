@@ -51,6 +51,11 @@ class IdAllocator:
         self._next += 1
         return value
 
+    @property
+    def upcoming(self) -> int:
+        """The id ``next`` returns next."""
+        return self._next
+
 
 @dataclass(eq=False)
 class BackendKeyframe:
@@ -249,6 +254,22 @@ class BackendMap:
         self._replaced: dict[int, int] = {}  # fused point id -> the id that replaced it
         self._stale_descriptor: set[int] = set()
         self._stale_geometry: set[int] = set()
+
+    # ---- bookkeeping a saved map keeps (``map_file``) ----------------------------------------------
+    @property
+    def next_serial(self) -> int:
+        """The serial the next inserted keyframe gets."""
+        return self._next_serial
+
+    def fused_ids(self) -> dict[int, int]:
+        """Fused point id -> the id that replaced it (a copy; ``resolve`` follows the chains)."""
+        return dict(self._replaced)
+
+    def restore_bookkeeping(self, next_serial: int, fused: dict[int, int], next_point_id: int) -> None:
+        """Set the serial and id counters and the fused ids of a map rebuilt from a saved one."""
+        self._next_serial = int(next_serial)
+        self._replaced = dict(fused)
+        self.point_id_allocator = IdAllocator(next_point_id)
 
     # ---- lookups ---------------------------------------------------------------------------------
     def keyframe(self, kf_id: int) -> BackendKeyframe:

@@ -27,6 +27,11 @@ class PlaceRecognition:
         self.database.add(kf_id, bow)
         self.feature_vectors[kf_id] = features
 
+    def restore(self, kf_id: int, bow: BowVector, features: FeatureVector) -> None:
+        """Index keyframe ``kf_id`` by vectors computed earlier with this vocabulary (a saved map's)."""
+        self.database.add(kf_id, bow)
+        self.feature_vectors[kf_id] = features
+
     def remove(self, kf_ids: list[int]) -> None:
         """Forget culled keyframes (ids not indexed are ignored)."""
         for kf_id in kf_ids:

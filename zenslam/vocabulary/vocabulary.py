@@ -8,7 +8,9 @@ it reaches a leaf; ``transform`` does this for all descriptors at once, level by
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Mapping
+from functools import cached_property
 
 import numpy as np
 
@@ -144,6 +146,18 @@ class Vocabulary:
     @property
     def source(self) -> str:
         return self._source
+
+    @cached_property
+    def content_id(self) -> str:
+        """The vocabulary's identity: ``sha256:`` and the hex SHA-256 of its tree (branching, depth,
+        parents, node descriptors) and word weights, little-endian; metadata and file name do not count.
+        Saved maps record it, because their bags of words are only valid under this vocabulary."""
+        digest = hashlib.sha256()
+        digest.update(np.array([self._branching, self._depth], dtype="<i8").tobytes())
+        digest.update(np.ascontiguousarray(self._parents, dtype="<i8").tobytes())
+        digest.update(np.ascontiguousarray(self._descriptors, dtype=np.uint8).tobytes())
+        digest.update(np.ascontiguousarray(self._weights, dtype="<f8").tobytes())
+        return "sha256:" + digest.hexdigest()
 
     @property
     def parents(self) -> np.ndarray:
