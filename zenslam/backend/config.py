@@ -20,6 +20,12 @@ class BackendConfig:
     # Bag-of-words vocabulary for place recognition: a file (ours, or DBoW2 text as ORB-SLAM's
     # ORBvoc.txt); empty = the vocabulary shipped with zenslam.
     vocabulary: str = ""  # path
+    # A saved map (``zenslam run --map``; format in backend/map_file.py) the backend starts from:
+    # its keyframes answer relocalisation queries and new keyframes extend it. Empty = a new map.
+    map_file: str = ""  # path
+    # Where the map is written when the keyframe stream ends (after a running global BA has
+    # finished); empty = not written.
+    save_map: str = ""  # path
     # Keyframes the backend's inbox holds; when full the frontend's send blocks (lossless: never dropped).
     keyframe_queue: int = 32  # keyframes
     # After its input's end of stream the backend keeps answering backend/map and backend/trajectory

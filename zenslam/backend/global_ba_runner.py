@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
-from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures import CancelledError, Future, ProcessPoolExecutor
 
 from zenslam.backend.ba_problem import BAResult
 from zenslam.backend.global_ba import GlobalBAConfig, GlobalBAProblem, apply_global_ba, global_ba_problem, run_global_ba
@@ -73,6 +73,17 @@ class GlobalBARunner:
             return False
         self._apply(problem, future.result())
         return True
+
+    def wait(self) -> bool:
+        """Wait for a running background global BA and apply it (the map is about to be saved); True
+        when the map changed."""
+        if self._running is None:
+            return False
+        try:
+            self._running[1].exception()  # blocks until it is done; its error, if any, is raised by poll
+        except CancelledError:
+            pass
+        return self.poll()
 
     def close(self) -> None:
         """Stop the helper process (a running global BA is abandoned)."""

@@ -253,13 +253,17 @@ def _same_calibration(a: PinholeCalibration, b: PinholeCalibration) -> bool:
 
 
 def check_compatible(
-    header: MapHeader, calibration: PinholeCalibration, sensor: SensorKind, vocabulary_id: str, vocabulary_source: str = ""
+    header: MapHeader, calibration: PinholeCalibration | None, sensor: SensorKind | None, vocabulary_id: str,
+    vocabulary_source: str = "",
 ) -> None:
-    """MapFileError when the map was made with another camera or vocabulary than this run's, naming both."""
-    if sensor != header.sensor or not _same_calibration(calibration, header.calibration):
+    """MapFileError when the map was made with another camera or vocabulary than this run's, naming both.
+    A camera not known yet (None: frames from the bus) is checked by the backend at its first keyframe."""
+    other_sensor = sensor is not None and sensor != header.sensor
+    if other_sensor or (calibration is not None and not _same_calibration(calibration, header.calibration)):
+        camera = f"{sensor or header.sensor} camera " + (calibration.summary() if calibration is not None else "")
         raise MapFileError(
-            f"map {header.path} was made with a {header.camera_text()}, but this run's is a {sensor} camera "
-            f"{calibration.summary()}: a map holds only for the camera that made it; run the map's camera "
+            f"map {header.path} was made with a {header.camera_text()}, but this run's is a {camera.strip()}: "
+            "a map holds only for the camera that made it; run the map's camera "
             "(its calibration: --orbslam-settings; its sensor: --sensor) or make a new map with --save-map"
         )
     if vocabulary_id != header.vocabulary_id:

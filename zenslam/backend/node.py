@@ -56,6 +56,7 @@ from zenslam.schemas.relocalisation import RelocalisationCandidates, Relocalisat
 
 if TYPE_CHECKING:
     from zenslam.backend.global_ba_runner import GlobalBARunner
+    from zenslam.backend.map_file import MapHeader
     from zenslam.backend.loop_closing import LoopCloser
     from zenslam.backend.place_recognition import PlaceRecognition
     from zenslam.runtime.rerun_log import BackendLog
@@ -96,6 +97,7 @@ class BackendNode:
         self.rerun = rerun  # logs the map, graphs and timings after each keyframe to the stage's .rrd
         self.processed = 0  # keyframes processed
         self.finished = False  # the input's end of stream has been processed
+        self.loaded: MapHeader | None = None  # the header of the saved map the node started from, if any
 
     @classmethod
     def from_config(cls, config: BackendConfig, global_ba_in_background: bool = False) -> BackendNode:
@@ -108,6 +110,11 @@ class BackendNode:
         from zenslam.vocabulary import load_vocabulary
 
         places = PlaceRecognition(load_vocabulary(config.vocabulary or None))
+        loaded = None
+        if config.map_file:
+            from zenslam.backend.map_file import load_map
+
+            loaded = load_map(config.map_file, bmap, places)
         loop_closer, global_ba = None, None
         if config.loop_closing.enabled:
             from zenslam.backend.global_ba_runner import GlobalBARunner
@@ -116,7 +123,9 @@ class BackendNode:
             loop_closer = LoopCloser(bmap, places, config.loop_closing)
             if config.loop_closing.global_ba.enabled:
                 global_ba = GlobalBARunner(bmap, config.loop_closing.global_ba, config.local_mapping.ba_window, global_ba_in_background)
-        return cls(mapper, places, loop_closer, global_ba)
+        node = cls(mapper, places, loop_closer, global_ba)
+        node.loaded = loaded
+        return node
 
     def step(self, keyframe: codec.KeyframeMessage, queued: int = 0) -> StepOutput:
         """Insert one keyframe, run local mapping, then loop closing on it.
@@ -125,6 +134,14 @@ class BackendNode:
         The answer says how many corrections follow it, so a lockstep frontend applies them before
         its next frame.
         """
+        if self.loaded is not None and self.processed == 0:
+            from zenslam.backend.map_file import check_compatible
+
+            vocabulary = self.places.vocabulary if self.places is not None else None
+            check_compatible(
+                self.loaded, keyframe.calibration, keyframe.sensor,
+                vocabulary.content_id if vocabulary is not None else self.loaded.vocabulary_id,
+            )  # fmt: skip
         update = self.mapper.process(keyframe, queued=queued)
         self.processed += 1
         self._newest = (int(keyframe.id), int(keyframe.stamp_ns))
@@ -162,6 +179,22 @@ class BackendNode:
             return None
         kf_id, stamp_ns = self._newest
         return map_update_from_changes(self.map, kf_id, stamp_ns, self.map.take_changes(), kind="correction")
+
+    def finish_global_ba(self) -> MapUpdate | None:
+        """Wait for a background global BA still running and return its correction (None if none ran)."""
+        if self.global_ba is None or not self.global_ba.wait():
+            return None
+        kf_id, stamp_ns = self._newest
+        return map_update_from_changes(self.map, kf_id, stamp_ns, self.map.take_changes(), kind="correction")
+
+    def save_map(self, path: str) -> None:
+        """Write the map with its keyframes' bags of words to ``path`` (format: ``backend.map_file``)."""
+        from zenslam import __version__
+        from zenslam.backend.map_file import save_map
+
+        if self.places is None:
+            raise ZenslamError(f"the map cannot be saved to {path} without a vocabulary: its keyframes have no bags of words")
+        save_map(path, self.map, self.places, __version__)
 
     def close(self) -> None:
         """Stop the global BA helper process, if any."""
@@ -298,6 +331,7 @@ def serve(
         with bus.declare_alive(session, session_name, STAGE):
             ended = _process(outputs, inbox, queryables, node, should_stop)
             if ended:
+                _save_map(outputs, node, config)
                 _end_stream(outputs, node)
                 _linger(queryables, node, config.linger_s, should_stop)
     finally:
@@ -347,6 +381,16 @@ def _process(outputs: _Outputs, inbox: bus.Inbox, queryables: _Queryables, node:
 
 def _is_keyframe(message: codec.KeyframeMessage | codec.EndOfStream) -> bool:
     return not isinstance(message, codec.EndOfStream)
+
+
+def _save_map(outputs: _Outputs, node: BackendNode, config: BackendConfig) -> None:
+    """With ``backend.save_map``: the map after the last global BA, written before the stream ends
+    (whoever waits for the end of stream finds the file complete)."""
+    if not config.save_map:
+        return
+    if (correction := node.finish_global_ba()) is not None:
+        outputs.update.put(codec.encode_map_update(correction))
+    node.save_map(config.save_map)
 
 
 def _end_stream(outputs: _Outputs, node: BackendNode, detail: str = "") -> None:

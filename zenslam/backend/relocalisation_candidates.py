@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from zenslam.backend.keyframe_database import KeyframeDatabase, Score
+from zenslam.backend.keyframe_database import Candidate, KeyframeDatabase, Score
 from zenslam.backend.map import BackendKeyframe, BackendMap
 from zenslam.schemas.relocalisation import (
     MapKeyframe,
@@ -28,9 +28,14 @@ def relocalisation_reply(
     bmap: BackendMap, database: KeyframeDatabase, score: Score, query: RelocalisationQuery, keyframes_processed: int = 0
 ) -> RelocalisationCandidates:
     """Up to ``query.max_candidates`` candidate keyframes for the query's bag of words, best first,
-    with their neighbours and points (see the module doc); no candidate when the words match none."""
-    bow = BowVector(np.asarray(query.word_ids, dtype=np.int64), np.asarray(query.weights, dtype=np.float64))
-    found = [c for c in database.relocalisation_candidates(bow, bmap.covisibility, score) if c.keyframe_id in bmap.keyframes]
+    with their neighbours and points (see the module doc); no candidate when the words match none.
+    A query naming ``window_keyframe_id`` gets that keyframe as the one candidate (none when it is
+    not in the map), with its neighbours and points."""
+    if query.window_keyframe_id >= 0:  # the window around one keyframe: no ranking
+        found = [Candidate(int(query.window_keyframe_id), 0.0, 0.0)] if query.window_keyframe_id in bmap.keyframes else []
+    else:
+        bow = BowVector(np.asarray(query.word_ids, dtype=np.int64), np.asarray(query.weights, dtype=np.float64))
+        found = [c for c in database.relocalisation_candidates(bow, bmap.covisibility, score) if c.keyframe_id in bmap.keyframes]
     candidates = tuple(
         RelocalisationCandidate(
             keyframe_id=int(c.keyframe_id),

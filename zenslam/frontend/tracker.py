@@ -53,6 +53,7 @@ from zenslam.frontend.monocular_initialisation import InitialMap, MonocularIniti
 from zenslam.frontend.motion_model import ConstantVelocityModel
 from zenslam.frontend.pose_optimizer import PoseOptimizerConfig, optimize_pose
 from zenslam.frontend.relocalisation import BowTransform, RelocalisationConfig, keyframes_to_restore, relocalise
+from zenslam.frontend.visual_odometry import OdometryPose, VisualOdometryConfig, last_frame_points, track_last_frame
 from zenslam.geometry import invert_T, transform_points
 from zenslam.map_point_rules import radius_by_viewing_cos
 from zenslam.schemas.map_update import MapUpdate
@@ -100,6 +101,16 @@ class TrackingConfig:
     # it) at 3-4x the keyframes; 2 also tracks every scene here at the default 60 baselines.
     reference_min_observations: int = 1
     reinit_after_lost_frames: int = 10  # consecutive frames without a pose before starting over (0 = never)
+    # The backend starts from a saved map (``zenslam run --map``): no new map is started; frames stay
+    # lost until one relocalises into the saved one, and whenever the reference keyframe becomes a
+    # keyframe of that map (an id below ``local_map.keyframe_id_start``) its window is fetched from
+    # the backend into the cache, which holds only what tracking has come to.
+    start_in_map: bool = False
+    # ORB-SLAM's localisation mode (mbOnlyTracking): no keyframe and no point is made, frames are only
+    # placed in the backend's map; with few map matches they go on by visual odometry (see
+    # visual_odometry) until a relocalisation finds the map again. Lost frames are never started over.
+    localization: bool = False
+    visual_odometry: VisualOdometryConfig = field(default_factory=VisualOdometryConfig)
     monocular: MonocularInitialisationConfig = field(default_factory=MonocularInitialisationConfig)
     local_map: LocalMapConfig = field(default_factory=LocalMapConfig)
     relocalisation: RelocalisationConfig = field(default_factory=RelocalisationConfig)
@@ -166,12 +177,17 @@ class Tracker:
         self._last_keyframe_index = -1
         self._lost_streak = 0
         self._timers: dict[str, float] = {}
+        self._on_vo = False  # localisation mode: the last frame was placed by visual odometry
+        self._window_of = -1  # the saved keyframe whose window was fetched last
+        self.n_vo_frames = 0  # localisation mode: frames placed by visual odometry
 
     @property
     def starting_map(self) -> bool:
         """The next frame may start a map: none exists yet, or tracking was lost long enough to start over."""
+        if self._last is None:
+            return not self.config.start_in_map
         reinit = self.config.reinit_after_lost_frames
-        return self._last is None or bool(reinit and self._lost_streak >= reinit)
+        return bool(reinit and self._lost_streak >= reinit) and not self.config.localization
 
     # ---- the per-frame entry point ----------------------------------------------------------------
     def track(self, frame: Frame, keyframes_in_flight: int = 0, candidates: CandidateSource | None = None) -> TrackResult:
@@ -183,6 +199,10 @@ class Tracker:
         backend for relocalisation candidates; it is called only while tracking is lost.
         """
         result = self._track(frame, keyframes_in_flight, candidates)
+        if result.T_world_cam is not None and self.config.start_in_map and candidates is not None:
+            self._fetch_window(frame, candidates)
+            if "map_window" in self._timers:
+                result = dataclasses.replace(result, timings_ms={**result.timings_ms, "map_window": self._timers["map_window"]})
         reference = self.map.keyframe(self._reference_slot) if self._reference_slot >= 0 else None
         if result.T_world_cam is None or reference is None:
             return result
@@ -194,15 +214,19 @@ class Tracker:
         self._timers = dict.fromkeys(
             ("motion_model_tracking", "local_map_tracking", "pose_optimization", "keyframe_decision"), 0.0
         )
+        if self._last is None and self.config.start_in_map:
+            return self._enter_map(frame, keyframes_in_flight, candidates)
         if self._last is None:
             return self._start_map(frame, np.eye(4), "no_depth_points_for_init")
+        if self.config.localization and self._lost_streak == 0:
+            return self._track_localization(frame, candidates)
         relocalising = self._lost_streak > 0 and self._relocalises(candidates)
         failure = None
         if relocalising:
             found, failure = self._relocalise(frame, candidates)
             if found is not None:
                 return self._tracked(frame, *found, keyframes_in_flight, relocalised=True)
-        if self.config.reinit_after_lost_frames and self._lost_streak >= self.config.reinit_after_lost_frames:
+        if self.starting_map:
             n_lost = self._lost_streak
             result = self._start_map(frame, invert_T(self._last.T_cam_world), "no_depth_points_for_reinit")
             if result.state == "ok":
@@ -359,6 +383,89 @@ class Tracker:
         self.motion.reset()
         logger.debug("frame %d lost: %s", frame.index, reason)
         return TrackResult("lost", reason, None, n_tracked, None, dict(self._timers))
+
+    # ---- a saved map, and localisation mode -----------------------------------------------------------
+    def _enter_map(self, frame: Frame, keyframes_in_flight: int, candidates: CandidateSource | None) -> TrackResult:
+        """Before the first pose in a saved map: relocalise into it, or stay lost."""
+        if not self._relocalises(candidates):
+            return self._lost(frame, "no_relocalisation_into_the_saved_map", 0)
+        found, failure = self._relocalise(frame, candidates)
+        if found is None:
+            return self._lost(frame, failure, 0)
+        return self._tracked(frame, *found, keyframes_in_flight, relocalised=True)
+
+    def _track_localization(self, frame: Frame, candidates: CandidateSource | None) -> TrackResult:
+        """ORB-SLAM2's Track with mbOnlyTracking: the motion model with the last frame's map and VO
+        points; a frame with enough map matches then tracks the local map (no keyframe). A frame on
+        visual odometry, or whose local-map tracking fails while its odometry holds, keeps the
+        odometry pose; the next frames also try to relocalise, and the first that does leaves VO."""
+        start, pose_ms = time.perf_counter(), self._timers["pose_optimization"]
+        odometry = self._track_odometry(frame)
+        self._add_time("motion_model_tracking", start, pose_ms)
+        if self._on_vo and self._relocalises(candidates):
+            found, _ = self._relocalise(frame, candidates)
+            if found is not None:
+                self._on_vo = False
+                return self._tracked(frame, *found, 0)
+        if odometry is None and not self._on_vo:
+            start, pose_ms = time.perf_counter(), self._timers["pose_optimization"]
+            first = self._track_reference_keyframe(frame)
+            self._add_time("motion_model_tracking", start, pose_ms)
+            if first is not None:
+                odometry = OdometryPose(first[0], first[1], first[2], first[2])
+        if odometry is None:
+            return self._lost(frame, "too_few_matches_visual_odometry" if self._on_vo else "too_few_matches_motion_model_and_reference", 0)
+        if not self._on_vo and not odometry.is_vo(self.config.visual_odometry):
+            start, pose_ms = time.perf_counter(), self._timers["pose_optimization"]
+            T_cam_world, rows, n_inliers = self._track_local_map(frame, odometry.T_cam_world, odometry.rows)
+            self._add_time("local_map_tracking", start, pose_ms)
+            if n_inliers >= self._min_local_map_inliers(frame):
+                return self._tracked(frame, T_cam_world, rows, n_inliers, 0)
+        if odometry.n_total < self.config.visual_odometry.min_matches:
+            return self._lost(frame, f"local_map_inliers_below_{self._min_local_map_inliers(frame)}", odometry.n_total)
+        return self._tracked_by_odometry(frame, odometry)
+
+    def _track_odometry(self, frame: Frame) -> OdometryPose | None:
+        """The motion model (the last pose when it has no velocity) against the last frame's points."""
+        last = self._last
+        predicted = self.motion.predict(last.T_cam_world, self._frame_gap(frame))
+        lm = self.map
+        points = last_frame_points(
+            last.frame, last.rows, last.T_cam_world, lm.p_world, lm.descriptors, lm.valid, self.th_depth_m,
+            self.config.visual_odometry.max_points,
+        )  # fmt: skip
+        return track_last_frame(
+            frame, last.frame, points, last.T_cam_world if predicted is None else predicted, self.config.motion_radius_px,
+            self.config.max_descriptor_distance, self.config.check_orientation, self.pose_config, self.config.visual_odometry,
+        )  # fmt: skip
+
+    def _tracked_by_odometry(self, frame: Frame, odometry: OdometryPose) -> TrackResult:
+        """A frame placed by visual odometry: the motion model goes on, the map is not touched."""
+        self._on_vo = True
+        self.n_vo_frames += 1
+        self.motion.update(self._last.T_cam_world, odometry.T_cam_world, self._frame_gap(frame))
+        self._last = _LastFrame(frame, odometry.rows, odometry.T_cam_world)
+        self._lost_streak = 0
+        logger.debug("frame %d on visual odometry: %d map, %d total matches", frame.index, odometry.n_map, odometry.n_total)
+        T_world_cam = invert_T(odometry.T_cam_world)
+        return TrackResult("ok", None, T_world_cam, odometry.n_map, None, dict(self._timers))
+
+    def _fetch_window(self, frame: Frame, candidates: CandidateSource) -> None:
+        """With a saved map: when the reference keyframe is a saved one whose window was not fetched
+        last, bring its covisible neighbours (the backend's) into the cache, so that local-map
+        tracking finds the saved map beyond what relocalisation brought."""
+        reference = self.map.keyframe(self._reference_slot) if self._reference_slot >= 0 else None
+        if reference is None or reference.id >= self.config.local_map.keyframe_id_start or reference.id == self._window_of:
+            return
+        self._window_of = int(reference.id)
+        started = time.perf_counter()
+        cfg = self.config.relocalisation
+        empty = np.zeros(0, dtype=np.int64)
+        query = RelocalisationQuery(frame.stamp_ns, empty, empty.astype(float), 1, cfg.max_neighbours, window_keyframe_id=int(reference.id))
+        reply = candidates(query)
+        if reply is not None and reply.candidates:
+            self.map.restore_keyframes(keyframes_to_restore(reply, int(reference.id)), reply.points)
+        self._timers["map_window"] = (time.perf_counter() - started) * 1e3
 
     # ---- relocalisation ------------------------------------------------------------------------------
     def _relocalises(self, candidates: CandidateSource | None) -> bool:
@@ -584,6 +691,8 @@ class Tracker:
 
     # ---- keyframes ----------------------------------------------------------------------------------
     def _need_keyframe(self, frame: Frame, rows: np.ndarray, n_inliers: int, keyframes_in_flight: int) -> bool:
+        if self.config.localization:
+            return False  # ORB-SLAM's NeedNewKeyFrame in localisation mode
         n_kfs = self.map.n_keyframes
         paused = self.config.relocalisation.pause_keyframes and self._recently_relocalised(frame)
         if paused and n_kfs > (self.keyframe_config.max_frames or self.camera_fps):

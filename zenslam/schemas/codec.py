@@ -809,6 +809,8 @@ def encode_relocalisation_query(query: RelocalisationQuery) -> bytes:
     )
     msg.word_ids = _pack(query.word_ids, "<i8", (), "relocalisation query word_ids")
     msg.weights = _pack(query.weights, "<f8", (), "relocalisation query weights")
+    if query.window_keyframe_id >= 0:
+        msg.window_keyframe_id = query.window_keyframe_id
     return msg.SerializeToString()
 
 
@@ -822,6 +824,7 @@ def decode_relocalisation_query(data: bytes) -> RelocalisationQuery:
         weights=_unpack(msg.weights, "<f8", (w,), "relocalisation query weights"),
         max_candidates=msg.max_candidates,
         max_neighbours=msg.max_neighbours,
+        window_keyframe_id=msg.window_keyframe_id if msg.HasField("window_keyframe_id") else -1,
     )
 
 

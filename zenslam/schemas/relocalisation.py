@@ -28,6 +28,9 @@ class RelocalisationQuery:
     weights: np.ndarray  # (W,) float64 TF-IDF weights, L1-normalised
     max_candidates: int = 3  # candidate keyframes wanted, at most
     max_neighbours: int = 10  # covisible neighbours per candidate, at most (strongest first)
+    # >= 0: not a lost frame but a request for the window around this keyframe: the reply's one
+    # candidate is it (score 0) with its neighbours, whatever the words; -1: rank by the words.
+    window_keyframe_id: int = -1
 
     def __post_init__(self) -> None:
         if np.shape(self.word_ids) != np.shape(self.weights) or np.ndim(self.word_ids) != 1:

@@ -373,20 +373,22 @@ class MapSnapshot(_message.Message):
     def __init__(self, keyframes: _Optional[_Union[KeyframeTrajectory, _Mapping]] = ..., num_points: _Optional[int] = ..., point_ids: _Optional[bytes] = ..., p_world: _Optional[bytes] = ...) -> None: ...
 
 class RelocalisationQuery(_message.Message):
-    __slots__ = ("stamp_ns", "num_words", "word_ids", "weights", "max_candidates", "max_neighbours")
+    __slots__ = ("stamp_ns", "num_words", "word_ids", "weights", "max_candidates", "max_neighbours", "window_keyframe_id")
     STAMP_NS_FIELD_NUMBER: _ClassVar[int]
     NUM_WORDS_FIELD_NUMBER: _ClassVar[int]
     WORD_IDS_FIELD_NUMBER: _ClassVar[int]
     WEIGHTS_FIELD_NUMBER: _ClassVar[int]
     MAX_CANDIDATES_FIELD_NUMBER: _ClassVar[int]
     MAX_NEIGHBOURS_FIELD_NUMBER: _ClassVar[int]
+    WINDOW_KEYFRAME_ID_FIELD_NUMBER: _ClassVar[int]
     stamp_ns: int
     num_words: int
     word_ids: bytes
     weights: bytes
     max_candidates: int
     max_neighbours: int
-    def __init__(self, stamp_ns: _Optional[int] = ..., num_words: _Optional[int] = ..., word_ids: _Optional[bytes] = ..., weights: _Optional[bytes] = ..., max_candidates: _Optional[int] = ..., max_neighbours: _Optional[int] = ...) -> None: ...
+    window_keyframe_id: int
+    def __init__(self, stamp_ns: _Optional[int] = ..., num_words: _Optional[int] = ..., word_ids: _Optional[bytes] = ..., weights: _Optional[bytes] = ..., max_candidates: _Optional[int] = ..., max_neighbours: _Optional[int] = ..., window_keyframe_id: _Optional[int] = ...) -> None: ...
 
 class MapKeyframe(_message.Message):
     __slots__ = ("id", "stamp_ns", "T_world_cam", "num_keypoints", "keypoints_px", "levels", "angles_deg", "right_u", "depth_m", "descriptors", "map_point_ids", "scale_factors")

@@ -112,6 +112,9 @@ class RunLog:
         self.dropped: dict[str, int] = {}  # stage -> frames it passed over for a newer one (its latest status)
         self.stopped_stages: list[str] = []  # stages whose last status says they stopped before their input's end
         self.loops: list[codec.LoopMessage] = []  # backend/loop: every verified loop candidate, in order
+        # The frontend's first keyframe id: 0, or past a saved map's ids when the run started from one
+        # (its keyframes, with smaller ids, are the saved map's, not this run's).
+        self.first_keyframe_id = 0
 
     def add_map_update(self, update: object) -> None:
         """Count a backend/map_update message (a MapUpdate, or the stream's end)."""
@@ -164,8 +167,8 @@ class RunLog:
         """Keyframes the frontend sent and the backend processed (updates received). The frontend numbers
         its keyframes 0, 1, 2, ... as it makes them, and a state names the keyframe its frame made, so
         the newest id counts the ones made from earlier frames too (a monocular map's first keyframe)."""
-        sent = 1 + max((s.keyframe_id for s in self.states.values()), default=-1)
-        return {"sent": sent, "processed": len(self.updated_keyframes)}
+        newest = max((s.keyframe_id for s in self.states.values()), default=-1)
+        return {"sent": max(newest + 1 - self.first_keyframe_id, 0), "processed": len(self.updated_keyframes)}
 
     def backend_timing(self) -> dict[str, dict[str, float]]:
         """Per local-mapping step: mean, median and max milliseconds over the keyframes processed."""
@@ -220,15 +223,17 @@ class RunLog:
         return Trajectory(live.stamps_ns, np.stack(poses))
 
     def keyframe_trajectory(self) -> Trajectory | None:
-        """The backend's final keyframe poses when it answered; else the keyframes the frontend made,
+        """The backend's final poses of this run's keyframes when it answered; else the keyframes the frontend made,
         less those a map update removed, each at its newest pose from a map update (as tracked when
         no update moved it): the map as far as the backend's updates told."""
         backend = self.backend_keyframes
         if backend is not None:
-            if len(backend.stamps_ns) == 0:
+            mine = np.asarray(backend.keyframe_ids) >= self.first_keyframe_id  # not a saved map's keyframes
+            if not np.any(mine):
                 return None
-            order = np.argsort(backend.stamps_ns, kind="stable")
-            return Trajectory(np.asarray(backend.stamps_ns, dtype=np.int64)[order], np.asarray(backend.T_world_cam)[order])
+            stamps, poses = np.asarray(backend.stamps_ns, dtype=np.int64)[mine], np.asarray(backend.T_world_cam)[mine]
+            order = np.argsort(stamps, kind="stable")
+            return Trajectory(stamps[order], poses[order])
         made = sorted(
             (s.stamp_ns, s.keyframe_id) for s in self.states.values()
             if s.keyframe_id >= 0 and s.keyframe_id not in self.removed_keyframes and s.stamp_ns in self.poses

@@ -60,6 +60,7 @@ from zenslam.service.run_output import (
     write_outputs,
 )
 from zenslam.service.run_input import recorded_sensor, run_input
+from zenslam.service.saved_map import check_map_fits, with_map_options
 from zenslam.service.sources import Source, is_bus_spec
 from zenslam.service.sources.config import DEFAULT_BUS_INPUT
 from zenslam.service.stages import STAGE_MODULES, stage_args
@@ -147,6 +148,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="world axes of trajectory_top.png (default auto: the ground plane of the ground-truth cameras, held "
         "upright; else the two axes along which the ground truth varies most)",
     )
+    parser.add_argument(
+        "--save-map", type=Path, default=None, metavar="FILE",
+        help="write the backend's map to FILE at the end of the run (backend.save_map; format: zenslam-map, see the README)",
+    )
+    parser.add_argument(
+        "--map", type=Path, default=None, metavar="FILE",
+        help="start from the saved map FILE (backend.map_file): tracking relocalises into it, then maps on",
+    )
+    parser.add_argument(
+        "--localization", action="store_true",
+        help="with --map: track against the map without adding keyframes or points (ORB-SLAM's localisation mode)",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_ros2_publish_arguments(parser)
     parser.set_defaults(handler=run, stop_flag=True)  # args.stop: the CLI's Ctrl-C flag, held from its start
@@ -190,7 +203,8 @@ def resolve_config(args: argparse.Namespace) -> RunConfig:
     mode = config.mode if args.pacing is None else args.pacing
     if args.pacing is None and is_bus_spec(source.spec) and not _config_names_mode(args.config):
         mode = "pipelined"  # live input: mapping in parallel, so tracking keeps up with the camera
-    return dataclasses.replace(config, mode=mode, source=source, bus=bus_config)
+    config = dataclasses.replace(config, mode=mode, source=source, bus=bus_config)
+    return with_map_options(config, getattr(args, "map", None), getattr(args, "save_map", None), bool(getattr(args, "localization", False)))
 
 
 def _config_names_mode(path: Path | None) -> bool:
@@ -423,6 +437,7 @@ def track(
         with bus.open_session(hub_bus) as session:
             write_session_file(run_dir, SessionInfo(run_id, () if hub is None else (hub,)))
             follower = _Follower(session, run_id, config, total, progress, ros2)
+            follower.log.first_keyframe_id = config.frontend.tracking.local_map.keyframe_id_start
             try:
                 supervisor = Supervisor(run_dir, run_id, config_path, hub, env=_child_env(config))
                 with supervisor, bus.declare_alive(session, run_id, "run"):
@@ -507,6 +522,8 @@ def _run(args: argparse.Namespace, stop: StopFlag) -> int:
     given = run_input(config.source.spec, config.source.sensor, config.source.max_frames, getattr(args, "ground_truth", None))
     if given.image_size is not None:
         config = fit_calibration_to_images(config, *given.image_size)  # a bus source's is fitted to its first frame
+    calibration = config.source.calibration or (given.source.calibration if given.source is not None else None)
+    check_map_fits(config, calibration, given.sensor)
     run_id = args.run_id or new_run_id()
     run_dir = prepare_run_dir(args.output, run_id)
     config_path = write_config(run_dir, config)

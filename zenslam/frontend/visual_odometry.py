@@ -1,0 +1,132 @@
+"""Localisation mode's motion-model tracking: the last frame's map points and its own depth points (ORB-SLAM2).
+
+In localisation mode no keyframe, hence no point, is made, so where the map is thin or absent the
+frame would soon have nothing to track. ORB-SLAM2's ``UpdateLastFrame`` then adds temporary
+points: the last frame's keypoints with a depth (stereo or RGB-D) but no map point, nearest first,
+all those closer than the close-depth threshold and at least ``max_points``; its
+``TrackWithMotionModel`` matches the map points and these visual-odometry (VO) points by
+projection, optimises the pose, and calls the frame *VO* when fewer than ``min_map_matches`` of
+the inliers are map points. A VO frame skips local-map tracking (there is no local map to find)
+and the next frames try relocalisation as well, until it succeeds.
+
+Plain numpy: the tracker owns the state (which frame is last, whether it was VO).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from zenslam.camera import PinholeCalibration
+from zenslam.frontend.feature_matcher import rotation_consistent, search_by_projection
+from zenslam.frontend.frame import Frame
+from zenslam.frontend.keyframe import unproject_keypoints
+from zenslam.frontend.pose_optimizer import PoseOptimizerConfig, optimize_pose
+from zenslam.geometry import invert_T
+
+
+@dataclass(frozen=True)
+class VisualOdometryConfig:
+    """Localisation mode's visual odometry (ORB-SLAM2's values)."""
+
+    min_map_matches: int = 10  # fewer inlier matches to map points: the frame is on visual odometry
+    min_matches: int = 20  # inlier matches (map and VO points) a pose needs, else the frame is lost
+    max_points: int = 100  # VO points made beyond the close-depth threshold, nearest first
+
+
+@dataclass(frozen=True)
+class OdometryPose:
+    """A frame placed against the last frame's map and VO points."""
+
+    T_cam_world: np.ndarray  # (4, 4)
+    rows: np.ndarray  # (N,) int64 map row of each keypoint matched to a map point (inliers), -1 none
+    n_map: int  # inlier matches to map points
+    n_total: int  # inlier matches to map and VO points
+
+    def is_vo(self, config: VisualOdometryConfig) -> bool:
+        return self.n_map < config.min_map_matches
+
+
+@dataclass(frozen=True)
+class LastFramePoints:
+    """The points of the last frame to match: map points (``rows`` >= 0) then VO points (-1)."""
+
+    keypoints: np.ndarray  # (M,) int64 keypoint of the last frame
+    p_world: np.ndarray  # (M, 3) metres
+    descriptors: np.ndarray  # (M, 32) uint8
+    rows: np.ndarray  # (M,) int64 map row, -1 for a VO point
+
+
+def last_frame_points(
+    last: Frame, last_rows: np.ndarray, T_cam_world_last: np.ndarray, map_p_world: np.ndarray,
+    map_descriptors: np.ndarray, map_valid: np.ndarray, close_depth_m: float, max_points: int,
+) -> LastFramePoints:
+    """The last frame's valid map points and VO points made from its depths (``close_depth_m``: metres)."""
+    with_map = np.flatnonzero(last_rows >= 0)
+    with_map = with_map[map_valid[last_rows[with_map]]]
+    rows = last_rows[with_map]
+    free = np.flatnonzero((last.depth_m > 0) & ~np.isin(np.arange(len(last_rows)), with_map))
+    free = free[np.argsort(last.depth_m[free], kind="stable")]
+    n_close = int(np.count_nonzero(last.depth_m[free] <= close_depth_m))
+    vo = free[: max(n_close, min(max_points, len(free)))]
+    vo_world = unproject_keypoints(last.features.px[vo], last.depth_m[vo], last.calibration, invert_T(T_cam_world_last))
+    return LastFramePoints(
+        keypoints=np.concatenate([with_map, vo]).astype(np.int64),
+        p_world=np.vstack([map_p_world[rows].reshape(-1, 3), vo_world]),
+        descriptors=np.vstack([map_descriptors[rows].reshape(-1, 32), last.features.descriptors[vo]]),
+        rows=np.concatenate([rows, np.full(len(vo), -1, dtype=np.int64)]),
+    )
+
+
+def track_last_frame(
+    frame: Frame, last: Frame, points: LastFramePoints, T_predicted: np.ndarray, radius_px: float,
+    max_distance: int, check_orientation: bool, pose_config: PoseOptimizerConfig, config: VisualOdometryConfig,
+) -> OdometryPose | None:
+    """Match ``points`` into ``frame`` around their projection with ``T_predicted`` (window
+    ``radius_px`` at level 0, ORB-SLAM's motion-model search), optimise the pose; None with fewer
+    than ``config.min_matches`` inliers."""
+    match = _match(frame, last, points, T_predicted, radius_px, max_distance, check_orientation)
+    if np.count_nonzero(match >= 0) < config.min_matches:
+        match = _match(frame, last, points, T_predicted, 2.0 * radius_px, max_distance, check_orientation)
+    kps = np.flatnonzero(match >= 0)
+    if len(kps) < config.min_matches:
+        return None
+    feats = frame.features
+    right = frame.right_u[kps].astype(float)
+    result = optimize_pose(
+        T_predicted, points.p_world[match[kps]], feats.px[kps].astype(float), np.where(right >= 0, right, np.nan),
+        feats.inv_level_sigma2[feats.level[kps]], frame.calibration, pose_config,
+    )  # fmt: skip
+    inliers = kps[result.inliers]
+    if len(inliers) < config.min_matches:
+        return None
+    rows = np.full(len(feats), -1, dtype=np.int64)
+    rows[inliers] = points.rows[match[inliers]]
+    return OdometryPose(result.T_cam_world, rows, int(np.count_nonzero(rows >= 0)), len(inliers))
+
+
+def _match(frame, last, points: LastFramePoints, T_predicted, radius_px, max_distance, check_orientation) -> np.ndarray:
+    """(N,) index into ``points`` of each keypoint of ``frame`` matched, -1 none."""
+    cal: PinholeCalibration = frame.calibration
+    feats, last_feats = frame.features, last.features
+    p_cam = points.p_world @ T_predicted[:3, :3].T + T_predicted[:3, 3]
+    z = p_cam[:, 2]
+    safe_z = np.where(z > 1e-9, z, 1e-9)
+    u, v = cal.fx * p_cam[:, 0] / safe_z + cal.cx, cal.fy * p_cam[:, 1] / safe_z + cal.cy
+    idx = np.flatnonzero((z > 0) & (u >= 0) & (u < cal.width) & (v >= 0) & (v < cal.height))
+    levels = last_feats.level[points.keypoints[idx]].astype(np.int64)
+    found = search_by_projection(
+        np.column_stack([u, v])[idx], levels, points.descriptors[idx], feats.px, feats.level, feats.descriptors,
+        radius_px * feats.scale_factors[levels], max_distance=max_distance, ratio=None, min_level_offset=-1,
+        max_level_offset=1, kp_right_u=frame.right_u,
+        proj_right_u=(u - cal.bf / safe_z)[idx] if cal.baseline_m is not None else None,
+    )  # fmt: skip
+    hit = found >= 0
+    matched_kps, source = found[hit].astype(np.int64), idx[hit]
+    if check_orientation and len(matched_kps):
+        keep = rotation_consistent(last_feats.angle_deg[points.keypoints[source]] - feats.angle_deg[matched_kps])
+        matched_kps, source = matched_kps[keep], source[keep]
+    out = np.full(len(feats), -1, dtype=np.int64)
+    out[matched_kps] = source
+    return out
