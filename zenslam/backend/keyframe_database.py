@@ -73,6 +73,24 @@ class KeyframeDatabase:
         for word in np.asarray(bow.word_ids, dtype=np.int64).tolist():
             self._index.setdefault(word, []).append(kf_id)
 
+    def add_all(self, kf_ids: list[int], bows: list[BagOfWords]) -> None:
+        """``add`` each keyframe in order, the index built at once (a saved map's thousands of keyframes)."""
+        known = [k for k in kf_ids if k in self._bows]
+        if known or len(set(kf_ids)) != len(kf_ids):
+            raise KeyframeDatabaseError(f"keyframes {sorted(set(known))[:5]} are already in the keyframe database, or listed twice")
+        self._bows.update(zip(kf_ids, bows))
+        words = [np.asarray(b.word_ids, dtype=np.int64) for b in bows]
+        if not words:
+            return
+        all_words = np.concatenate(words)
+        holders = np.repeat(np.asarray(kf_ids, dtype=np.int64), [len(w) for w in words])
+        order = np.argsort(all_words, kind="stable")  # stable: each word's holders stay in insertion order
+        distinct, starts = np.unique(all_words[order], return_index=True)
+        grouped = holders[order].tolist()
+        bounds = [*starts.tolist(), len(grouped)]
+        for word, a, b in zip(distinct.tolist(), bounds[:-1], bounds[1:]):
+            self._index.setdefault(word, []).extend(grouped[a:b])
+
     def remove(self, kf_id: int) -> None:
         """Forget a culled keyframe."""
         bow = self._bows.pop(kf_id, None)

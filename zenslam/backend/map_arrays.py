@@ -9,6 +9,8 @@ creation order, observations in the order they were made), so a loaded map is th
 
 from __future__ import annotations
 
+from itertools import islice
+
 import numpy as np
 
 from zenslam.backend.culled_keyframes import CulledKeyframe
@@ -113,7 +115,8 @@ def _places_to_arrays(kfs: list[BackendKeyframe], places: PlaceRecognition | Non
 
 def _split(values: np.ndarray, offsets: np.ndarray) -> list[np.ndarray]:
     """``values`` cut at ``offsets`` (count + 1,) into views."""
-    return np.split(values, offsets[1:-1]) if len(offsets) > 1 else []
+    bounds = offsets.tolist()
+    return [values[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
 
 
 def map_from_arrays(
@@ -126,9 +129,11 @@ def map_from_arrays(
     next_backend_point_id: int,
 ) -> None:
     """Fill the empty ``bmap`` (and ``places``) with the saved map in ``arrays`` (shapes checked by
-    ``map_file``); every keyframe gets ``calibration`` and ``sensor``."""
+    ``map_file``); every keyframe gets ``calibration`` and ``sensor``. The keyframes' keypoint
+    arrays and bags of words are slices of ``arrays`` (no copy): hand over arrays nothing else writes."""
     a = arrays
     kp_off, sc_off = a["keyframe_keypoint_offsets"], a["keyframe_scale_offsets"]
+    # Slices of the arrays just read (fresh, writable, one per column): each keyframe's are disjoint.
     columns = {attr: _split(a[name], kp_off) for name, (attr, _, _) in KEYPOINT_COLUMNS.items()}
     scales = _split(a["keyframe_scale_factors"], sc_off)
     ids = a["keyframe_ids"].tolist()
@@ -136,7 +141,7 @@ def map_from_arrays(
         kf = BackendKeyframe(
             id=kf_id, stamp_ns=int(a["keyframe_stamps_ns"][k]), T_world_cam=a["keyframe_T_world_cam"][k].copy(),
             calibration=calibration, sensor=sensor, scale_factors=scales[k].copy(),
-            **{attr: column[k].copy() for attr, column in columns.items()},
+            **{attr: column[k] for attr, column in columns.items()},
         )  # fmt: skip
         kf.serial = int(a["keyframe_serials"][k])
         bmap.keyframes[kf_id] = kf
@@ -150,22 +155,35 @@ def map_from_arrays(
         _places_from_arrays(a, places, ids)
 
 
+def _weighted_observations(a: dict[str, np.ndarray]) -> np.ndarray:
+    """(P,) ORB-SLAM's Observations() of each point: a stereo/RGB-D observation counts 2."""
+    ids = a["keyframe_ids"]
+    order = np.argsort(ids, kind="stable")
+    rows = order[np.searchsorted(ids[order], a["observation_keyframe_ids"])]
+    if np.any(ids[rows] != a["observation_keyframe_ids"]):
+        raise ValueError("an observation names a keyframe that is not in the map")
+    keypoint = a["keyframe_keypoint_offsets"][rows] + a["observation_keypoints"]
+    weights = np.where(a["keypoint_right_u"][keypoint] >= 0, 2, 1)
+    counts = np.diff(a["point_observation_offsets"])
+    sums = np.zeros(len(counts), dtype=np.int64)
+    sums[counts > 0] = np.add.reduceat(weights, a["point_observation_offsets"][:-1][counts > 0]) if len(weights) else 0
+    return sums
+
+
 def _points_from_arrays(a: dict[str, np.ndarray], bmap: BackendMap) -> None:
-    obs_off = a["point_observation_offsets"].tolist()
-    obs_kf, obs_kp = a["observation_keyframe_ids"].tolist(), a["observation_keypoints"].tolist()
-    p_world, normals, descriptors = a["point_p_world"].copy(), a["point_normals"].copy(), a["point_descriptors"].copy()
+    counts = np.diff(a["point_observation_offsets"]).tolist()
+    pairs = zip(a["observation_keyframe_ids"].tolist(), a["observation_keypoints"].tolist())
+    # Each point's vectors are rows of private copies: writable, and no point shares memory with another.
     rows = zip(
-        a["point_ids"].tolist(), a["point_first_keyframe_ids"].tolist(), a["point_created_serials"].tolist(),
+        a["point_ids"].tolist(), list(a["point_p_world"].copy()), a["point_first_keyframe_ids"].tolist(),
+        a["point_created_serials"].tolist(), list(a["point_descriptors"].copy()), list(a["point_normals"].copy()),
         a["point_min_distance_m"].tolist(), a["point_max_distance_m"].tolist(), a["point_n_visible"].tolist(),
-        a["point_n_found"].tolist(),
+        a["point_n_found"].tolist(), _weighted_observations(a).tolist(), counts,
     )  # fmt: skip
-    stereo = {kf_id: kf.right_u >= 0 for kf_id, kf in bmap.keyframes.items()}
-    for i, (pid, first, serial, lo, hi, visible, found) in enumerate(rows):
-        s, e = obs_off[i], obs_off[i + 1]
-        observations = dict(zip(obs_kf[s:e], obs_kp[s:e]))
-        weighted = sum(2 if stereo[k][kp] else 1 for k, kp in observations.items())
-        bmap.points[pid] = MapPoint(
-            pid, p_world[i], first, serial, descriptors[i], normals[i], lo, hi, observations, visible, found, weighted
+    points = bmap.points
+    for pid, p_world, first, serial, descriptor, normal, lo, hi, visible, found, weighted, count in rows:
+        points[pid] = MapPoint(
+            pid, p_world, first, serial, descriptor, normal, lo, hi, dict(islice(pairs, count)), visible, found, weighted
         )
 
 
@@ -192,6 +210,5 @@ def _places_from_arrays(a: dict[str, np.ndarray], places: PlaceRecognition, ids:
     nodes = _split(a["feature_vector_node_ids"], a["feature_vector_offsets"])
     groups = _split(a["feature_vector_keypoints"], a["feature_vector_group_offsets"])
     fv_off = a["feature_vector_offsets"].tolist()
-    for k, kf_id in enumerate(ids):
-        features = FeatureVector(nodes[k], tuple(groups[fv_off[k] : fv_off[k + 1]]))
-        places.restore(kf_id, BowVector(words[k], weights[k]), features)
+    features = [FeatureVector(nodes[k], tuple(groups[fv_off[k] : fv_off[k + 1]])) for k in range(len(ids))]
+    places.restore_all(ids, [BowVector(w, x) for w, x in zip(words, weights)], features)

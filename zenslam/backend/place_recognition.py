@@ -27,10 +27,11 @@ class PlaceRecognition:
         self.database.add(kf_id, bow)
         self.feature_vectors[kf_id] = features
 
-    def restore(self, kf_id: int, bow: BowVector, features: FeatureVector) -> None:
-        """Index keyframe ``kf_id`` by vectors computed earlier with this vocabulary (a saved map's)."""
-        self.database.add(kf_id, bow)
-        self.feature_vectors[kf_id] = features
+    def restore_all(self, kf_ids: list[int], bows: list[BowVector], features: list[FeatureVector]) -> None:
+        """Index keyframes ``kf_ids`` (in that order) by vectors computed earlier with this vocabulary
+        (a saved map's), all at once."""
+        self.database.add_all(kf_ids, bows)
+        self.feature_vectors.update(zip(kf_ids, features))
 
     def remove(self, kf_ids: list[int]) -> None:
         """Forget culled keyframes (ids not indexed are ignored)."""
