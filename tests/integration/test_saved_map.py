@@ -1,9 +1,12 @@
 """Saved maps end to end: ``zenslam run --save-map``, then runs that start from the map (localisation mode and
-mapping on), and the runs a map refuses at start-up."""
+mapping on), and the runs a map refuses at start-up. The first two runs are the README's commands
+(on fewer frames), and the README's snippet reads the map."""
 
 from __future__ import annotations
 
 import json
+import re
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -19,15 +22,27 @@ from zenslam.vocabulary import load_vocabulary, save_vocabulary
 pytestmark = pytest.mark.integration
 
 MAP_FRAMES = 30  # frames of the synthetic loop mapped
-LOCALISE_FRAMES = 15  # frames of the same loop tracked in the map
+LOCALISE_FRAMES = 15  # frames tracked in the map
+REPO_ROOT = Path(__file__).resolve().parents[2]
+
+
+def _readme_maps() -> tuple[list[list[str]], str]:
+    """The README's saved-map commands (each a ``zenslam run`` argument list) and its Python snippet."""
+    text = (REPO_ROOT / "README.md").read_text()
+    commands = re.search(r"<!-- readme-command: maps -->\s*```sh\n(.+?)\n```", text, re.S)
+    snippet = re.search(r"To read one\nelsewhere:\n\n```python\n(.+?)\n```", text, re.S)
+    assert commands and snippet, "the README lost its saved-map commands or snippet"
+    lines = [shlex.split(line) for line in commands.group(1).splitlines()]
+    assert all(line[:2] == ["zenslam", "run"] for line in lines)
+    return [line[2:] for line in lines], snippet.group(1)
 
 
 def _run(tmp: Path, run_id: str, *options: str, source: str = "synthetic", ok: bool = True) -> subprocess.CompletedProcess:
     config = tmp / "config.yaml"
     if not config.exists():  # rerun and the recorder off: the runs are checked by their metrics and maps
         config.write_text(run_config_to_yaml(RunConfig(rerun=RerunConfig(enabled=False), recorder=RecorderConfig(enabled=False))))
-    command = [sys.executable, "-m", "zenslam.service.cli", "run", source, "--lockstep", "--config", str(config),
-               "--output", str(tmp), "--run-id", run_id, "--no-progress", *options]  # fmt: skip
+    command = [sys.executable, "-m", "zenslam.service.cli", "run", *([source] if source else []), "--lockstep",
+               "--config", str(config), "--output", str(tmp), "--run-id", run_id, "--no-progress", *options]  # fmt: skip
     result = subprocess.run(command, capture_output=True, text=True, timeout=600, cwd=tmp)
     if ok:
         assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-3000:]
@@ -45,17 +60,19 @@ def _poses(path: Path) -> list[str]:
 @pytest.fixture(scope="module")
 def saved_map(tmp_path_factory) -> tuple[Path, Path]:
     tmp = tmp_path_factory.mktemp("saved-map")
-    _run(tmp, "mapping", "--max-frames", str(MAP_FRAMES), "--save-map", "loop.zmap")
-    return tmp, tmp / "loop.zmap"
+    (save, _), _ = _readme_maps()
+    _run(tmp, "mapping", *save, "--max-frames", str(MAP_FRAMES), source="")
+    return tmp, tmp / "recordings" / "loop.zmap"
 
 
 @pytest.mark.slow(25)
-def test_a_localisation_run_relocalises_at_once_and_adds_nothing(saved_map):
+def test_a_localisation_run_relocalises_at_once_and_adds_nothing(saved_map, monkeypatch):
     tmp, path = saved_map
     header = read_header(path)
     mapping = _metrics(tmp, "mapping")
     assert header.counts["keyframes"] >= 2 and header.counts["keyframes"] <= mapping["keyframes"]["sent"]
-    _run(tmp, "localising", "--max-frames", str(LOCALISE_FRAMES), "--map", str(path), "--localization")
+    _, snippet = _readme_maps()
+    _run(tmp, "localising", "--max-frames", str(LOCALISE_FRAMES), "--map", str(path), "--localization", source="synthetic:loop")
     metrics = _metrics(tmp, "localising")
     assert metrics["keyframes"] == {"sent": 0, "processed": 0}
     assert metrics["relocalisation"]["count"] >= 1
@@ -65,6 +82,22 @@ def test_a_localisation_run_relocalises_at_once_and_adds_nothing(saved_map):
     config = (tmp / "localising" / "config.yaml").read_text()
     assert "localization: true" in config and "start_in_map: true" in config
     assert f"keyframe_id_start: {header.next_keyframe_id}" in config
+    names: dict = {}
+    monkeypatch.chdir(tmp)
+    exec(compile(snippet, "README.md", "exec"), names)  # noqa: S102 - the README's own snippet, run where it says
+    assert names["header"]["format"] == "zenslam-map" and names["poses"].shape == (header.counts["keyframes"], 4, 4)
+    assert names["points"].shape == (header.counts["points"], 3)
+
+def test_the_readme_localisation_command_adds_no_keyframe(saved_map):
+    """The README's second command, on a few frames: the figure-eight starts where this short map of
+    the loop's first 1.5 s does not reach (the full loop's map does, benchmarks/README.md), so it may
+    stay lost; it never makes a keyframe."""
+    tmp, _ = saved_map
+    (_, localise), _ = _readme_maps()
+    _run(tmp, "readme-localising", *localise, "--max-frames", "4", source="")
+    metrics = _metrics(tmp, "readme-localising")
+    assert metrics["frames"] == 4 and metrics["keyframes"] == {"sent": 0, "processed": 0}
+    assert metrics["initializing_frames"] == 0  # no new map is started: lost until it relocalises
 
 
 @pytest.mark.slow(25)
