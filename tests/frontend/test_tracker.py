@@ -235,3 +235,48 @@ def test_a_small_map_cache_evicts_and_tracking_stays_accurate() -> None:
     lm = tracker.map
     assert tracker.eviction.passes >= 3 and lm.n_cached_keyframes < lm.n_keyframes // 2
     assert np.array_equal(lm.rows_of_ids(lm.point_ids), np.arange(lm.n_points))
+
+
+def _merged(a: Frame, b: Frame) -> Frame:
+    """One frame with the keypoints of both (the points of two worlds seen at once)."""
+    fa, fb = a.features, b.features
+    features = Features(
+        *(np.concatenate([getattr(fa, name), getattr(fb, name)]) for name in ("px", "level", "angle_deg", "response", "descriptors")),
+        scale_factors=SCALES, inv_level_sigma2=1.0 / SCALES**2,
+    )  # fmt: skip
+    return Frame(a.index, a.stamp_ns, CAL, features, np.concatenate([a.right_u, b.right_u]), np.concatenate([a.depth_m, b.depth_m]))
+
+
+def test_localization_makes_no_keyframe_and_goes_on_by_visual_odometry() -> None:
+    """Localisation mode: after the first keyframe no keyframe is made; where the map's points fade out
+    (the frames see another world's points) the pose goes on by visual odometry on the last frame's depths."""
+    mapped, unmapped = PointWorld(seed=5), PointWorld(seed=6)
+    tracker = Tracker(CAL, "stereo", TrackingConfig(localization=True), camera_fps=10.0)
+    results = [tracker.track(mapped.frame(k)) for k in range(3)]
+    for k in range(3, 16):
+        results.append(tracker.track(_merged(mapped.frame(k, keep_fraction=0.75 if k < 6 else 0.002), unmapped.frame(k))))
+    assert [r.state for r in results] == ["ok"] * 16
+    assert results[0].keyframe is not None and all(r.keyframe is None for r in results[1:])
+    assert tracker.map.n_keyframes == 1 and tracker.n_vo_frames >= 5
+    assert all(r.n_tracked < 10 for r in results[8:])  # few map matches: the frames are on visual odometry
+    T0 = mapped.pose(0)
+    for k, r in enumerate(results):
+        t_err, r_err = pose_errors(r.T_world_cam, invert_T(T0) @ mapped.pose(k))
+        assert t_err < 0.01 + 0.005 * 0.2 * k and r_err < 0.3, f"frame {k}: {t_err:.4f} m, {r_err:.3f} deg"
+
+
+def test_visual_odometry_alone_follows_the_camera() -> None:
+    """``track_last_frame`` with no map point: the last frame's depth points give the motion."""
+    from zenslam.frontend.pose_optimizer import PoseOptimizerConfig
+    from zenslam.frontend.visual_odometry import VisualOdometryConfig, last_frame_points, track_last_frame
+
+    world = PointWorld(seed=7)
+    last, current = world.frame(3), world.frame(4)
+    T_cam_world_last = invert_T(world.pose(3))
+    none = np.full(len(last.features), -1, dtype=np.int64)
+    points = last_frame_points(last, none, T_cam_world_last, np.zeros((0, 3)), np.zeros((0, 32), np.uint8), np.zeros(0, bool), 4.0, 100)
+    assert np.all(points.rows == -1) and len(points.keypoints) >= 100
+    found = track_last_frame(current, last, points, T_cam_world_last, 15.0, 100, True, PoseOptimizerConfig(), VisualOdometryConfig())
+    assert found is not None and found.n_map == 0 and found.n_total >= 20 and found.is_vo(VisualOdometryConfig())
+    t_err, r_err = pose_errors(invert_T(found.T_cam_world), world.pose(4))
+    assert t_err < 0.01 and r_err < 0.1
