@@ -95,6 +95,19 @@ def test_an_unknown_place_gets_no_candidate() -> None:
     assert reply.candidates == () and reply.keyframes == () and len(reply.points.ids) == 0
 
 
+def test_a_window_query_gets_that_keyframe_and_its_neighbours_whatever_the_words() -> None:
+    node, _, _ = _mapped(8)
+    empty = np.zeros(0, np.int64)
+    query = RelocalisationQuery(7, empty, empty.astype(float), 1, 3, window_keyframe_id=5)
+    reply = relocalisation_reply(node.map, node.places.database, VOCABULARY.score, query)
+    assert [c.keyframe_id for c in reply.candidates] == [5]
+    neighbours = node.map.covisibility.best_covisible(5, 3)
+    assert reply.candidates[0].neighbour_ids.tolist() == neighbours and len(neighbours) == 3
+    assert [kf.id for kf in reply.keyframes] == sorted({5, *neighbours})
+    unknown = RelocalisationQuery(7, empty, empty.astype(float), 1, 3, window_keyframe_id=99)
+    assert relocalisation_reply(node.map, node.places.database, VOCABULARY.score, unknown).candidates == ()
+
+
 def test_the_queryable_answers_the_frontends_client_over_the_bus() -> None:
     node, _, bows = _mapped(6)
     session_name, hub_endpoint = "backend-relocalisation-test", bus.free_tcp_endpoint()

@@ -58,6 +58,13 @@ def test_query_round_trip():
     np.testing.assert_array_equal(decoded.word_ids, query.word_ids)
     np.testing.assert_array_equal(decoded.weights, query.weights)
     assert decoded.word_ids.dtype == np.int64 and decoded.weights.dtype == np.float64
+    assert decoded.window_keyframe_id == -1  # a lost frame's query: ranked by its words
+
+
+def test_a_window_query_round_trips_keyframe_zero_too():
+    for kf_id in (0, 123):
+        query = RelocalisationQuery(5, np.zeros(0, np.int64), np.zeros(0), 1, 10, window_keyframe_id=kf_id)
+        assert codec.decode_relocalisation_query(codec.encode_relocalisation_query(query)).window_keyframe_id == kf_id
 
 
 def test_a_query_of_mismatched_words_and_weights_is_refused():
