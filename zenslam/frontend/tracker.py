@@ -266,6 +266,7 @@ class Tracker:
             self.motion.update(self._last.T_cam_world, T_cam_world, self._frame_gap(frame))
         self._last = _LastFrame(frame, rows, T_cam_world)
         self._lost_streak = 0
+        self._on_vo = False
         if keyframe is not None:
             self._evict(keyframes_in_flight + 1)
         return TrackResult("ok", None, invert_T(T_cam_world), n_inliers, keyframe, dict(self._timers), relocalised=relocalised)
@@ -405,7 +406,6 @@ class Tracker:
         if self._on_vo and self._relocalises(candidates):
             found, _ = self._relocalise(frame, candidates)
             if found is not None:
-                self._on_vo = False
                 return self._tracked(frame, *found, 0)
         if odometry is None and not self._on_vo:
             start, pose_ms = time.perf_counter(), self._timers["pose_optimization"]
