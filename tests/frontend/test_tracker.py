@@ -280,3 +280,35 @@ def test_visual_odometry_alone_follows_the_camera() -> None:
     assert found is not None and found.n_map == 0 and found.n_total >= 20 and found.is_vo(VisualOdometryConfig())
     t_err, r_err = pose_errors(invert_T(found.T_cam_world), world.pose(4))
     assert t_err < 0.01 and r_err < 0.1
+
+
+def test_the_last_frames_near_points_steady_a_pose_on_few_biased_map_points() -> None:
+    """``optimise_with_odometry``: 25 map points all off by 10 cm pull a map-only pose with them; with the
+    odometry's VO matches added the pose stays much nearer the truth."""
+    from zenslam.frontend.pose_optimizer import PoseOptimizerConfig, optimize_pose
+    from zenslam.frontend.visual_odometry import VisualOdometryConfig, last_frame_points, optimise_with_odometry, track_last_frame
+
+    world = PointWorld(seed=8)
+    last, current = world.frame(3), world.frame(4)
+    T_cam_world_last, T_true = invert_T(world.pose(3)), invert_T(world.pose(4))
+    none = np.full(len(last.features), -1, dtype=np.int64)
+    points = last_frame_points(last, none, T_cam_world_last, np.zeros((0, 3)), np.zeros((0, 32), np.uint8), np.zeros(0, bool), 4.0, 100)
+    odometry = track_last_frame(current, last, points, T_cam_world_last, 15.0, 100, True, PoseOptimizerConfig(), VisualOdometryConfig())
+    assert odometry is not None and len(odometry.vo_keypoints) >= 50
+    # Map matches: 25 other keypoints of the current frame with depth, their points shifted 10 cm along x.
+    with_depth = np.flatnonzero(current.depth_m > 0)
+    map_kps = with_depth[~np.isin(with_depth, odometry.vo_keypoints)][:25]
+    from zenslam.frontend.keyframe import unproject_keypoints
+
+    p_true = unproject_keypoints(current.features.px[map_kps], current.depth_m[map_kps], CAL, world.pose(4))
+    p_biased = p_true + np.array([0.10, 0.0, 0.0])
+    feats = current.features
+    right = np.where(current.right_u[map_kps] >= 0, current.right_u[map_kps], np.nan).astype(float)
+    alone = optimize_pose(
+        T_cam_world_last, p_biased, feats.px[map_kps].astype(float), right, feats.inv_level_sigma2[feats.level[map_kps]], CAL,
+        PoseOptimizerConfig(),
+    ).T_cam_world  # fmt: skip
+    joint, inliers = optimise_with_odometry(current, T_cam_world_last, map_kps, p_biased, odometry, PoseOptimizerConfig())
+    error_alone, _ = pose_errors(invert_T(alone), invert_T(T_true))
+    error_joint, _ = pose_errors(invert_T(joint), invert_T(T_true))
+    assert error_alone > 0.08 and error_joint < 0.5 * error_alone and inliers.shape == (25,)

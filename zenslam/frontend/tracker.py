@@ -53,7 +53,13 @@ from zenslam.frontend.monocular_initialisation import InitialMap, MonocularIniti
 from zenslam.frontend.motion_model import ConstantVelocityModel
 from zenslam.frontend.pose_optimizer import PoseOptimizerConfig, optimize_pose
 from zenslam.frontend.relocalisation import BowTransform, RelocalisationConfig, keyframes_to_restore, relocalise
-from zenslam.frontend.visual_odometry import OdometryPose, VisualOdometryConfig, last_frame_points, track_last_frame
+from zenslam.frontend.visual_odometry import (
+    OdometryPose,
+    VisualOdometryConfig,
+    last_frame_points,
+    optimise_with_odometry,
+    track_last_frame,
+)
 from zenslam.geometry import invert_T, transform_points
 from zenslam.map_point_rules import radius_by_viewing_cos
 from zenslam.schemas.map_update import MapUpdate
@@ -418,6 +424,8 @@ class Tracker:
         if not self._on_vo and not odometry.is_vo(self.config.visual_odometry):
             start, pose_ms = time.perf_counter(), self._timers["pose_optimization"]
             T_cam_world, rows, n_inliers = self._track_local_map(frame, odometry.T_cam_world, odometry.rows)
+            if n_inliers < self.config.visual_odometry.joint_below_map_inliers and len(odometry.vo_keypoints):
+                T_cam_world, rows, n_inliers = self._with_odometry(frame, T_cam_world, rows, odometry)
             self._add_time("local_map_tracking", start, pose_ms)
             if n_inliers >= self._min_local_map_inliers(frame):
                 return self._tracked(frame, T_cam_world, rows, n_inliers, 0)
@@ -438,6 +446,16 @@ class Tracker:
             frame, last.frame, points, last.T_cam_world if predicted is None else predicted, self.config.motion_radius_px,
             self.config.max_descriptor_distance, self.config.check_orientation, self.pose_config, self.config.visual_odometry,
         )  # fmt: skip
+
+    def _with_odometry(self, frame: Frame, T_cam_world: np.ndarray, rows: np.ndarray, odometry: OdometryPose):
+        """The local-map pose optimised again with the odometry's VO matches: (T, rows, map inliers)."""
+        start = time.perf_counter()
+        kps = np.flatnonzero(rows >= 0)
+        T_cam_world, inliers = optimise_with_odometry(frame, T_cam_world, kps, self.map.p_world[rows[kps]], odometry, self.pose_config)
+        self._timers["pose_optimization"] += (time.perf_counter() - start) * 1e3
+        rows = rows.copy()
+        rows[kps[~inliers]] = -1
+        return T_cam_world, rows, int(np.count_nonzero(inliers))
 
     def _tracked_by_odometry(self, frame: Frame, odometry: OdometryPose) -> TrackResult:
         """A frame placed by visual odometry: the motion model goes on, the map is not touched."""

@@ -14,7 +14,7 @@ Plain numpy: the tracker owns the state (which frame is last, whether it was VO)
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -33,6 +33,10 @@ class VisualOdometryConfig:
     min_map_matches: int = 10  # fewer inlier matches to map points: the frame is on visual odometry
     min_matches: int = 20  # inlier matches (map and VO points) a pose needs, else the frame is lost
     max_points: int = 100  # VO points made beyond the close-depth threshold, nearest first
+    # A frame tracked in the map with fewer inlier map matches than this is optimised once more with
+    # its VO matches added (0 = never). Not ORB-SLAM's: a few dozen map points on one far surface
+    # place the camera to within centimetres only, and the last frame's near points hold it steady.
+    joint_below_map_inliers: int = 100
 
 
 @dataclass(frozen=True)
@@ -43,6 +47,8 @@ class OdometryPose:
     rows: np.ndarray  # (N,) int64 map row of each keypoint matched to a map point (inliers), -1 none
     n_map: int  # inlier matches to map points
     n_total: int  # inlier matches to map and VO points
+    vo_keypoints: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # (V,) keypoints on VO points
+    vo_p_world: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (V, 3) those points, metres
 
     def is_vo(self, config: VisualOdometryConfig) -> bool:
         return self.n_map < config.min_map_matches
@@ -103,7 +109,28 @@ def track_last_frame(
         return None
     rows = np.full(len(feats), -1, dtype=np.int64)
     rows[inliers] = points.rows[match[inliers]]
-    return OdometryPose(result.T_cam_world, rows, int(np.count_nonzero(rows >= 0)), len(inliers))
+    on_vo = inliers[points.rows[match[inliers]] < 0]
+    return OdometryPose(
+        result.T_cam_world, rows, int(np.count_nonzero(rows >= 0)), len(inliers), on_vo, points.p_world[match[on_vo]]
+    )
+
+
+def optimise_with_odometry(
+    frame: Frame, T_init: np.ndarray, map_keypoints: np.ndarray, map_p_world: np.ndarray, odometry: OdometryPose,
+    pose_config: PoseOptimizerConfig,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The pose from the map matches (keypoints ``map_keypoints`` on points ``map_p_world``) and the
+    odometry's VO matches on other keypoints together: (T_cam_world, inlier mask over ``map_keypoints``)."""
+    free = ~np.isin(odometry.vo_keypoints, map_keypoints)
+    kps = np.concatenate([map_keypoints, odometry.vo_keypoints[free]]).astype(np.int64)
+    p_world = np.vstack([np.asarray(map_p_world).reshape(-1, 3), odometry.vo_p_world[free]])
+    feats = frame.features
+    right = frame.right_u[kps].astype(float)
+    result = optimize_pose(
+        T_init, p_world, feats.px[kps].astype(float), np.where(right >= 0, right, np.nan),
+        feats.inv_level_sigma2[feats.level[kps]], frame.calibration, pose_config,
+    )  # fmt: skip
+    return result.T_cam_world, np.asarray(result.inliers[: len(map_keypoints)], dtype=bool)
 
 
 def _match(frame, last, points: LastFramePoints, T_predicted, radius_px, max_distance, check_orientation) -> np.ndarray:
