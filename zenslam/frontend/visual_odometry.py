@@ -7,7 +7,9 @@ all those closer than the close-depth threshold and at least ``max_points``; its
 ``TrackWithMotionModel`` matches the map points and these visual-odometry (VO) points by
 projection, optimises the pose, and calls the frame *VO* when fewer than ``min_map_matches`` of
 the inliers are map points. A VO frame skips local-map tracking (there is no local map to find)
-and the next frames try relocalisation as well, until it succeeds.
+and the next frames try relocalisation as well, until it succeeds. Not ORB-SLAM's: a frame that
+does track the local map, but on few map points (``joint_below_map_inliers``), is optimised once
+more with its VO matches added (``optimise_with_odometry``).
 
 Plain numpy: the tracker owns the state (which frame is last, whether it was VO).
 """
