@@ -284,6 +284,18 @@ def test_replay_command_is_registered_and_runs_the_recording_in_lockstep(tmp_pat
     argv = replay_command.run_arguments(tmp_path / "run.mcap", tmp_path / "out", "r1", progress=False)
     assert argv[:4] == ["run", f"mcap:{(tmp_path / 'run.mcap').resolve()}", "--lockstep", "--no-faults"]
     assert argv[argv.index("--config") + 1] == str(tmp_path / "config.yaml") and "--no-progress" in argv
+    assert "--save-map" not in argv
+
+
+def test_a_replay_saves_its_map_in_its_own_run_folder(tmp_path):
+    """A run that saved its map is replayed with the map written beside the replay, not over the original."""
+    import dataclasses
+
+    config = RunConfig()
+    config = dataclasses.replace(config, backend=dataclasses.replace(config.backend, save_map=str(tmp_path / "maps" / "room.zmap")))
+    (tmp_path / "config.yaml").write_text(run_config_to_yaml(config))
+    argv = replay_command.run_arguments(tmp_path / "run.mcap", tmp_path / "out", "r1", progress=False)
+    assert argv[argv.index("--save-map") + 1] == str(tmp_path / "out" / "r1" / "room.zmap")
 
 
 def test_replay_of_a_non_recording_fails_with_its_path(tmp_path, capsys):

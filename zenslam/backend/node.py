@@ -13,6 +13,10 @@ backend/status with the step time, the per-step timings and the queue depth, and
 queryables between steps, on the same thread, so a reply always shows the map between two
 keyframes. After the frontend's end of stream it forwards the end of stream on backend/map_update
 and keeps answering queries for ``BackendConfig.linger_s`` seconds or until stopped.
+
+With ``backend.map_file`` the node starts from a saved map (``map_file``: its keyframe database
+answers relocalisation queries at once); with ``backend.save_map`` it writes its map when its
+input ends (or it is stopped), before it ends its own stream.
 """
 
 from __future__ import annotations
@@ -330,8 +334,8 @@ def serve(
     try:
         with bus.declare_alive(session, session_name, STAGE):
             ended = _process(outputs, inbox, queryables, node, should_stop)
+            _save_map(outputs, node, config, finish_global_ba=ended)  # stopped: the map as far as it got
             if ended:
-                _save_map(outputs, node, config)
                 _end_stream(outputs, node)
                 _linger(queryables, node, config.linger_s, should_stop)
     finally:
@@ -383,12 +387,16 @@ def _is_keyframe(message: codec.KeyframeMessage | codec.EndOfStream) -> bool:
     return not isinstance(message, codec.EndOfStream)
 
 
-def _save_map(outputs: _Outputs, node: BackendNode, config: BackendConfig) -> None:
-    """With ``backend.save_map``: the map after the last global BA, written before the stream ends
-    (whoever waits for the end of stream finds the file complete)."""
+def _save_map(outputs: _Outputs, node: BackendNode, config: BackendConfig, finish_global_ba: bool) -> None:
+    """With ``backend.save_map``: the map (after a global BA still running, when ``finish_global_ba``;
+    a stopped backend does not wait for one), written before the stream ends, so whoever waits for
+    the end of stream finds the file complete. A map without keyframes is not written."""
     if not config.save_map:
         return
-    if (correction := node.finish_global_ba()) is not None:
+    if not node.map.keyframes:
+        logger.warning("no keyframe was mapped: no map written to %s", config.save_map)
+        return
+    if finish_global_ba and (correction := node.finish_global_ba()) is not None:
         outputs.update.put(codec.encode_map_update(correction))
     node.save_map(config.save_map)
 

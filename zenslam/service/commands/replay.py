@@ -85,6 +85,9 @@ def run_arguments(recording: Path, output: Path, run_id: str, progress: bool) ->
     config = recording.parent / CONFIG_FILENAME
     if config.is_file():
         argv += ["--config", str(config)]
+        saved_map = replay.recorded_run_config(recording).backend.save_map
+        if saved_map:  # the replay's map goes to its own run folder, not over the recorded run's
+            argv += ["--save-map", str(output / run_id / Path(saved_map).name)]
     else:
         logger.warning("no %s beside %s: replaying with the default configuration", CONFIG_FILENAME, recording)
     return argv + ([] if progress else ["--no-progress"])
