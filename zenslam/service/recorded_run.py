@@ -83,6 +83,7 @@ def write_recorded_outputs(
     the recorder was stopped before the stages had finished; metrics.json says ``run.completed``."""
     log = run_log_from_recording(recording)
     log.backend_keyframes = backend_keyframes
+    log.first_keyframe_id = config.frontend.tracking.local_map.keyframe_id_start  # past a saved map's ids
     completed = log.ended and log.backend_ended and not log.stopped_stages and not stopped
     extra = {"run": {"run_id": session, "source": config.source.spec, "mode": config.mode, "completed": completed}}
     sensor = recorded_sensor(recording) or config.source.sensor or "stereo"
