@@ -140,6 +140,14 @@ def test_the_file_is_a_zip_of_npy_arrays_and_a_json_header(mapped, tmp_path):
     np.testing.assert_array_equal(p_world, np.array([p.p_world for p in mapped.map.points.values()]))
 
 
+def test_the_same_map_gives_the_same_bytes_whenever_it_is_written(mapped, tmp_path, monkeypatch):
+    monkeypatch.setattr(zipfile.time, "time", lambda: 1_000_000_000.0)
+    save_map(tmp_path / "a.zmap", mapped.map, mapped.places)
+    monkeypatch.setattr(zipfile.time, "time", lambda: 1_700_000_000.0)  # years later
+    save_map(tmp_path / "b.zmap", mapped.map, mapped.places)
+    assert (tmp_path / "a.zmap").read_bytes() == (tmp_path / "b.zmap").read_bytes()
+
+
 def _rewrite_header(path, **changes) -> None:
     with zipfile.ZipFile(path) as archive:
         members = {name: archive.read(name) for name in archive.namelist()}

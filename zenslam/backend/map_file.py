@@ -143,6 +143,11 @@ def _next_ids(bmap: BackendMap) -> dict[str, int]:
     }
 
 
+def _member(name: str) -> zipfile.ZipInfo:
+    """A member stamped 1980-01-01 (ZIP's epoch), so that the same map gives the same file bytes."""
+    return zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0))
+
+
 def save_map(path: str | Path, bmap: BackendMap, places: PlaceRecognition, zenslam_version: str = "") -> MapHeader:
     """Write ``bmap`` and its place recognition's vectors to ``path`` (written to a temporary file
     beside it, then renamed: a reader never sees half a map). Refreshes stale point attributes first."""
@@ -171,9 +176,9 @@ def save_map(path: str | Path, bmap: BackendMap, places: PlaceRecognition, zensl
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
         with zipfile.ZipFile(temporary, "w", compression=zipfile.ZIP_STORED, allowZip64=True) as archive:
-            archive.writestr(HEADER_NAME, json.dumps(header, indent=1))
+            archive.writestr(_member(HEADER_NAME), json.dumps(header, indent=1))
             for name, array in arrays.items():
-                with archive.open(f"{name}.npy", "w", force_zip64=array.nbytes > (1 << 30)) as member:
+                with archive.open(_member(f"{name}.npy"), "w", force_zip64=array.nbytes > (1 << 30)) as member:
                     np.lib.format.write_array(member, np.ascontiguousarray(array), allow_pickle=False)
         os.replace(temporary, target)
     except OSError as exc:
