@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -140,6 +142,19 @@ def test_eviction_is_amortised_and_can_be_switched_off() -> None:
     kfs = [corridor_keyframe(off, np.zeros(0, dtype=np.int64), NEW, 0.0) for _ in range(3)]
     assert CacheEviction(off).maybe_evict(frame_rows_seeing(off, kfs[-1]), 2, 1) is None
     assert off.n_cached_keyframes == 3
+
+
+def test_a_forced_pass_runs_when_no_insertion_paced_one() -> None:
+    """Localisation mode fills the cache with restored keyframes only: a forced pass evicts although
+    too few keyframes were inserted to pace one; with eviction off, nothing is evicted."""
+    lm, keyframes = corridor(20, dataclasses.replace(CONFIG, cache_min_keyframes_between_evictions=50))
+    eviction = CacheEviction(lm)
+    rows = frame_rows_seeing(lm, keyframes[-1])
+    assert not eviction.due() and eviction.maybe_evict(rows, lm.slot_of(19), unanswered=0) is None
+    forced = eviction.maybe_evict(rows, lm.slot_of(19), unanswered=0, force=True)
+    assert forced is not None and cached_ids(lm) == [15, 16, 17, 18, 19]
+    off, kfs = corridor(20, dataclasses.replace(CONFIG, evict=False))
+    assert CacheEviction(off).maybe_evict(frame_rows_seeing(off, kfs[-1]), off.slot_of(19), 0, force=True) is None
 
 
 def test_map_updates_naming_evicted_keyframes_and_points() -> None:

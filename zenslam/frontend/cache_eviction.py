@@ -84,12 +84,15 @@ class CacheEviction:
         )
 
     def maybe_evict(
-        self, frame_rows: np.ndarray, reference_slot: int, unanswered: int, keep_rows: np.ndarray | None = None
+        self, frame_rows: np.ndarray, reference_slot: int, unanswered: int, keep_rows: np.ndarray | None = None,
+        force: bool = False,
     ) -> Eviction | None:
-        """Evict when ``due``: keep the window of a frame matched to ``frame_rows``, the margin, the
-        ``reference_slot``, the newest ``unanswered`` keyframes (sent to the backend, whose update
-        has not been applied) and their parents, and the points rows ``keep_rows``. None when not due."""
-        if not self.due():
+        """Evict when ``due`` (or ``force``, with eviction on: a cache filled by restored keyframes,
+        which no insertion paces): keep the window of a frame matched to ``frame_rows``, the margin,
+        the ``reference_slot``, the newest ``unanswered`` keyframes (sent to the backend, whose
+        update has not been applied) and their parents, and the points rows ``keep_rows``. None
+        when not due."""
+        if not (self.due() or (force and self.config.evict)):
             return None
         cached = self.map.cached_slots()
         newest = cached[len(cached) - min(unanswered, len(cached)) :].tolist()

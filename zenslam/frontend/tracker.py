@@ -206,7 +206,7 @@ class Tracker:
         """
         result = self._track(frame, keyframes_in_flight, candidates)
         if result.T_world_cam is not None and self.config.start_in_map and candidates is not None:
-            self._fetch_window(frame, candidates)
+            self._fetch_window(frame, candidates, keyframes_in_flight + (result.keyframe is not None))
             if "map_window" in self._timers:
                 result = dataclasses.replace(result, timings_ms={**result.timings_ms, "map_window": self._timers["map_window"]})
         reference = self.map.keyframe(self._reference_slot) if self._reference_slot >= 0 else None
@@ -290,12 +290,12 @@ class Tracker:
         if T_last_ref is not None and reference is not None:
             self._last.T_cam_world = T_last_ref @ reference.T_cam_world
 
-    def _evict(self, unanswered: int) -> None:
-        """Evict the map cache when due, around the last frame's window; ``unanswered`` newest
-        keyframes (the backend's updates of them not applied yet) stay. Remaps the slots and rows
-        the tracker holds."""
+    def _evict(self, unanswered: int, force: bool = False) -> None:
+        """Evict the map cache when due (or ``force``), around the last frame's window; ``unanswered``
+        newest keyframes (the backend's updates of them not applied yet) stay. Remaps the slots and
+        rows the tracker holds."""
         last = self._last
-        eviction = self.eviction.maybe_evict(last.rows, self._reference_slot, unanswered, keep_rows=last.rows)
+        eviction = self.eviction.maybe_evict(last.rows, self._reference_slot, unanswered, keep_rows=last.rows, force=force)
         if eviction is None:
             return
         last.rows = np.where(last.rows >= 0, eviction.row_map[last.rows], -1)
@@ -468,10 +468,12 @@ class Tracker:
         T_world_cam = invert_T(odometry.T_cam_world)
         return TrackResult("ok", None, T_world_cam, odometry.n_map, None, dict(self._timers))
 
-    def _fetch_window(self, frame: Frame, candidates: CandidateSource) -> None:
+    def _fetch_window(self, frame: Frame, candidates: CandidateSource, unanswered: int) -> None:
         """With a saved map: when the reference keyframe is a saved one whose window was not fetched
         last, bring its covisible neighbours (the backend's) into the cache, so that local-map
-        tracking finds the saved map beyond what relocalisation brought."""
+        tracking finds the saved map beyond what relocalisation brought. Restored keyframes pace no
+        eviction pass (no keyframe is inserted in localisation mode): past the cache's size by the
+        keyframes between passes, a pass runs here (``unanswered``: keyframes sent, not answered)."""
         reference = self.map.keyframe(self._reference_slot) if self._reference_slot >= 0 else None
         if reference is None or reference.id >= self.config.local_map.keyframe_id_start or reference.id == self._window_of:
             return
@@ -483,6 +485,9 @@ class Tracker:
         reply = candidates(query)
         if reply is not None and reply.candidates:
             self.map.restore_keyframes(keyframes_to_restore(reply, int(reference.id)), reply.points)
+        limits = self.config.local_map
+        if self.map.n_cached_keyframes > limits.cache_max_keyframes + limits.cache_min_keyframes_between_evictions:
+            self._evict(unanswered, force=True)
         self._timers["map_window"] = (time.perf_counter() - started) * 1e3
 
     # ---- relocalisation ------------------------------------------------------------------------------
