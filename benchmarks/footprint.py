@@ -4,12 +4,12 @@ Runs ``zenslam run [SOURCE] --lockstep`` (default: the built-in synthetic scene,
 into a temporary folder while sampling, every ``--interval`` seconds, ``VmHWM`` (the kernel's peak
 resident set) of every process in the run's tree: the ``zenslam run`` hub and its source, frontend,
 backend and recorder. A process's last sample is its peak up to that moment; the interval only
-matters for growth in a process's last moments. The sum of the per-process peaks is the figure
-the issue's target is about (processes peak at different times, so the real simultaneous peak is
-lower). It also sums, at every sample, the processes' PSS (proportional set size: pages several
-processes map, such as the rerun, gtsam and OpenCV libraries every stage loads, are shared out among
-them instead of counted in full in each) and reports the largest such sum: the memory the run
-holds at its fullest moment. Then it sums the run folder per file and run.mcap per topic: the messages' own bytes
+matters for growth in a process's last moments. The sum of the per-process peaks is the most
+cautious figure (processes peak at different times, so the real simultaneous peak is lower). It
+also sums, at every sample, the processes' current RSS, and their PSS (proportional set size:
+pages several processes map, such as the rerun, gtsam and OpenCV libraries every stage loads, are
+shared out among them instead of counted in full in each), and reports the largest of each sum;
+the PSS sum is the memory the run holds at its fullest moment. Then it sums the run folder per file and run.mcap per topic: the messages' own bytes
 (uncompressed) and their share of the file's compressed chunks (each chunk's compressed size
 split across topics in proportion to what each topic's bytes in it compress to alone, with the
 chunk's codec: PNG images that do not shrink are not credited with the map updates' compression).
@@ -84,12 +84,23 @@ def pss_bytes(pid: int) -> int | None:
     return None
 
 
-def run_sampled(command: list[str], interval_s: float) -> tuple[dict[str, int], int, float, subprocess.CompletedProcess]:
+def rss_bytes(pid: int) -> int | None:
+    """The resident set of process ``pid`` now (bytes), or None once it is gone."""
+    try:
+        with open(f"/proc/{pid}/statm") as statm:
+            return int(statm.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except (FileNotFoundError, ProcessLookupError, PermissionError):
+        return None
+
+
+def run_sampled(
+    command: list[str], interval_s: float
+) -> tuple[dict[str, int], dict[str, int], float, subprocess.CompletedProcess]:
     """Run ``command``, sampling the peak RSS of it and all its descendants; (peak bytes per stage, the
-    largest sum of the processes' PSS in any one sample, wall s, result)."""
+    largest sums of the processes' RSS and of their PSS in any one sample, wall s, result)."""
     peaks: dict[int, int] = {}
     names: dict[int, str] = {}
-    pss_peak = 0
+    together = {"rss": 0, "pss": 0}
     start = time.perf_counter()
     with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
         popen = subprocess.Popen(command, stdout=out, stderr=err)
@@ -99,7 +110,8 @@ def run_sampled(command: list[str], interval_s: float) -> tuple[dict[str, int], 
                 tree = [root, *root.children(recursive=True)]
             except psutil.Error:
                 tree = []
-            pss_peak = max(pss_peak, sum(pss_bytes(proc.pid) or 0 for proc in tree))
+            together["rss"] = max(together["rss"], sum(rss_bytes(proc.pid) or 0 for proc in tree))
+            together["pss"] = max(together["pss"], sum(pss_bytes(proc.pid) or 0 for proc in tree))
             for proc in tree:
                 hwm = vm_hwm_bytes(proc.pid)
                 if hwm is None:
@@ -116,7 +128,7 @@ def run_sampled(command: list[str], interval_s: float) -> tuple[dict[str, int], 
     per_stage: dict[str, int] = {}
     for pid, peak in peaks.items():
         per_stage[names[pid]] = per_stage.get(names[pid], 0) + peak
-    return per_stage, pss_peak, wall_s, result
+    return per_stage, together, wall_s, result
 
 
 def folder_sizes(run_dir: Path) -> dict[str, int]:
@@ -182,7 +194,7 @@ def main() -> None:
         if args.config is not None:
             command += ["--config", str(args.config)]
         load = os.getloadavg()[0]
-        peaks, pss_peak, wall_s, result = run_sampled(command, args.interval)
+        peaks, together, wall_s, result = run_sampled(command, args.interval)
         if result.returncode != 0:
             raise SystemExit(f"{' '.join(command)} failed:\n{result.stdout[-2000:]}\n{result.stderr[-3000:]}")
         run_dir = output / run_id
@@ -201,7 +213,8 @@ def main() -> None:
         },
         "peak_rss_mb": {name: round(peak / _MB, 1) for name, peak in sorted(peaks.items())},
         "peak_rss_sum_mb": round(sum(peaks.values()) / _MB, 1),
-        "peak_pss_together_mb": round(pss_peak / _MB, 1),
+        "peak_rss_together_mb": round(together["rss"] / _MB, 1),
+        "peak_pss_together_mb": round(together["pss"] / _MB, 1),
     }
     print(f"{report['command']}\nwall {wall_s:.1f} s (load {load:.1f} before)")
     print(f"run folder {report['folder_mb']:.1f} MB")
@@ -215,6 +228,7 @@ def main() -> None:
     for name, mb in report["peak_rss_mb"].items():
         print(f"  {name:<12} {mb:7.1f} MB")
     print(f"  {'sum':<12} {report['peak_rss_sum_mb']:7.1f} MB (each process at its own peak)")
+    print(f"peak of the processes' RSS summed at one moment: {report['peak_rss_together_mb']:.1f} MB")
     print(f"peak of the processes' PSS summed at one moment: {report['peak_pss_together_mb']:.1f} MB (shared pages counted once)")
     args.results.parent.mkdir(parents=True, exist_ok=True)
     args.results.write_text(json.dumps(report, indent=2) + "\n")
