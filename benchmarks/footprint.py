@@ -9,8 +9,8 @@ cautious figure (processes peak at different times, so the real simultaneous pea
 also sums, at every sample, the processes' current RSS, and their PSS (proportional set size:
 pages several processes map, such as the rerun, gtsam and OpenCV libraries every stage loads, are
 shared out among them instead of counted in full in each), and reports the largest of each sum;
-the PSS sum is the memory the run holds at its fullest moment. Then it sums the run folder per file and run.mcap per topic: the messages' own bytes
-(uncompressed) and their share of the file's compressed chunks (each chunk's compressed size
+the PSS sum is the memory the run holds at its fullest moment. Then it sums the run folder per
+file and run.mcap per topic: the messages' own bytes (uncompressed) and their share of the file's compressed chunks (each chunk's compressed size
 split across topics in proportion to what each topic's bytes in it compress to alone, with the
 chunk's codec: PNG images that do not shrink are not credited with the map updates' compression).
 
