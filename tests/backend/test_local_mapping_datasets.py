@@ -53,6 +53,7 @@ def run_lockstep(source, with_backend: bool, max_frames: int | None = None) -> t
 
 @pytest.mark.slow(16)
 @pytest.mark.dataset
+@pytest.mark.extended
 def test_kitti_06_clip_with_the_backend_is_within_3_cm(kitti_root: Path) -> None:
     from zenslam.service.sources.kitti import KittiSource
 
@@ -65,6 +66,7 @@ def test_kitti_06_clip_with_the_backend_is_within_3_cm(kitti_root: Path) -> None
 
 @pytest.mark.slow(40)
 @pytest.mark.dataset
+@pytest.mark.extended
 def test_kitti_06_clip_monocular_starts_within_10_frames_and_stays_within_5_cm(kitti_root: Path) -> None:
     from zenslam.service.sources.kitti import KittiSource
     from zenslam.service.sources.sensor_selection import as_sensor
@@ -78,6 +80,7 @@ def test_kitti_06_clip_monocular_starts_within_10_frames_and_stays_within_5_cm(k
 
 
 @pytest.mark.dataset
+@pytest.mark.extended
 def test_euroc_micro_monocular_never_starts_a_map(euroc_micro: Path) -> None:
     """A nearly still camera gives no parallax: no map, every frame initialising (ORB-SLAM3 does not start
     either). The first 50 frames (5 s) here; ``zenslam run`` on the whole clip says the same."""
@@ -88,6 +91,7 @@ def test_euroc_micro_monocular_never_starts_a_map(euroc_micro: Path) -> None:
     assert ate_m is None and set(states) == {"initializing"} and not mapper.map.keyframes
 
 
+@pytest.mark.extended
 @pytest.mark.slow(25)
 @pytest.mark.parametrize(("scene", "sensor"), [("loop", "stereo"), ("figure_eight", "rgbd")])
 def test_the_backend_beats_the_frontend_alone_on_synthetic_scenes(scene: str, sensor: str) -> None:
@@ -100,4 +104,4 @@ def test_the_backend_beats_the_frontend_alone_on_synthetic_scenes(scene: str, se
     assert backend_m < 0.9 * frontend_m, f"ATE {backend_m * 100:.2f} cm with the backend, {frontend_m * 100:.2f} cm without"
 
 
-FRAMES = 80  # the scenes' first 4 s (20 Hz)
+FRAMES = 80  # the loop's first 8 s (10 Hz), the figure-eight's first 4 s (20 Hz)
