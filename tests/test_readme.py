@@ -56,6 +56,7 @@ def test_main_command_on_a_fresh_clone(tmp_path: Path):
     assert len(runs) == 1, f"expected one run folder with metrics.json, found {runs}"
 
 
+@pytest.mark.extended  # the longest test (the KITTI clip run three ways, replayed, exported, ...): CI runs it
 @pytest.mark.slow(70)
 def test_tour_commands_run_in_order(tmp_path: Path, data_root: Path, kitti_root: Path):
     """Every line of the README's tour (it uses the KITTI clip), run from a checkout whose ../shared/data is the real one."""
