@@ -13,14 +13,18 @@ import logging
 from dataclasses import dataclass
 from typing import Literal
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-from evo import EvoException
-from evo.core import lie_algebra, metrics, sync
-from evo.core.trajectory import PoseTrajectory3D
-from evo.core.units import Unit
 
 from zenslam.errors import TrajectoryError
 from zenslam.trajectory import Trajectory
+
+# evo is imported where it is used: with pandas, scipy and matplotlib behind it, it adds ~100 MB to a
+# process, and the run's hub, which imports this module to build its command line, needs it only
+# once its stages have exited.
+if TYPE_CHECKING:
+    from evo.core.trajectory import PoseTrajectory3D
 
 logger = logging.getLogger(__name__)
 
@@ -121,6 +125,8 @@ def evaluate(estimate: Trajectory, ground_truth: Trajectory, config: EvaluationC
 
     Raises TrajectoryError when fewer than 3 poses associate or the alignment is degenerate.
     """
+    from evo.core import metrics
+
     config = config or EvaluationConfig()
     ref, est = associate(estimate, ground_truth, config)
     t0_ns = _common_origin_ns(estimate, ground_truth)
@@ -161,6 +167,8 @@ def associate(
     Time association pairs each pose with the nearest stamp within ``config.max_time_diff_ns``;
     index association pairs equal stamps (frame indices).
     """
+    from evo.core import sync
+
     for name, trajectory in (("estimate", estimate), ("ground truth", ground_truth)):
         if len(trajectory) == 0:
             raise TrajectoryError(f"the {name} trajectory has no poses; nothing to compare")
@@ -192,6 +200,8 @@ def _common_origin_ns(estimate: Trajectory, ground_truth: Trajectory) -> int:
 
 
 def _to_evo(trajectory: Trajectory, t0_ns: int, name: str) -> PoseTrajectory3D:
+    from evo.core.trajectory import PoseTrajectory3D
+
     stamps_s = (np.asarray(trajectory.stamps_ns, dtype=np.int64) - t0_ns).astype(np.float64) * 1e-9
     poses = [np.array(T, dtype=np.float64) for T in np.asarray(trajectory.T_world_cam)]
     return PoseTrajectory3D(timestamps=stamps_s, poses_se3=poses, name=name)
@@ -206,6 +216,9 @@ def _align(
     ref: PoseTrajectory3D, est: PoseTrajectory3D, alignment: Alignment
 ) -> tuple[PoseTrajectory3D, np.ndarray, float | None]:
     """An aligned copy of ``est``, the similarity applied (4x4) and the scale (sim3 only)."""
+    from evo import EvoException
+    from evo.core import lie_algebra
+
     est = copy.deepcopy(est)  # evo aligns in place
     if alignment == "none":
         return est, np.eye(4), None
@@ -220,6 +233,10 @@ def _align(
 
 
 def _rpe(ref: PoseTrajectory3D, est: PoseTrajectory3D, config: EvaluationConfig) -> RpeResult:
+    from evo import EvoException
+    from evo.core import metrics
+    from evo.core.units import Unit
+
     unit = Unit.frames if config.rpe_delta_unit == "frames" else Unit.meters
     rmse = {}
     for relation in (metrics.PoseRelation.translation_part, metrics.PoseRelation.rotation_angle_deg):

@@ -7,8 +7,6 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
 
 from zenslam.errors import TrajectoryError
 from zenslam.service.evaluation.metrics import Evaluation
@@ -78,6 +76,10 @@ def save_top_view(
     p_gt = np.asarray(p_world_gt, dtype=float).reshape(-1, 3)
     p_est = np.asarray(p_world_est, dtype=float).reshape(-1, 3)
     a, b = choose_plane(p_gt) if plane == "auto" else (_AXIS_NAMES.index(plane[0]), _AXIS_NAMES.index(plane[1]))
+    # matplotlib is imported here, when a plot is drawn: see metrics.py on evo.
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
     fig = Figure(figsize=(6.4, 6.4), dpi=100)
     FigureCanvasAgg(fig)  # this figure renders with Agg, whatever pyplot's backend is
     ax = fig.add_subplot()
