@@ -47,7 +47,11 @@ def robot(tmp_path):
     config.insert_json5("listen/endpoints", json.dumps([endpoint]))
     config.insert_json5("scouting/multicast/enabled", "false")
     config_file = tmp_path / "ros2.json5"
-    config_file.write_text(json.dumps({"mode": "peer", "connect": {"endpoints": [endpoint]}}))
+    # Multicast scouting off, as in rmw_zenoh's default session: on, this session would find the
+    # sessions of tests running in parallel and receive their frames.
+    config_file.write_text(json.dumps({"mode": "peer", "connect": {"endpoints": [endpoint]},
+                                       "listen": {"endpoints": ["tcp/127.0.0.1:0"]},
+                                       "scouting": {"multicast": {"enabled": False}}}))  # fmt: skip
     with zenoh.open(config) as session:
         yield session, config_file
 
