@@ -17,11 +17,15 @@ import dataclasses
 import logging
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from zenslam.camera import PinholeCalibration
 from zenslam.geometry import skew, so3_exp
+
+if TYPE_CHECKING:
+    from zenslam.frontend.frame import Frame
 
 logger = logging.getLogger(__name__)
 
@@ -141,6 +145,20 @@ def optimize_pose(
     n_inliers = int(active.sum())
     logger.debug("pose optimisation: %d/%d inliers after %d iterations", n_inliers, n, iterations)
     return PoseResult(T, active, n_inliers, chi2, iterations, rounds_run)
+
+
+def optimize_frame_pose(
+    frame: Frame, T_cam_world_init: np.ndarray, keypoints: np.ndarray, p_world: np.ndarray, config: PoseOptimizerConfig
+) -> PoseResult:
+    """``optimize_pose`` of ``frame`` from its keypoints ``keypoints`` (K,) observing the points
+    ``p_world`` (K, 3): their pixels, right-image coordinates where stereo matched, and their levels'
+    weights; inliers are over ``keypoints``."""
+    feats = frame.features
+    right = frame.right_u[keypoints].astype(float)
+    return optimize_pose(
+        T_cam_world_init, p_world, feats.px[keypoints].astype(float), np.where(right >= 0, right, np.nan),
+        feats.inv_level_sigma2[feats.level[keypoints]], frame.calibration, config,
+    )  # fmt: skip
 
 
 def _check_shapes(T, p_world, obs_px, obs_right_u, inv_sigma2):

@@ -29,7 +29,7 @@ from zenslam.frontend.frustum import project_in_frustum
 from zenslam.frontend.keyframe import KeyFrame
 from zenslam.frontend.orb_extractor import Features
 from zenslam.frontend.pnp_ransac import PnpRansacConfig, pnp_ransac
-from zenslam.frontend.pose_optimizer import PoseOptimizerConfig, optimize_pose
+from zenslam.frontend.pose_optimizer import PoseOptimizerConfig, optimize_frame_pose
 from zenslam.schemas.relocalisation import MapKeyframe, MapPoints, RelocalisationCandidates
 from zenslam.vocabulary.bow_matching import search_by_bow
 
@@ -195,12 +195,7 @@ def _optimise(frame: Frame, T_init: np.ndarray, rows: np.ndarray, points: MapPoi
     """Pose optimisation of the frame's keypoints matched to point ``rows`` (N,) -1 none:
     (T_cam_world, inlier mask (N,), inlier count)."""
     kps = np.flatnonzero(rows >= 0)
-    feats = frame.features
-    right = frame.right_u[kps].astype(float)
-    result = optimize_pose(
-        T_init, points.p_world[rows[kps]], feats.px[kps].astype(float), np.where(right >= 0, right, np.nan),
-        feats.inv_level_sigma2[feats.level[kps]], frame.calibration, pose_config,
-    )  # fmt: skip
+    result = optimize_frame_pose(frame, T_init, kps, points.p_world[rows[kps]], pose_config)
     inliers = np.zeros(len(rows), dtype=bool)
     inliers[kps] = result.inliers
     return result.T_cam_world, inliers, int(np.count_nonzero(inliers))

@@ -51,7 +51,7 @@ from zenslam.frontend.frustum import project_in_frustum
 from zenslam.frontend.local_map import LocalMap, LocalMapConfig
 from zenslam.frontend.monocular_initialisation import InitialMap, MonocularInitialisationConfig, MonocularInitialiser
 from zenslam.frontend.motion_model import ConstantVelocityModel
-from zenslam.frontend.pose_optimizer import PoseOptimizerConfig, optimize_pose
+from zenslam.frontend.pose_optimizer import PoseOptimizerConfig, optimize_frame_pose
 from zenslam.frontend.relocalisation import BowTransform, RelocalisationConfig, keyframes_to_restore, relocalise
 from zenslam.frontend.visual_odometry import (
     OdometryPose,
@@ -310,17 +310,7 @@ class Tracker:
         """Pose optimisation of ``frame`` matched to map rows (N,) -1 none; returns (T, inlier mask (N,))."""
         start = time.perf_counter()
         kps = np.flatnonzero(rows >= 0)
-        feats = frame.features
-        right = frame.right_u[kps].astype(float)
-        result = optimize_pose(
-            T_cam_world,
-            self.map.p_world[rows[kps]],
-            feats.px[kps].astype(float),
-            np.where(right >= 0, right, np.nan),
-            feats.inv_level_sigma2[feats.level[kps]],
-            self.calibration,
-            self.pose_config,
-        )
+        result = optimize_frame_pose(frame, T_cam_world, kps, self.map.p_world[rows[kps]], self.pose_config)
         inliers = np.zeros(len(rows), dtype=bool)
         inliers[kps] = result.inliers
         self._timers["pose_optimization"] += (time.perf_counter() - start) * 1e3

@@ -24,7 +24,7 @@ from zenslam.camera import PinholeCalibration
 from zenslam.frontend.feature_matcher import rotation_consistent, search_by_projection
 from zenslam.frontend.frame import Frame
 from zenslam.frontend.keyframe import unproject_keypoints
-from zenslam.frontend.pose_optimizer import PoseOptimizerConfig, optimize_pose
+from zenslam.frontend.pose_optimizer import PoseOptimizerConfig, optimize_frame_pose
 from zenslam.geometry import invert_T
 
 
@@ -100,16 +100,11 @@ def track_last_frame(
     kps = np.flatnonzero(match >= 0)
     if len(kps) < config.min_matches:
         return None
-    feats = frame.features
-    right = frame.right_u[kps].astype(float)
-    result = optimize_pose(
-        T_predicted, points.p_world[match[kps]], feats.px[kps].astype(float), np.where(right >= 0, right, np.nan),
-        feats.inv_level_sigma2[feats.level[kps]], frame.calibration, pose_config,
-    )  # fmt: skip
+    result = optimize_frame_pose(frame, T_predicted, kps, points.p_world[match[kps]], pose_config)
     inliers = kps[result.inliers]
     if len(inliers) < config.min_matches:
         return None
-    rows = np.full(len(feats), -1, dtype=np.int64)
+    rows = np.full(len(frame.features), -1, dtype=np.int64)
     rows[inliers] = points.rows[match[inliers]]
     on_vo = inliers[points.rows[match[inliers]] < 0]
     return OdometryPose(
@@ -126,12 +121,7 @@ def optimise_with_odometry(
     free = ~np.isin(odometry.vo_keypoints, map_keypoints)
     kps = np.concatenate([map_keypoints, odometry.vo_keypoints[free]]).astype(np.int64)
     p_world = np.vstack([np.asarray(map_p_world).reshape(-1, 3), odometry.vo_p_world[free]])
-    feats = frame.features
-    right = frame.right_u[kps].astype(float)
-    result = optimize_pose(
-        T_init, p_world, feats.px[kps].astype(float), np.where(right >= 0, right, np.nan),
-        feats.inv_level_sigma2[feats.level[kps]], frame.calibration, pose_config,
-    )  # fmt: skip
+    result = optimize_frame_pose(frame, T_init, kps, p_world, pose_config)
     return result.T_cam_world, np.asarray(result.inliers[: len(map_keypoints)], dtype=bool)
 
 
