@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from contextlib import ExitStack
 from dataclasses import dataclass
 from typing import Literal
@@ -146,16 +146,21 @@ def publish_source(
     pacer = Pacer(options.rate, should_stop)
     count = len(source) if options.max_frames is None else min(len(source), options.max_frames)
     sent = 0
-    for index in range(count):
+    for frame in readable_frames(source, count):
         if should_stop():
             break
-        try:
-            frame = source.frame(index)
-        except FrameReadError as exc:
-            logger.warning("not publishing %s", exc)
-            continue
         pacer.wait_for(frame.stamp_ns)
         camera.publish(frame, source.calibration, source.name)
         sent += 1
         on_frame(frame)
     return sent
+
+
+def readable_frames(source: Source, count: int) -> Iterator[SensorFrame]:
+    """The first ``count`` frames of ``source``, read as they are asked for; one that cannot be read
+    is skipped with a warning, as a camera does not resend a frame it failed to capture."""
+    for index in range(count):
+        try:
+            yield source.frame(index)
+        except FrameReadError as exc:
+            logger.warning("not publishing %s", exc)

@@ -19,14 +19,12 @@ import argparse
 import dataclasses
 import logging
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
-from zenslam.errors import FrameReadError
 from zenslam.runtime import bus
 from zenslam.runtime.stop import EXIT_INTERRUPTED, StopFlag
-from zenslam.service.bus_publisher import CameraPublisher, PublishOptions, publish_source
-from zenslam.service.sources import SensorFrame, Source, open_source
+from zenslam.service.bus_publisher import CameraPublisher, PublishOptions, publish_source, readable_frames
+from zenslam.service.sources import Source, open_source
 from zenslam.service.sources.config import DEFAULT_BUS_INPUT
 from zenslam.service.sources.zenoh_family import check_prefix
 
@@ -114,18 +112,9 @@ def _publish_ros2(args: argparse.Namespace, source: Source, stop: StopFlag) -> i
     started = time.monotonic()
     with bus.open_session(config) as session:
         sent = publish_frames_ros2(
-            session, _readable_frames(source, total), source.calibration, args.ros2, domain, args.rate,
+            session, readable_frames(source, total), source.calibration, args.ros2, domain, args.rate,
             wait_for_subscribers_s=0.0 if args.no_wait else config.start_timeout_s, stop=stop,
         )  # fmt: skip
     print(f"published {sent} frames in {time.monotonic() - started:.1f} s at {args.rate:g}x the recorded rate")
     return EXIT_INTERRUPTED if stop() else 0
 
-
-def _readable_frames(source: Source, count: int) -> Iterator[SensorFrame]:
-    """The first ``count`` frames of ``source``; one that cannot be read is skipped with a warning, as a
-    camera does not resend a frame it failed to capture."""
-    for index in range(count):
-        try:
-            yield source.frame(index)
-        except FrameReadError as exc:
-            logger.warning("not publishing %s", exc)
