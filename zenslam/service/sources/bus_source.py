@@ -45,6 +45,7 @@ from zenslam.service.sources.frame_stream import SkippedFrame, stamp_problem
 logger = logging.getLogger(__name__)
 
 _END_QUIET_S = 0.5  # seconds without a message, once the publishers' tokens are gone, before the stream ends
+_WAITED_ON: frozenset[Role] = frozenset({"frame", "image", "left_image"})  # what CameraPublisher.wait_for_subscriber watches
 # What decoding another program's payload may raise besides our own errors: protobuf, OpenCV and
 # numpy/struct on truncated or inconsistent bytes. Each is a bad message, counted and dropped.
 _BAD_PAYLOAD_ERRORS = (ZenslamError, DecodeError, ValueError, TypeError, OverflowError, struct.error, cv2.error)
@@ -111,7 +112,9 @@ class BusFrames:
     def frames(self) -> Iterator[codec.FrameMessage | SkippedFrame]:
         """Each frame the consumer asks for: the newest complete one (see the module docstring)."""
         with ExitStack() as stack:
-            for key, role in self._roles.items():
+            # The keys a publisher waits on (its images) are declared last, so that once a publisher sees
+            # them matched, every other key of the frame (calibration, depth, right image) is matched too.
+            for key, role in sorted(self._roles.items(), key=lambda item: item[1] in _WAITED_ON):
                 stack.enter_context(self._session.declare_subscriber(key, self._receiver(key, role)))
             liveliness = self._session.liveliness()
             stack.enter_context(liveliness.declare_subscriber(self._family.liveliness_key(), self._on_token, history=True))
