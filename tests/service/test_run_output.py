@@ -243,3 +243,18 @@ def test_monocular_runs_are_aligned_with_scale():
     assert evaluation_config_for(EvaluationConfig(), "mono").alignment == "sim3"
     assert evaluation_config_for(EvaluationConfig(), "stereo").alignment == "se3"
     assert evaluation_config_for(EvaluationConfig(alignment="none"), "mono").alignment == "none"
+
+
+def test_stream_timing_spans_the_first_frame_sent_to_the_last_update_and_gives_the_realtime_factor():
+    log = RunLog()
+    assert log.stream_timing() == {}  # nothing arrived
+    for i in range(10):  # 10 frames at 10 Hz: 1 s of data
+        log.add_state(codec.TrackingStateMessage(i, i * 100_000_000, "ok", has_pose=True, timings_ms={"total": 50.0}))
+        log.note_arrival(100.0 + 0.2 * i, state=True)
+    log.note_arrival(102.05)  # the last map update, after the last state
+    log.note_arrival(101.0)  # an earlier update arriving late does not shorten the stream
+    timing = log.stream_timing()
+    # first state at 100.0 s, its frame sent 50 ms before; last update at 102.05 s
+    assert timing["stream_s"] == pytest.approx(2.1)
+    assert timing["data_duration_s"] == pytest.approx(1.0)
+    assert timing["realtime_factor"] == pytest.approx(1.0 / 2.1)

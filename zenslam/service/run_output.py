@@ -115,6 +115,35 @@ class RunLog:
         # The frontend's first keyframe id: 0, or past a saved map's ids when the run started from one
         # (its keyframes, with smaller ids, are the saved map's, not this run's).
         self.first_keyframe_id = 0
+        # Seconds (one clock: the follower's monotonic clock, or a recording's log times) at which the
+        # first tracking state and the last state or map update arrived: the stream's span.
+        self.first_state_s: float | None = None
+        self.last_message_s: float | None = None
+
+    def note_arrival(self, received_s: float, state: bool = False) -> None:
+        """A tracking state (``state``) or map update arrived at ``received_s`` seconds."""
+        if state and self.first_state_s is None:
+            self.first_state_s = received_s
+        self.last_message_s = received_s if self.last_message_s is None else max(self.last_message_s, received_s)
+
+    def stream_timing(self) -> dict[str, float]:
+        """``stream_s``: from the first frame sent to the last map update applied, and ``realtime_factor``:
+        the data's duration over ``stream_s`` (above 1: faster than the camera); empty without states.
+
+        The first frame was sent before its state arrived by the time the frontend took to track it,
+        which its state reports; the data's duration is its stamps' span plus one frame period.
+        """
+        if self.first_state_s is None or self.last_message_s is None or not self.states:
+            return {}
+        first = self.states[min(self.states)]
+        stream_s = self.last_message_s - self.first_state_s + first.timings_ms.get("total", 0.0) / 1e3
+        stamps = np.array(sorted(s.stamp_ns for s in self.states.values()), dtype=np.int64)
+        period_ns = float(np.median(np.diff(stamps))) if len(stamps) > 1 else 0.0
+        duration_s = (float(stamps[-1] - stamps[0]) + period_ns) / 1e9
+        out = {"stream_s": stream_s, "data_duration_s": duration_s}
+        if stream_s > 0 and duration_s > 0:
+            out["realtime_factor"] = duration_s / stream_s
+        return out
 
     def add_map_update(self, update: object) -> None:
         """Count a backend/map_update message (a MapUpdate, or the stream's end)."""

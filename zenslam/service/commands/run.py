@@ -255,6 +255,7 @@ class _Follower:
             self.log.ended = True
         elif state is not None:
             self.log.add_state(state)
+            self.log.note_arrival(time.monotonic(), state=True)
             self.bar.update(1)
             self.bar.set_postfix(state=state.state, tracked=state.n_tracked, refresh=False)
 
@@ -263,6 +264,8 @@ class _Follower:
         updated = False
         while (update := self.updates.get(0)) is not None:
             self.log.add_map_update(update)
+            if not isinstance(update, codec.EndOfStream):
+                self.log.note_arrival(time.monotonic())
             updated = True
         if updated and self.ros2 is not None:
             self.ros2.publish_path(self.log.keyframe_trajectory())
@@ -468,6 +471,12 @@ def _summary(result: RunResult, log: RunLog) -> list[str]:
         f"frames {counts['frames']}: {counts['tracked_ok']} tracked, {counts['lost_frames']} lost, "
         f"{keyframes['sent']} keyframes ({keyframes['processed']} processed by the backend)",
     ]
+    stream = log.stream_timing()
+    if "realtime_factor" in stream:
+        lines.append(
+            f"stream {stream['stream_s']:.1f} s for {stream['data_duration_s']:.1f} s of data "
+            f"({stream['realtime_factor']:.2f}x real time)"
+        )
     if counts["tracked_ok"] == 0 and counts["initializing_frames"]:
         reasons = ", ".join(f"{count} {reason}" for reason, count in counts["initializing_reasons"].items())
         lines.append(f"no map was made: tracking never initialised ({reasons})")
@@ -541,7 +550,7 @@ def _run(args: argparse.Namespace, stop: StopFlag) -> int:
     if config.recorder.enabled and not recording.exists():
         mcap_io.RecordingWriter(recording).finish()  # stopped before the recorder started: nothing crossed the bus
     extra = {"run": {
-        "run_id": run_id, "source": config.source.spec, "mode": config.mode, "completed": completed,
+        "run_id": run_id, "source": config.source.spec, "mode": config.mode, "completed": completed, **log.stream_timing(),
     }}
     sensor = given.sensor or recorded_sensor(recording) or "stereo"  # a bus source's sensor: what was recorded
     evaluation_config = evaluation_config_for(config.evaluation, sensor)

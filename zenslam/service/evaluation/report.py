@@ -33,6 +33,10 @@ Format (a UTF-8 JSON object; keys are stable, new keys may be added, none rename
         ...                           # (see zenslam.service.evaluation.loop_acceptance)
       },
       "relocalisation": {"count": int, "frames_lost": int, "new_maps": int},   # zenslam run
+      "run": {"run_id": str, "source": str, "mode": str, "completed": bool,      # zenslam run
+              "stream_s": float,          # first frame sent to the last map update received (s)
+              "data_duration_s": float,   # the frames' stamp span plus one period (s)
+              "realtime_factor": float},  # data_duration_s / stream_s (> 1: faster than the camera)
       ...                             # extra top-level sections from the caller, e.g. zenslam run's
                                       # "timing", "frames", "lost_frames"
     }
