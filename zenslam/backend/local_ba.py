@@ -85,6 +85,7 @@ class LocalBundleAdjuster:
             if iterations <= 0:
                 continue
             _run_pass(window, state, active & ~state.dropped_points[problem.obs_point], robust, iterations, config)
+            state.factors[robust].clear()  # each kind of pass runs once: its factors are not needed again
             active = window.classify(state) & ~state.dropped_points[problem.obs_point]
             if state.failure is not None:
                 break
