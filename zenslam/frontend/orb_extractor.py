@@ -516,7 +516,9 @@ def _intensity_centroid_angles(image: np.ndarray, xy: np.ndarray, weights: np.nd
         return np.zeros(0, np.float32)
     cols = np.rint(xy[:, 0]).astype(np.int64) - _HALF_PATCH
     rows = np.rint(xy[:, 1]).astype(np.int64) - _HALF_PATCH
-    windows = np.lib.stride_tricks.sliding_window_view(image, (_PATCH_SIZE, _PATCH_SIZE))[rows, cols]
+    step_y, step_x = image.strides
+    shape = (image.shape[0] - _PATCH_SIZE + 1, image.shape[1] - _PATCH_SIZE + 1, _PATCH_SIZE, _PATCH_SIZE)
+    windows = np.lib.stride_tricks.as_strided(image, shape, (step_y, step_x, step_y, step_x), writeable=False)[rows, cols]
     # einsum, not @: it stays off OpenBLAS, whose threaded gemm can stall a busy machine.
     # float32 is exact here: |m| < 2**24.
     moments = np.einsum("nk,ck->nc", windows.reshape(len(xy), -1).astype(np.float32), weights)
