@@ -8,7 +8,7 @@ because the figures are wall times on a shared 2-core machine; the calling threa
 recorded too (with threads=1 it is the whole work, and does not depend on the load).
 
 Run: ``.venv/bin/python benchmarks/frontend_extraction.py [--data ../shared/data] [--repeats 2]
-[--cv-threads 1]`` (writes benchmarks/results/frontend_extraction[_cv_threads_N].json). ``--cv-threads 1`` turns off
+[--cv-threads 1] [--kernels pinned|machine]`` (writes benchmarks/results/frontend_extraction[_cv_threads_N].json). ``--cv-threads 1`` turns off
 OpenCV's internal thread pool, which only adds synchronisation when the pair is already split
 over two threads.
 """
@@ -20,6 +20,7 @@ import json
 import os
 import platform
 import statistics
+import sys
 import time
 from pathlib import Path
 
@@ -28,6 +29,7 @@ import numpy as np
 
 from zenslam.frontend.orb_extractor import OrbConfig, OrbExtractor
 from zenslam.frontend.stereo_matcher import match_stereo
+from zenslam.runtime.cpu_kernels import kernel_pins, with_pinned_kernels
 from zenslam.service.sources.kitti import KittiSource
 
 REPO = Path(__file__).resolve().parents[1]
@@ -82,7 +84,15 @@ def main() -> None:
     parser.add_argument(
         "--cv-threads", type=int, default=-1, help="cv2.setNumThreads value (-1: leave OpenCV's default)"
     )
+    parser.add_argument(
+        "--kernels", choices=("pinned", "machine"), default="pinned",
+        help="pinned: the math kernels the stage processes use (default); machine: the CPU's own choice",
+    )
     args = parser.parse_args()
+    pinned = all(os.environ.get(name) == value for name, value in kernel_pins(os.environ).items())
+    if args.kernels == "pinned" and not pinned:
+        # the pins are read when numpy and OpenCV load: start again with them set
+        os.execve(sys.executable, [sys.executable, *sys.argv], with_pinned_kernels(os.environ))
     if args.cv_threads >= 0:
         cv2.setNumThreads(args.cv_threads)
     source = KittiSource(args.data / "kitti_odometry" / "sequences" / "06")
@@ -98,13 +108,15 @@ def main() -> None:
         "python": platform.python_version(),
         "opencv": cv2.__version__,
         "opencv_threads": cv2.getNumThreads(),
+        "kernels": "pinned" if pinned else "machine",
         "cpu_count": os.cpu_count(),
         "load_average_1_5_15_before": load_before,
         "load_average_1_5_15_after": os.getloadavg(),
         "clip": "KITTI 06 frames 0-50, 1226x370",
         "results": results,
     }
-    output = RESULTS if args.cv_threads < 0 else RESULTS.with_name(f"{RESULTS.stem}_cv_threads_{args.cv_threads}.json")
+    stem = RESULTS.stem + ("" if args.cv_threads < 0 else f"_cv_threads_{args.cv_threads}") + ("" if pinned else "_machine_kernels")
+    output = RESULTS.with_name(stem + ".json")
     output.parent.mkdir(parents=True, exist_ok=True)
     output.write_text(json.dumps(report, indent=2) + "\n")
     for r in results:

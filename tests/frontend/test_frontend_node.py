@@ -130,6 +130,7 @@ def test_a_frame_prepared_ahead_is_used_by_its_own_handle_only():
     node.close()
     assert pipelines[0].prepared[0] == 1  # (whether 3's ran before it was dropped is up to the thread)
     assert pipelines[0].used_prepared == [False, True, False, False]
+    assert node.built_ahead == 1  # the count the node logs at the end of a lockstep stream
 
 
 def test_gaps_in_frame_indices_count_as_skipped():

@@ -125,6 +125,7 @@ class FrontendNode:
         self.frames = 0  # frames handled
         self.keyframes = 0  # keyframes sent
         self.skipped = 0  # frames never seen (gaps in the indices: dropped in live mode)
+        self.built_ahead = 0  # frames whose ORB/stereo was built while waiting for the backend (lockstep)
         self.updates_applied = 0  # backend map updates applied to the pipeline's map
         self.tracks_backend = False  # set by ``serve`` when the backend's map updates are applied
         self.candidates: CandidateSource | None = None  # set by ``serve``: asks the backend where a lost frame is
@@ -156,7 +157,9 @@ class FrontendNode:
         ahead, self._ahead = self._ahead, None
         if ahead is None or ahead[0] != index:
             return None
-        return ahead[1].result()
+        prepared = ahead[1].result()
+        self.built_ahead += 1
+        return prepared
 
     def handle(self, message: codec.FrameMessage) -> FrontendMessages:
         """Track one frame; the pipeline is built on the first one, from its calibration and sensor."""
@@ -376,6 +379,8 @@ def serve(
                     continue
                 if isinstance(message, codec.EndOfStream):
                     logger.info("end of stream after %d frames from the source (%d tracked)", message.count, node.frames)
+                    if wait_for_updates:
+                        logger.info("%d of %d frames built while waiting for the backend's map update", node.built_ahead, node.frames)
                     ended = True
                     break
                 try:

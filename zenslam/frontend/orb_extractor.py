@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import math
+import operator
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -317,7 +318,8 @@ def _fast_in_cells(
     The windows are tiled into one mosaic up to ``_MOSAIC_TILES`` windows wide (OpenCV's FAST is
     several times slower per pixel on a narrow image), so only detections at least 3 px inside
     their own window are kept: those are exactly the corners a separate call per window would
-    find, up to non-maximum suppression against the margin pixels. Returns region pixels and scores.
+    find, up to non-maximum suppression against the margin pixels. Tiles past the last cell are
+    blank. Returns region pixels and scores.
     """
     height, width = region.shape
     win_h, win_w = h_cell + 2 * _FAST_RADIUS, w_cell + 2 * _FAST_RADIUS
@@ -327,40 +329,50 @@ def _fast_in_cells(
     n_tiles = len(cell_row)
     per_row = min(n_tiles, _MOSAIC_TILES)
     n_rows = -(-n_tiles // per_row)
-    windows = np.zeros((n_rows * per_row, win_h, win_w), np.uint8)
-    windows[:n_tiles] = np.lib.stride_tricks.sliding_window_view(padded, (win_h, win_w))[
-        cell_row * h_cell, cell_col * w_cell
-    ]
-    mosaic = windows.reshape(n_rows, per_row, win_h, win_w).transpose(0, 2, 1, 3).reshape(n_rows * win_h, -1)
-    xy, response = _fast(detector, mosaic)
-    tile_row, local_y = np.divmod(xy[:, 1].astype(np.int64), win_h)
-    tile_col, local_x = np.divmod(xy[:, 0].astype(np.int64), win_w)
+    # cell (i, j)'s window is padded[i*h_cell : i*h_cell + win_h, j*w_cell : j*w_cell + win_w]
+    step_y, step_x = padded.strides
+    cells = np.lib.stride_tricks.as_strided(
+        padded,
+        ((padded.shape[0] - win_h) // h_cell + 1, (padded.shape[1] - win_w) // w_cell + 1, win_h, win_w),
+        (h_cell * step_y, w_cell * step_x, step_y, step_x),
+        writeable=False,
+    )
+    tile = np.arange(n_tiles)
+    mosaic = np.zeros((n_rows, win_h, per_row, win_w), np.uint8)  # tile t at mosaic row t // per_row, column t % per_row
+    mosaic[tile // per_row, :, tile % per_row, :] = cells[cell_row, cell_col]
+    xy, response = _fast(detector, mosaic.reshape(n_rows * win_h, per_row * win_w))
+    if len(xy) == 0:
+        return xy, response
+    xy_int = xy.astype(np.int64)
+    tile_row, local_y = np.divmod(xy_int[:, 1], win_h)
+    tile_col, local_x = np.divmod(xy_int[:, 0], win_w)
     tile = tile_row * per_row + tile_col
-    in_tile = tile < n_tiles  # the blank tiles padding the last mosaic row hold no cell
-    tile[~in_tile] = 0
-    x = local_x + cell_col[tile] * w_cell
-    y = local_y + cell_row[tile] * h_cell
     keep = (
-        in_tile
+        (tile < n_tiles)  # the blank tiles padding the last mosaic row hold no cell
         & (local_y >= _FAST_RADIUS)
         & (local_y < win_h - _FAST_RADIUS)
         & (local_x >= _FAST_RADIUS)
         & (local_x < win_w - _FAST_RADIUS)
-        & (x < width - _FAST_RADIUS)
-        & (y < height - _FAST_RADIUS)
     )
-    return np.stack([x[keep], y[keep]], axis=1).astype(np.float32), response[keep]
+    tile = tile[keep]
+    x = local_x[keep] + cell_col[tile] * w_cell
+    y = local_y[keep] + cell_row[tile] * h_cell
+    inside = (x < width - _FAST_RADIUS) & (y < height - _FAST_RADIUS)
+    return np.stack([x[inside], y[inside]], axis=1).astype(np.float32), response[keep][inside]
 
 
 def _fast(detector: cv2.FastFeatureDetector, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return _keypoint_arrays(detector.detect(image))
 
 
+_RESPONSE = operator.attrgetter("response")
+
+
 def _keypoint_arrays(keypoints: list[cv2.KeyPoint]) -> tuple[np.ndarray, np.ndarray]:
     if not keypoints:
         return np.zeros((0, 2), np.float32), np.zeros(0, np.float32)
     xy = cv2.KeyPoint_convert(keypoints).astype(np.float32).reshape(-1, 2)
-    response = np.fromiter((k.response for k in keypoints), np.float32, len(keypoints))
+    response = np.fromiter(map(_RESPONSE, keypoints), np.float32, len(keypoints))
     return xy, response
 
 
@@ -383,9 +395,9 @@ def distribute_quadtree(xy: np.ndarray, response: np.ndarray, width: int, height
     n_ini = max(1, int(round(width / height)))
     step = width / n_ini
     side = 1 << _QUADTREE_DEPTH
-    ini = np.clip((xy[:, 0] / step).astype(np.int64), 0, n_ini - 1)
-    ix = np.clip(((xy[:, 0] - ini * step) * (side / step)).astype(np.int64), 0, side - 1)
-    iy = np.clip((xy[:, 1] * (side / height)).astype(np.int64), 0, side - 1)
+    ini = np.minimum(np.maximum((xy[:, 0] / step).astype(np.int64), 0), n_ini - 1)
+    ix = np.minimum(np.maximum(((xy[:, 0] - ini * step) * (side / step)).astype(np.int64), 0), side - 1)
+    iy = np.minimum(np.maximum((xy[:, 1] * (side / height)).astype(np.int64), 0), side - 1)
     code = (ini << (2 * _QUADTREE_DEPTH)) | _spread_bits(ix) | (_spread_bits(iy) << 1)
     order = np.argsort(code)  # codes of distinct pixels differ: the result does not depend on ties
     code = code[order]
@@ -395,8 +407,7 @@ def distribute_quadtree(xy: np.ndarray, response: np.ndarray, width: int, height
     while depth < _QUADTREE_DEPTH:
         depth += 1
         starts = _node_starts(code, depth)
-        sizes = np.diff(np.append(starts, n_keys))
-        n_to_expand = int((sizes > 1).sum())
+        n_to_expand = int(np.count_nonzero(_node_sizes(starts, n_keys) > 1))
         if len(starts) >= n_target or n_to_expand == 0:
             break
         if len(starts) + 3 * n_to_expand > n_target:
@@ -413,24 +424,21 @@ def _split_largest_first(code: np.ndarray, starts: np.ndarray, depth: int, n_tar
     """
     n_keys = len(code)
     while depth < _QUADTREE_DEPTH:
-        sizes = np.diff(np.append(starts, n_keys))
+        sizes = _node_sizes(starts, n_keys)
         candidates = np.flatnonzero(sizes > 1)
         if len(candidates) == 0:
             return starts
-        children_starts = _node_starts(code, depth + 1)
-        is_child_start = np.zeros(n_keys, bool)
-        is_child_start[children_starts] = True
+        is_child_start = _node_start_mask(code, depth + 1)
         n_children = np.add.reduceat(is_child_start, starts, dtype=np.int64)
         # most populated first; ties by position (ORB-SLAM breaks them by pointer value)
-        candidates = candidates[np.lexsort((candidates, -sizes[candidates]))]
-        reached = np.flatnonzero(len(starts) + np.cumsum(n_children[candidates] - 1) >= n_target)
+        candidates = candidates[np.argsort(-sizes[candidates], kind="stable")]
+        reached = np.flatnonzero(np.cumsum(n_children[candidates] - 1) >= n_target - len(starts))
         chosen = candidates if len(reached) == 0 else candidates[: reached[0] + 1]
         in_chosen = np.zeros(len(starts), bool)
         in_chosen[chosen] = True
-        key_in_chosen = np.repeat(in_chosen, sizes)
-        is_start = np.zeros(n_keys, bool)
-        is_start[starts] = True
-        new_starts = np.flatnonzero(is_start | (is_child_start & key_in_chosen))
+        is_child_start &= np.repeat(in_chosen, sizes)
+        is_child_start[starts] = True
+        new_starts = np.flatnonzero(is_child_start)
         if len(new_starts) >= n_target:
             return new_starts
         starts = new_starts
@@ -438,32 +446,47 @@ def _split_largest_first(code: np.ndarray, starts: np.ndarray, depth: int, n_tar
     return starts
 
 
-def _node_starts(sorted_code: np.ndarray, depth: int) -> np.ndarray:
-    """First index of each quadtree node at ``depth`` among keys sorted by Morton code."""
+def _node_start_mask(sorted_code: np.ndarray, depth: int) -> np.ndarray:
+    """(K,) bool: key k is the first of its quadtree node at ``depth`` (keys sorted by Morton code)."""
     prefix = sorted_code >> (2 * (_QUADTREE_DEPTH - depth))
     change = np.empty(len(prefix), bool)
     change[0] = True
     np.not_equal(prefix[1:], prefix[:-1], out=change[1:])
-    return np.flatnonzero(change)
+    return change
+
+
+def _node_starts(sorted_code: np.ndarray, depth: int) -> np.ndarray:
+    """First index of each quadtree node at ``depth`` among keys sorted by Morton code."""
+    return np.flatnonzero(_node_start_mask(sorted_code, depth))
+
+
+def _node_sizes(starts: np.ndarray, n_keys: int) -> np.ndarray:
+    """Keys per node, from the nodes' first indices among ``n_keys`` sorted keys."""
+    sizes = np.empty(len(starts), np.int64)
+    np.subtract(starts[1:], starts[:-1], out=sizes[:-1])
+    sizes[-1] = n_keys - starts[-1]
+    return sizes
 
 
 def _best_per_node(response: np.ndarray, starts: np.ndarray) -> np.ndarray:
     """Index of the highest response in each node (the first one on ties)."""
-    sizes = np.diff(np.append(starts, len(response)))
+    sizes = _node_sizes(starts, len(response))
     best = np.maximum.reduceat(response, starts)
     candidates = np.flatnonzero(response == np.repeat(best, sizes))
     node = np.repeat(np.arange(len(starts)), sizes)[candidates]
     first = np.ones(len(candidates), bool)
-    first[1:] = node[1:] != node[:-1]
+    np.not_equal(node[1:], node[:-1], out=first[1:])
     return candidates[first]
+
+
+_SPREAD_BYTE = np.array(
+    [sum(((v >> bit) & 1) << (2 * bit) for bit in range(8)) for v in range(256)], np.int64
+)  # byte b with a zero bit inserted above each of its bits
 
 
 def _spread_bits(v: np.ndarray) -> np.ndarray:
     """Interleave zeros between the 16 low bits of v (Morton encoding of one axis)."""
-    v = (v | (v << 8)) & 0x00FF00FF
-    v = (v | (v << 4)) & 0x0F0F0F0F
-    v = (v | (v << 2)) & 0x33333333
-    return (v | (v << 1)) & 0x55555555
+    return _SPREAD_BYTE[v & 0xFF] | (_SPREAD_BYTE[(v >> 8) & 0xFF] << 16)
 
 
 def _centroid_weights() -> np.ndarray:
@@ -493,7 +516,9 @@ def _intensity_centroid_angles(image: np.ndarray, xy: np.ndarray, weights: np.nd
         return np.zeros(0, np.float32)
     cols = np.rint(xy[:, 0]).astype(np.int64) - _HALF_PATCH
     rows = np.rint(xy[:, 1]).astype(np.int64) - _HALF_PATCH
-    windows = np.lib.stride_tricks.sliding_window_view(image, (_PATCH_SIZE, _PATCH_SIZE))[rows, cols]
+    step_y, step_x = image.strides
+    shape = (image.shape[0] - _PATCH_SIZE + 1, image.shape[1] - _PATCH_SIZE + 1, _PATCH_SIZE, _PATCH_SIZE)
+    windows = np.lib.stride_tricks.as_strided(image, shape, (step_y, step_x, step_y, step_x), writeable=False)[rows, cols]
     # einsum, not @: it stays off OpenBLAS, whose threaded gemm can stall a busy machine.
     # float32 is exact here: |m| < 2**24.
     moments = np.einsum("nk,ck->nc", windows.reshape(len(xy), -1).astype(np.float32), weights)
@@ -510,9 +535,9 @@ def _describe(orb: cv2.ORB, image: np.ndarray, xy: np.ndarray, angle_deg: np.nda
     """
     if len(xy) == 0:
         return np.zeros((0, 32), np.uint8)
-    keypoints = cv2.KeyPoint_convert(xy.astype(np.float32), float(_PATCH_SIZE), 0.0, 0)
-    for keypoint, angle in zip(keypoints, angle_deg.tolist()):
-        keypoint.angle = angle
+    xy32 = xy.astype(np.float32)
+    sizes = [float(_PATCH_SIZE)] * len(xy)
+    keypoints = list(map(cv2.KeyPoint, xy32[:, 0].tolist(), xy32[:, 1].tolist(), sizes, angle_deg.tolist()))
     kept, descriptors = orb.compute(image, keypoints)
     if descriptors is None or len(kept) != len(xy):
         raise RuntimeError(f"ORB.compute dropped keypoints ({len(xy)} in, {len(kept)} out); border logic is wrong")

@@ -11,7 +11,7 @@ import numpy as np
 from zenslam.camera import PinholeCalibration
 from zenslam.errors import CalibrationError, ConfigError
 from zenslam.descriptors import hamming_distance_pairs
-from zenslam.frontend.orb_extractor import Features, base_to_level_px, level_to_base_px
+from zenslam.frontend.orb_extractor import Features, base_to_level_px
 
 logger = logging.getLogger(__name__)
 
@@ -124,36 +124,47 @@ def match_stereo(
 def _best_descriptor_matches(
     left: Features, right: Features, n_rows: int, max_disparity: float, config: StereoMatchConfig
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(left index, right index) of each left keypoint's best ORB match under the threshold."""
-    # rows each right keypoint may match: +-row_tolerance * scale of its level, as a row table (CSR)
+    """(left index, right index) of each left keypoint's best ORB match under the threshold.
+
+    A left keypoint's candidates are the right keypoints whose row band (+-row_tolerance * scale of
+    their level) holds its row, at a level within level_tolerance of its own, with u in
+    [u_left - max_disparity, u_left]. The right keypoints enter a table once per row of their band,
+    sorted by (row, level, u), so the candidates at one level are one slice found by binary search.
+    """
+    n_left, n_right = len(left), len(right)
+    n_levels = len(right.scale_factors)
+    # u ranks (ties by index): u comparisons with a left keypoint become comparisons of ranks
+    u_right = right.px[:, 0]
+    by_u = np.argsort(u_right, kind="stable")
+    u_rank = np.empty(n_right, np.int64)
+    u_rank[by_u] = np.arange(n_right)
     v_right = right.px[:, 1].astype(np.float64)
     band = config.row_tolerance_px * right.scale_factors[right.level]
     first_row = np.clip(np.floor(v_right - band).astype(np.int64), 0, n_rows - 1)
     last_row = np.clip(np.ceil(v_right + band).astype(np.int64), 0, n_rows - 1)
     span = last_row - first_row + 1
-    entry_right = np.repeat(np.arange(len(right)), span)
+    entry_right = np.repeat(np.arange(n_right), span)
     entry_row = np.repeat(first_row, span) + _ranges(span)
-    by_row = np.argsort(entry_row, kind="stable")  # right indices ascending within a row
-    entry_right = entry_right[by_row]
-    row_start = np.searchsorted(entry_row[by_row], np.arange(n_rows + 1))
-    # every (left, candidate right) pair on the left keypoint's row
+    entry_key = (entry_row * n_levels + right.level.astype(np.int64)[entry_right]) * n_right + u_rank[entry_right]
+    order = np.argsort(entry_key)  # unique keys: one entry per (right keypoint, row)
+    entry_key, entry_right = entry_key[order], entry_right[order]
+    # one slice per (left keypoint, level within the tolerance)
+    u_left = left.px[:, 0]
+    u_sorted = u_right[by_u]
+    lo_rank = np.searchsorted(u_sorted, u_left - max_disparity, side="left")  # first right u >= u_left - max_disparity
+    hi_rank = np.searchsorted(u_sorted, u_left, side="right")  # past the last right u <= u_left
     row_left = np.clip(left.px[:, 1].astype(np.int64), 0, n_rows - 1)
-    n_candidates = row_start[row_left + 1] - row_start[row_left]
-    pair_left = np.repeat(np.arange(len(left)), n_candidates)
-    pair_right = entry_right[np.repeat(row_start[row_left], n_candidates) + _ranges(n_candidates)]
-    u_left = left.px[pair_left, 0]
-    u_right = right.px[pair_right, 0]
-    keep = (
-        (np.abs(right.level[pair_right].astype(np.int64) - left.level[pair_left]) <= config.level_tolerance)
-        & (u_right >= u_left - max_disparity)
-        & (u_right <= u_left)
-    )
-    pair_left, pair_right = pair_left[keep], pair_right[keep]
-    distance = hamming_distance_pairs(left.descriptors[pair_left], right.descriptors[pair_right])
+    level = left.level.astype(np.int64)[:, None] + np.arange(-config.level_tolerance, config.level_tolerance + 1)
+    bucket = (row_left[:, None] * n_levels + level) * n_right
+    start = np.searchsorted(entry_key, bucket + lo_rank[:, None])
+    end = np.searchsorted(entry_key, bucket + hi_rank[:, None])
+    count = np.where((level >= 0) & (level < n_levels) & (end > start), end - start, 0).reshape(-1)
+    pair_left = np.repeat(np.repeat(np.arange(n_left), level.shape[1]), count)  # grouped by left keypoint
+    pair_right = entry_right[np.repeat(start.reshape(-1), count) + _ranges(count)]
     if len(pair_left) == 0:
         return pair_left, pair_right
-    # per left keypoint (pairs are grouped by left index): lowest distance, then lowest right index
-    n_right = len(right)
+    distance = hamming_distance_pairs(left.descriptors[pair_left], right.descriptors[pair_right])
+    # per left keypoint: lowest distance, then lowest right index
     key = distance.astype(np.int64) * n_right + pair_right
     starts = np.flatnonzero(np.r_[True, pair_left[1:] != pair_left[:-1]])
     best = np.minimum.reduceat(key, starts)
@@ -171,66 +182,46 @@ def _refine_by_sad(
     right_pyramid: list[np.ndarray],
     config: StereoMatchConfig,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Sub-pixel right u (level-0 px, NaN if rejected) and best SAD per match, level by level."""
-    u_right = np.full(len(i_left), np.nan)
-    sad = np.full(len(i_left), np.inf)
+    """Sub-pixel right u (level-0 px, NaN if rejected) and best SAD per match.
+
+    Each match's SAD slide runs on the left keypoint's level; the windows of all levels are
+    gathered first and their costs computed together.
+    """
+    w, search = config.sad_half_window_px, config.sad_search_px
+    side = 2 * w + 1
+    base_shape = left_pyramid[0].shape
     levels = left.level[i_left]
+    parts = []
     for level in np.unique(levels).tolist():
         members = np.flatnonzero(levels == level)
-        u_right[members], sad[members] = _sad_on_level(
-            left.px[i_left[members]],
-            right.px[i_right[members], 0],
-            (left_pyramid[level], right_pyramid[level]),
-            left_pyramid[0].shape,
-            config,
+        image_left, image_right = left_pyramid[level], right_pyramid[level]
+        rows, cols = image_left.shape
+        left_level = base_to_level_px(left.px[i_left[members]], image_left.shape, base_shape)
+        u_l = np.rint(left_level[:, 0]).astype(np.int64)
+        v_l = np.rint(left_level[:, 1]).astype(np.int64)
+        to_level = image_right.shape[1] / base_shape[1]
+        u_r0 = np.rint((right.px[i_right[members], 0].astype(np.float64) + 0.5) * to_level - 0.5).astype(np.int64)
+        inside = (
+            (u_r0 - search - w >= 0)
+            & (u_r0 + search + w < cols)
+            & (u_l - w >= 0)
+            & (u_l + w < cols)
+            & (v_l - w >= 0)
+            & (v_l + w < rows)
         )
-    return u_right, sad
-
-
-def _sad_on_level(
-    px_left: np.ndarray,
-    u_right0: np.ndarray,
-    images: tuple[np.ndarray, np.ndarray],
-    base_shape: tuple[int, ...],
-    config: StereoMatchConfig,
-) -> tuple[np.ndarray, np.ndarray]:
-    """SAD slide and parabola fit for matches on one level (``images`` = left, right level images of
-    the level-0 images of shape ``base_shape``); returns right u (level-0 px) and SAD."""
-    image_left, image_right = images
-    w, search = config.sad_half_window_px, config.sad_search_px
-    rows, cols = image_left.shape
-    left_level = base_to_level_px(px_left, image_left.shape, base_shape)
-    u_l = np.rint(left_level[:, 0]).astype(np.int64)
-    v_l = np.rint(left_level[:, 1]).astype(np.int64)
-    right_level = base_to_level_px(np.column_stack([u_right0, np.zeros(len(u_right0))]), image_right.shape, base_shape)
-    u_r0 = np.rint(right_level[:, 0]).astype(np.int64)
-    inside = (
-        (u_r0 - search - w >= 0)
-        & (u_r0 + search + w < cols)
-        & (u_l - w >= 0)
-        & (u_l + w < cols)
-        & (v_l - w >= 0)
-        & (v_l + w < rows)
-    )
-    u_out = np.full(len(u_l), np.nan)
-    sad_out = np.full(len(u_l), np.inf)
-    if not inside.any():
-        return u_out, sad_out
-    u_l, v_l, u_r0 = u_l[inside], v_l[inside], u_r0[inside]
-    side = 2 * w + 1
-    strip_width = side + 2 * search
-    patch_left = np.lib.stride_tricks.sliding_window_view(image_left, (side, side))[v_l - w, u_l - w]
-    strip = np.lib.stride_tricks.sliding_window_view(image_right, (side, strip_width))[v_l - w, u_r0 - search - w]
-    # subtract each window's centre pixel, as ORB-SLAM2 does, to be robust to a brightness offset
-    patch_left = patch_left.astype(np.int16) - patch_left[:, w : w + 1, w : w + 1].astype(np.int16)
-    strip = strip.astype(np.int16)
-    n_offsets = 2 * search + 1
-    windows = np.lib.stride_tricks.sliding_window_view(strip, side, axis=2).transpose(0, 2, 1, 3)  # (n, off, r, c)
-    centres = strip[:, w, w : w + n_offsets]  # (n, offsets)
-    diff = windows - (patch_left[:, None, :, :] + centres[:, :, None, None])
-    diff = diff.reshape(len(u_l), n_offsets, side * side)
-    np.abs(diff, out=diff)
-    costs = diff.sum(axis=2, dtype=np.int32).astype(np.float64)  # (n, offsets)
+        if not inside.any():
+            continue
+        u_l, v_l, u_r0 = u_l[inside], v_l[inside], u_r0[inside]
+        patch = _windows(image_left, v_l - w, u_l - w, side, side)
+        strip = _windows(image_right, v_l - w, u_r0 - search - w, side, side + 2 * search)
+        to_base = np.full(len(u_r0), base_shape[1] / image_right.shape[1])
+        parts.append((members[inside], patch, strip, u_r0, to_base))
+    u_right = np.full(len(i_left), np.nan)
+    sad = np.full(len(i_left), np.inf)
+    if not parts:
+        return u_right, sad
+    members, patch, strip, u_r0, to_base = (np.concatenate(p) for p in zip(*parts))
+    costs = _sad_costs(patch, strip, w, search)
     best = np.argmin(costs, axis=1)
     interior = (best > 0) & (best < 2 * search)
     b = np.clip(best, 1, 2 * search - 1)
@@ -240,11 +231,35 @@ def _sad_on_level(
         delta = (c1 - c3) / (2.0 * (c1 + c3 - 2.0 * c2))
     ok = interior & np.isfinite(delta) & (np.abs(delta) <= config.max_subpixel_correction_px)
     u_level = u_r0 + (best - search) + delta
-    u_base = level_to_base_px(np.column_stack([u_level, np.zeros(len(u_level))]), image_right.shape, base_shape)[:, 0]
-    refined = np.where(ok, u_base, np.nan)
-    u_out[inside] = refined
-    sad_out[inside] = np.where(ok, costs[rows_idx, best], np.inf)
-    return u_out, sad_out
+    u_base = (u_level + 0.5) * to_base - 0.5  # level_to_base_px of the right level image's u
+    u_right[members] = np.where(ok, u_base, np.nan)
+    sad[members] = np.where(ok, costs[rows_idx, best], np.inf)
+    return u_right, sad
+
+
+def _sad_costs(patch: np.ndarray, strip: np.ndarray, w: int, search: int) -> np.ndarray:
+    """(n, 2 * search + 1) float64 SAD of each left patch (n, side, side) slid along its right strip
+    (n, side, side + 2 * search), each window less its centre pixel as ORB-SLAM2 does, to be
+    robust to a brightness offset."""
+    n, side = len(patch), 2 * w + 1
+    patch = patch.astype(np.int16)
+    patch -= patch[:, w : w + 1, w : w + 1]
+    strip = strip.astype(np.int16)
+    costs = np.empty((2 * search + 1, n), np.int32)
+    diff = np.empty((n, side, side), np.int16)
+    for offset in range(2 * search + 1):  # a loop of whole-batch operations: contiguous rows, no 4-D temporaries
+        np.subtract(strip[:, :, offset : offset + side], patch, out=diff)
+        diff -= strip[:, w, w + offset][:, None, None]
+        np.abs(diff, out=diff)
+        np.sum(diff.reshape(n, side * side), axis=1, dtype=np.int32, out=costs[offset])
+    return costs.T.astype(np.float64)
+
+
+def _windows(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, height: int, width: int) -> np.ndarray:
+    """(n, height, width) copies of ``image``'s windows whose top-left pixels are (rows, cols)."""
+    step_y, step_x = image.strides
+    shape = (image.shape[0] - height + 1, image.shape[1] - width + 1, height, width)
+    return np.lib.stride_tricks.as_strided(image, shape, (step_y, step_x, step_y, step_x), writeable=False)[rows, cols]
 
 
 def _ranges(counts: np.ndarray) -> np.ndarray:
