@@ -401,7 +401,8 @@ def print_table(report: dict) -> None:
                 print(f"{'':<20} {'':<9} failed {len(errors)} of {len(clip[system]['rounds'])} rounds: {errors[-1]}")
         ratios = clip["ratio_zenslam_over_orbslam3"]
         cells = [f"{k.split(' ')[0]} {v:.2f}" for k, v in ratios.items() if v is not None]
-        print(f"{'':<20} {'z/o':<9} " + ", ".join(cells))
+        if cells:
+            print(f"{'':<20} {'z/o':<9} " + ", ".join(cells))
     print("(medians over rounds; zenslam's peak RSS: the sum of its processes' peaks; BE: backend per keyframe)")
 
 
