@@ -36,6 +36,7 @@ Run: ``.venv/bin/python benchmarks/vs_orbslam3.py [--rounds 3] [--clips kitti06_
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import importlib.metadata
 import importlib.util
 import json
@@ -71,7 +72,8 @@ REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results" / "vs_orbslam3.json"
 _MB = 1e6
 _CHILD_FAILED_IMPORT = 3  # exit code of the child when pyorbslam3 does not import
-_REASON_PREFIX = "vs_orbslam3: "  # the child's last stderr line starting with this says why it failed
+_REASON_PREFIX = "vs_orbslam3: "
+_MIN_TRACKED_SHARE = 0.9  # ATE ratios only where both systems tracked at least this share of the frames  # the child's last stderr line starting with this says why it failed
 _VIEWER = {  # ORB-SLAM2's KITTI stereo viewer entries; the viewer is off, but the map drawer reads them
     "KeyFrameSize": 0.6, "KeyFrameLineWidth": 2, "GraphLineWidth": 1, "PointSize": 2, "CameraSize": 0.7,
     "CameraLineWidth": 3, "ViewpointX": 0, "ViewpointY": -100, "ViewpointZ": -0.1, "ViewpointF": 2000,
@@ -349,12 +351,16 @@ def run_zenslam(spec: str, sensor: str | None, work: Path, mode: str, config: Pa
     }
 
 
-def prepare_orbslam3_inputs(name: str, spec: str, sensor: str, config: RunConfig, work: Path, vocabulary: Path) -> dict[str, Path]:
-    """The vocabulary and the clip's settings file ORB-SLAM3 is started with."""
+def prepare_orbslam3_inputs(
+    name: str, spec: str, sensor: str, config: RunConfig, n_features: int | None, work: Path, vocabulary: Path
+) -> dict[str, Path]:
+    """The vocabulary and the clip's settings file ORB-SLAM3 is started with: zenslam's ORB values
+    (``n_features``: another number of features per image, None: zenslam's)."""
     source = open_source(spec, sensor)
     settings = work / f"{name}.orbslam2.yaml"
+    orb = config.frontend.orb if n_features is None else dataclasses.replace(config.frontend.orb, n_features=n_features)
     settings.write_text(orbslam2_settings_text(
-        source.calibration, sensor, frame_rate(source.stamps_ns()), config.frontend.orb,
+        source.calibration, sensor, frame_rate(source.stamps_ns()), orb,
         config.frontend.keyframe.close_depth_baselines,
     ))  # fmt: skip
     return {"vocabulary": vocabulary, "settings": settings}
@@ -375,9 +381,14 @@ def summarise(clip: dict) -> None:
         clip[system]["median"] = {k: median_over_rounds(rounds, k) for k in sorted(keys)}
     z, o = clip["zenslam"]["median"], clip["orbslam3"]["median"]
     z_rss = z.get("peak_rss_sum_mb")
+    # An ATE over a few frames, or over frames of two maps, is no measure of accuracy: ATEs are
+    # compared only where both systems tracked most of the clip.
+    comparable = all(
+        (m.get("tracked_ok") or 0) >= _MIN_TRACKED_SHARE * (m.get("frames") or np.inf) for m in (z, o)
+    )
     clip["ratio_zenslam_over_orbslam3"] = {
-        "ate_m": ratio(z.get("ate_m"), o.get("ate_m")),
-        "ate_final_m": ratio(z.get("ate_final_m"), o.get("ate_final_m")),
+        "ate_m": ratio(z.get("ate_m"), o.get("ate_m")) if comparable else None,
+        "ate_final_m": ratio(z.get("ate_final_m"), o.get("ate_final_m")) if comparable else None,
         "tracking_median_ms": ratio(z.get("tracking_median_ms"), o.get("tracking_median_ms")),
         "wall_s": ratio(z.get("wall_s"), o.get("wall_s")),
         "cpu_s": ratio(z.get("cpu_s"), o.get("cpu_s")),
@@ -403,7 +414,8 @@ def print_table(report: dict) -> None:
         cells = [f"{k.split(' ')[0]} {v:.2f}" for k, v in ratios.items() if v is not None]
         if cells:
             print(f"{'':<20} {'z/o':<9} " + ", ".join(cells))
-    print("(medians over rounds; zenslam's peak RSS: the sum of its processes' peaks; BE: backend per keyframe)")
+    print("(medians over rounds; zenslam's peak RSS: the sum of its processes' peaks; BE: backend per keyframe;")
+    print(f" ATE ratios only where both systems tracked at least {_MIN_TRACKED_SHARE:.0%} of the frames)")
 
 
 # ---------------------------------------------------------------- main
@@ -424,6 +436,8 @@ def main() -> None:
     parser.add_argument("--pipelined", action="store_true", help="run zenslam --pipelined instead of --lockstep")
     parser.add_argument("--orbslam3-pace", choices=("realtime", "asap"), default="realtime",
                         help="feed ORB-SLAM3 frames as fast as it takes them, or at the clip's rate")  # fmt: skip
+    parser.add_argument("--orbslam3-n-features", type=int, default=None,
+                        help="ORB features per image for ORB-SLAM3 (default: zenslam's; ORB-SLAM's KITTI files use 2000)")  # fmt: skip
     parser.add_argument("--config", type=Path, default=None, help="run config YAML for zenslam; its ORB values go to ORB-SLAM3 too")
     parser.add_argument("--keep", type=Path, default=None, help="keep the runs, settings and logs in this folder")
     parser.add_argument("--results", type=Path, default=RESULTS)
@@ -443,7 +457,7 @@ def main() -> None:
         "machine": platform.platform(), "cpus": os.cpu_count(), "load_1_5_15_before": os.getloadavg(),
         "commit": subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip(),
         "pyorbslam3": version, "orbslam3_unavailable": unavailable, "zenslam_mode": mode,
-        "orbslam3_pace": args.orbslam3_pace, "rounds": args.rounds, "clips": {},
+        "orbslam3_pace": args.orbslam3_pace, "orbslam3_n_features": args.orbslam3_n_features or config.frontend.orb.n_features, "rounds": args.rounds, "clips": {},
     }  # fmt: skip
     with tempfile.TemporaryDirectory(prefix="vs_orbslam3-") as tmp:
         work = args.keep or Path(tmp)
@@ -455,7 +469,7 @@ def main() -> None:
             for name, clip in clips.items():
                 spec = clip.resolved(args.data)
                 sensor = clip.sensor or open_source(spec).sensor
-                inputs[name] = prepare_orbslam3_inputs(name, spec, sensor, config, work, vocabulary)
+                inputs[name] = prepare_orbslam3_inputs(name, spec, sensor, config, args.orbslam3_n_features, work, vocabulary)
         for name, clip in clips.items():
             spec = clip.resolved(args.data)
             report["clips"][name] = {"spec": spec, "sensor": clip.sensor or open_source(spec).sensor,

@@ -136,15 +136,21 @@ def test_a_crashed_child_is_named_by_its_signal_and_a_failed_one_by_its_reason(b
     assert bench.describe_failure(failed) == "pyorbslam3 does not import: OSError: libGL.so.1"
 
 
-def test_summary_takes_medians_over_the_rounds_that_ran_and_their_ratios(bench):
-    clip = {
-        "zenslam": {"rounds": [{"ate_m": 0.03, "wall_s": 20.0, "peak_rss_sum_mb": 900.0},
-                               {"ate_m": 0.05, "wall_s": 30.0, "peak_rss_sum_mb": 1000.0},
-                               {"ate_m": 0.04, "wall_s": 25.0, "peak_rss_sum_mb": 950.0}]},
-        "orbslam3": {"rounds": [{"ate_m": 0.08, "wall_s": 5.0, "peak_rss_mb": 190.0},
+def summary_clip(orbslam3_tracked: int) -> dict:
+    ok = {"tracked_ok": 51, "frames": 51}
+    orb = {"tracked_ok": orbslam3_tracked, "frames": 51}
+    return {
+        "zenslam": {"rounds": [{"ate_m": 0.03, "wall_s": 20.0, "peak_rss_sum_mb": 900.0, **ok},
+                               {"ate_m": 0.05, "wall_s": 30.0, "peak_rss_sum_mb": 1000.0, **ok},
+                               {"ate_m": 0.04, "wall_s": 25.0, "peak_rss_sum_mb": 950.0, **ok}]},
+        "orbslam3": {"rounds": [{"ate_m": 0.08, "wall_s": 5.0, "peak_rss_mb": 190.0, **orb},
                                 {"error": "ORB-SLAM3 crashed (SIGSEGV)"},
-                                {"ate_m": 0.06, "wall_s": 7.0, "peak_rss_mb": 180.0}]},
+                                {"ate_m": 0.06, "wall_s": 7.0, "peak_rss_mb": 180.0, **orb}]},
     }  # fmt: skip
+
+
+def test_summary_takes_medians_over_the_rounds_that_ran_and_their_ratios(bench):
+    clip = summary_clip(orbslam3_tracked=51)
     bench.summarise(clip)
     assert clip["zenslam"]["median"]["ate_m"] == pytest.approx(0.04)
     assert clip["orbslam3"]["median"]["ate_m"] == pytest.approx(0.07)
@@ -153,6 +159,14 @@ def test_summary_takes_medians_over_the_rounds_that_ran_and_their_ratios(bench):
     assert ratios["wall_s"] == pytest.approx(25.0 / 6.0)
     assert ratios["peak_rss_mb"] == pytest.approx(950.0 / 185.0)
     assert ratios["tracking_median_ms"] is None  # neither measured it
+
+
+def test_no_ate_ratio_where_a_system_tracked_few_of_the_frames(bench):
+    clip = summary_clip(orbslam3_tracked=6)
+    bench.summarise(clip)
+    ratios = clip["ratio_zenslam_over_orbslam3"]
+    assert ratios["ate_m"] is None and ratios["ate_final_m"] is None
+    assert ratios["wall_s"] == pytest.approx(25.0 / 6.0)
 
 
 def test_the_script_does_not_import_pyorbslam3(bench):
