@@ -20,10 +20,10 @@ both see similar machine load):
   reference keyframe's final pose, as zenslam's trajectory_final.tum).
 Frames go to ORB-SLAM3 at the clip's rate, as ORB-SLAM3's example programs feed them: it is a
 real-time system whose local mapping runs beside tracking, and a monocular keyframe is made only
-while local mapping is idle (``--orbslam3-pace asap``: as fast as it takes them). Its wall time is
-then at least the clip's duration; the CPU seconds of each run (``getrusage`` of the finished
-children: zenslam's command with all its processes, ORB-SLAM3's child) compare the work whatever the
-pace. If pyorbslam3 is missing, does not import, or crashes, one line says why and zenslam's half
+while local mapping is idle (``--orbslam3-rate R``: R times the recorded rate, 0 as fast as it
+takes them). Its wall time is then at least the clip's duration; the CPU seconds of each run
+(``getrusage`` of the finished children: zenslam's command with all its processes, ORB-SLAM3's
+child) compare the work whatever the pace. If pyorbslam3 is missing, does not import, or crashes, one line says why and zenslam's half
 still runs.
 
 pyorbslam3 is GPL-3.0: it is the ``bench`` extra (``pip install -e '.[bench]'``), never a
@@ -219,8 +219,8 @@ def orbslam3_child(request_path: Path) -> None:
     start = time.perf_counter()
     for frame in source:
         t_s = (frame.stamp_ns - stamp0_ns) * 1e-9
-        if request["pace"] == "realtime":
-            time.sleep(max(0.0, start + t_s - time.perf_counter()))
+        if request["rate"] > 0:
+            time.sleep(max(0.0, start + t_s / request["rate"] - time.perf_counter()))
         before = time.perf_counter()
         if sensor == "stereo":
             result = slam.track_stereo(frame.left, frame.right, t_s)
@@ -288,11 +288,11 @@ def ate_of(estimate: Trajectory | None, ground_truth: Trajectory | None, sensor:
     return {"rmse_m": evaluation.ate.rmse_m, "matched_poses": evaluation.ate.matched_poses}
 
 
-def run_orbslam3(spec: str, sensor: str, files: dict[str, Path], work: Path, pace: str, tag: str) -> dict:
+def run_orbslam3(spec: str, sensor: str, files: dict[str, Path], work: Path, rate: float, tag: str) -> dict:
     """One ORB-SLAM3 run in a child process: its figures, or ``{"error": why}``."""
     request = work / f"{tag}.request.json"
     result_file = work / f"{tag}.result.json"
-    request.write_text(json.dumps({"spec": spec, "sensor": sensor, "pace": pace, "result": str(result_file),
+    request.write_text(json.dumps({"spec": spec, "sensor": sensor, "rate": rate, "result": str(result_file),
                                    "vocabulary": str(files["vocabulary"]), "settings": str(files["settings"])}))  # fmt: skip
     command = [sys.executable, str(Path(__file__).resolve()), "--orbslam3-child", str(request)]
     peaks, wall_s, cpu_s, result = run_measured(command)
@@ -434,8 +434,8 @@ def main() -> None:
     parser.add_argument("--clips", nargs="+", choices=sorted(CLIPS), default=list(CLIPS))
     parser.add_argument("--data", type=Path, default=Path(os.environ.get("ZENSLAM_DATA", REPO.parent / "shared" / "data")))
     parser.add_argument("--pipelined", action="store_true", help="run zenslam --pipelined instead of --lockstep")
-    parser.add_argument("--orbslam3-pace", choices=("realtime", "asap"), default="realtime",
-                        help="feed ORB-SLAM3 frames as fast as it takes them, or at the clip's rate")  # fmt: skip
+    parser.add_argument("--orbslam3-rate", type=float, default=1.0,
+                        help="feed ORB-SLAM3 frames at this multiple of the clip's rate (0: as fast as it takes them)")  # fmt: skip
     parser.add_argument("--orbslam3-n-features", type=int, default=None,
                         help="ORB features per image for ORB-SLAM3 (default: zenslam's; ORB-SLAM's KITTI files use 2000)")  # fmt: skip
     parser.add_argument("--config", type=Path, default=None, help="run config YAML for zenslam; its ORB values go to ORB-SLAM3 too")
@@ -457,7 +457,7 @@ def main() -> None:
         "machine": platform.platform(), "cpus": os.cpu_count(), "load_1_5_15_before": os.getloadavg(),
         "commit": subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip(),
         "pyorbslam3": version, "orbslam3_unavailable": unavailable, "zenslam_mode": mode,
-        "orbslam3_pace": args.orbslam3_pace, "orbslam3_n_features": args.orbslam3_n_features or config.frontend.orb.n_features, "rounds": args.rounds, "clips": {},
+        "orbslam3_rate": args.orbslam3_rate, "orbslam3_n_features": args.orbslam3_n_features or config.frontend.orb.n_features, "rounds": args.rounds, "clips": {},
     }  # fmt: skip
     with tempfile.TemporaryDirectory(prefix="vs_orbslam3-") as tmp:
         work = args.keep or Path(tmp)
@@ -486,7 +486,7 @@ def main() -> None:
                     elif unavailable:
                         continue
                     else:
-                        figures = run_orbslam3(spec, sensor, inputs[name], work, args.orbslam3_pace, tag)
+                        figures = run_orbslam3(spec, sensor, inputs[name], work, args.orbslam3_rate, tag)
                         if figures.pop("import_failed", False):
                             unavailable = report["orbslam3_unavailable"] = figures["error"]
                             print(f"ORB-SLAM3 skipped: {unavailable}")
