@@ -23,14 +23,16 @@ real-time system whose local mapping runs beside tracking, and a monocular keyfr
 while local mapping is idle (``--orbslam3-rate R``: R times the recorded rate, 0 as fast as it
 takes them). Its wall time is then at least the clip's duration; the CPU seconds of each run
 (``getrusage`` of the finished children: zenslam's command with all its processes, ORB-SLAM3's
-child) compare the work whatever the pace. If pyorbslam3 is missing, does not import, or crashes, one line says why and zenslam's half
-still runs.
+child) compare the work whatever the pace. ATE ratios are given only where both systems tracked
+most of the clip. If pyorbslam3 is missing, does not import, or crashes, one line says why and
+zenslam's half still runs.
 
 pyorbslam3 is GPL-3.0: it is the ``bench`` extra (``pip install -e '.[bench]'``), never a
 dependency of zenslam, and only this script's child process imports it.
 
 Run: ``.venv/bin/python benchmarks/vs_orbslam3.py [--rounds 3] [--clips kitti06_stereo kitti06_mono ...]
-[--pipelined] [--data ../shared/data]`` (writes benchmarks/results/vs_orbslam3.json).
+[--pipelined] [--orbslam3-rate 1] [--orbslam3-n-features N] [--config YAML] [--data ../shared/data]
+[--keep DIR]`` (writes benchmarks/results/vs_orbslam3.json).
 """
 
 from __future__ import annotations
@@ -72,8 +74,8 @@ REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results" / "vs_orbslam3.json"
 _MB = 1e6
 _CHILD_FAILED_IMPORT = 3  # exit code of the child when pyorbslam3 does not import
-_REASON_PREFIX = "vs_orbslam3: "
-_MIN_TRACKED_SHARE = 0.9  # ATE ratios only where both systems tracked at least this share of the frames  # the child's last stderr line starting with this says why it failed
+_REASON_PREFIX = "vs_orbslam3: "  # the child's last stderr line starting with this says why it failed
+_MIN_TRACKED_SHARE = 0.9  # ATE ratios only where both systems tracked at least this share of the frames
 _VIEWER = {  # ORB-SLAM2's KITTI stereo viewer entries; the viewer is off, but the map drawer reads them
     "KeyFrameSize": 0.6, "KeyFrameLineWidth": 2, "GraphLineWidth": 1, "PointSize": 2, "CameraSize": 0.7,
     "CameraLineWidth": 3, "ViewpointX": 0, "ViewpointY": -100, "ViewpointZ": -0.1, "ViewpointF": 2000,
@@ -453,11 +455,13 @@ def main() -> None:
     version, unavailable = orbslam3_status()
     if unavailable:
         print(unavailable)
+    commit = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
     report: dict = {
         "machine": platform.platform(), "cpus": os.cpu_count(), "load_1_5_15_before": os.getloadavg(),
-        "commit": subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip(),
-        "pyorbslam3": version, "orbslam3_unavailable": unavailable, "zenslam_mode": mode,
-        "orbslam3_rate": args.orbslam3_rate, "orbslam3_n_features": args.orbslam3_n_features or config.frontend.orb.n_features, "rounds": args.rounds, "clips": {},
+        "commit": commit.stdout.strip(), "pyorbslam3": version, "orbslam3_unavailable": unavailable,
+        "zenslam_mode": mode, "orbslam3_rate": args.orbslam3_rate,
+        "orbslam3_n_features": args.orbslam3_n_features or config.frontend.orb.n_features,
+        "rounds": args.rounds, "clips": {},
     }  # fmt: skip
     with tempfile.TemporaryDirectory(prefix="vs_orbslam3-") as tmp:
         work = args.keep or Path(tmp)
