@@ -59,7 +59,7 @@ import numpy as np
 from zenslam.camera import PinholeCalibration, SensorKind
 from zenslam.frontend.orb_extractor import OrbConfig
 from zenslam.geometry import quat_wxyz_to_R
-from zenslam.service.sources import open_source
+from zenslam.service.sources import Source, open_source
 from zenslam.trajectory import Trajectory
 
 from footprint import run_sampled, vm_hwm_bytes  # the footprint benchmark's samplers (benchmarks/ is on sys.path)
@@ -290,8 +290,9 @@ def ate_of(estimate: Trajectory | None, ground_truth: Trajectory | None, sensor:
     return {"rmse_m": evaluation.ate.rmse_m, "matched_poses": evaluation.ate.matched_poses}
 
 
-def run_orbslam3(spec: str, sensor: str, files: dict[str, Path], work: Path, rate: float, tag: str) -> dict:
-    """One ORB-SLAM3 run in a child process: its figures, or ``{"error": why}``."""
+def run_orbslam3(spec: str, source: Source, files: dict[str, Path], work: Path, rate: float, tag: str) -> dict:
+    """One ORB-SLAM3 run on ``spec`` (opened as ``source``) in a child process: its figures, or ``{"error": why}``."""
+    sensor = source.sensor
     request = work / f"{tag}.request.json"
     result_file = work / f"{tag}.result.json"
     request.write_text(json.dumps({"spec": spec, "sensor": sensor, "rate": rate, "result": str(result_file),
@@ -302,7 +303,6 @@ def run_orbslam3(spec: str, sensor: str, files: dict[str, Path], work: Path, rat
     if result.returncode != 0:
         return {"error": describe_failure(result), "import_failed": result.returncode == _CHILD_FAILED_IMPORT}
     child = json.loads(result_file.read_text())
-    source = open_source(spec, sensor)
     ground_truth = source.ground_truth()
     with np.load(result_file.with_suffix(".tracked.npz")) as tracked:
         as_tracked = Trajectory(tracked["stamps_ns"], tracked["T_world_cam"]) if len(tracked["stamps_ns"]) else None
@@ -354,15 +354,14 @@ def run_zenslam(spec: str, sensor: str | None, work: Path, mode: str, config: Pa
 
 
 def prepare_orbslam3_inputs(
-    name: str, spec: str, sensor: str, config: RunConfig, n_features: int | None, work: Path, vocabulary: Path
+    name: str, source: Source, config: RunConfig, n_features: int | None, work: Path, vocabulary: Path
 ) -> dict[str, Path]:
     """The vocabulary and the clip's settings file ORB-SLAM3 is started with: zenslam's ORB values
     (``n_features``: another number of features per image, None: zenslam's)."""
-    source = open_source(spec, sensor)
     settings = work / f"{name}.orbslam2.yaml"
     orb = config.frontend.orb if n_features is None else dataclasses.replace(config.frontend.orb, n_features=n_features)
     settings.write_text(orbslam2_settings_text(
-        source.calibration, sensor, frame_rate(source.stamps_ns()), orb,
+        source.calibration, source.sensor, frame_rate(source.stamps_ns()), orb,
         config.frontend.keyframe.close_depth_baselines,
     ))  # fmt: skip
     return {"vocabulary": vocabulary, "settings": settings}
@@ -430,7 +429,7 @@ def orbslam3_status() -> tuple[str | None, str | None]:
     return importlib.metadata.version("pyorbslam3"), None
 
 
-def main() -> None:
+def parse_args() -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=3, help="rounds over the clips, interleaved")
     parser.add_argument("--clips", nargs="+", choices=sorted(CLIPS), default=list(CLIPS))
@@ -444,14 +443,41 @@ def main() -> None:
     parser.add_argument("--keep", type=Path, default=None, help="keep the runs, settings and logs in this folder")
     parser.add_argument("--results", type=Path, default=RESULTS)
     parser.add_argument("--orbslam3-child", type=Path, default=None, help=argparse.SUPPRESS)
-    args = parser.parse_args()
+    return parser.parse_args()
+
+
+def run_rounds(report: dict, sources: dict[str, Source], inputs: dict[str, dict[str, Path]], work: Path, args) -> None:
+    """Every round over the clips, the two systems in alternating order; their figures into ``report``."""
+    for round_index in range(args.rounds):
+        for name, source in sources.items():
+            entry = report["clips"][name]
+            order = ("zenslam", "orbslam3") if round_index % 2 == 0 else ("orbslam3", "zenslam")
+            for system in order:
+                tag = f"{name}-{system}-r{round_index}"
+                if system == "zenslam":
+                    mode = report["zenslam_mode"]
+                    figures = run_zenslam(entry["spec"], CLIPS[name].sensor, work, mode, args.config, tag)
+                elif report["orbslam3_unavailable"]:
+                    continue
+                else:
+                    figures = run_orbslam3(entry["spec"], source, inputs[name], work, args.orbslam3_rate, tag)
+                    if figures.pop("import_failed", False):
+                        report["orbslam3_unavailable"] = figures["error"]
+                        print(f"ORB-SLAM3 skipped: {figures['error']}")
+                figures["load_1min_before"] = os.getloadavg()[0]
+                entry[system]["rounds"].append(figures)
+                shown = figures.get("error") or f"ATE {figures['ate_m'] or float('nan'):.4f} m, wall {figures['wall_s']:.1f} s"
+                print(f"round {round_index + 1}/{args.rounds} {name} {system}: {shown}", flush=True)
+
+
+def main() -> None:
+    args = parse_args()
     if args.orbslam3_child is not None:
         orbslam3_child(args.orbslam3_child)
         return
     from zenslam.service.run_config import load_run_config
 
     config = load_run_config(args.config)
-    mode = "pipelined" if args.pipelined else "lockstep"
     version, unavailable = orbslam3_status()
     if unavailable:
         print(unavailable)
@@ -459,47 +485,25 @@ def main() -> None:
     report: dict = {
         "machine": platform.platform(), "cpus": os.cpu_count(), "load_1_5_15_before": os.getloadavg(),
         "commit": commit.stdout.strip(), "pyorbslam3": version, "orbslam3_unavailable": unavailable,
-        "zenslam_mode": mode, "orbslam3_rate": args.orbslam3_rate,
+        "zenslam_mode": "pipelined" if args.pipelined else "lockstep", "orbslam3_rate": args.orbslam3_rate,
         "orbslam3_n_features": args.orbslam3_n_features or config.frontend.orb.n_features,
         "rounds": args.rounds, "clips": {},
     }  # fmt: skip
+    sources = {name: open_source(CLIPS[name].resolved(args.data), CLIPS[name].sensor) for name in args.clips}
+    for name, source in sources.items():
+        report["clips"][name] = {"spec": CLIPS[name].resolved(args.data), "sensor": source.sensor,
+                                 "frames": len(source), "zenslam": {"rounds": []}, "orbslam3": {"rounds": []}}  # fmt: skip
     with tempfile.TemporaryDirectory(prefix="vs_orbslam3-") as tmp:
         work = args.keep or Path(tmp)
         work.mkdir(parents=True, exist_ok=True)
-        clips = {name: CLIPS[name] for name in args.clips}
         inputs: dict[str, dict[str, Path]] = {}
         if not unavailable:
             vocabulary = export_vocabulary(work / "zenslam_vocabulary.dbow2.txt", config.frontend.vocabulary)
-            for name, clip in clips.items():
-                spec = clip.resolved(args.data)
-                sensor = clip.sensor or open_source(spec).sensor
-                inputs[name] = prepare_orbslam3_inputs(name, spec, sensor, config, args.orbslam3_n_features, work, vocabulary)
-        for name, clip in clips.items():
-            spec = clip.resolved(args.data)
-            report["clips"][name] = {"spec": spec, "sensor": clip.sensor or open_source(spec).sensor,
-                                     "zenslam": {"rounds": []}, "orbslam3": {"rounds": []}}  # fmt: skip
-        for round_index in range(args.rounds):
-            for name, clip in clips.items():
-                entry = report["clips"][name]
-                spec, sensor = entry["spec"], entry["sensor"]
-                order = ("zenslam", "orbslam3") if round_index % 2 == 0 else ("orbslam3", "zenslam")
-                for system in order:
-                    tag = f"{name}-{system}-r{round_index}"
-                    if system == "zenslam":
-                        figures = run_zenslam(spec, clip.sensor, work, mode, args.config, tag)
-                    elif unavailable:
-                        continue
-                    else:
-                        figures = run_orbslam3(spec, sensor, inputs[name], work, args.orbslam3_rate, tag)
-                        if figures.pop("import_failed", False):
-                            unavailable = report["orbslam3_unavailable"] = figures["error"]
-                            print(f"ORB-SLAM3 skipped: {unavailable}")
-                    figures["load_1min_before"] = os.getloadavg()[0]
-                    entry[system]["rounds"].append(figures)
-                    shown = figures.get("error") or f"ATE {figures['ate_m'] or float('nan'):.4f} m, wall {figures['wall_s']:.1f} s"
-                    print(f"round {round_index + 1}/{args.rounds} {name} {system}: {shown}", flush=True)
-        for clip in report["clips"].values():
-            summarise(clip)
+            for name, source in sources.items():
+                inputs[name] = prepare_orbslam3_inputs(name, source, config, args.orbslam3_n_features, work, vocabulary)
+        run_rounds(report, sources, inputs, work, args)
+    for clip in report["clips"].values():
+        summarise(clip)
     print_table(report)
     args.results.parent.mkdir(parents=True, exist_ok=True)
     args.results.write_text(json.dumps(report, indent=2) + "\n")
