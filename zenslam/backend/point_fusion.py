@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from zenslam.backend.map import BackendKeyframe, BackendMap, MapPoint, frustum_projection
-from zenslam.descriptors import hamming_distance_pairs
+from zenslam.backend.map import BackendKeyframe, BackendMap, MapPoint, PointGeometry, frustum_projection
+from zenslam.descriptors import hamming_distance_rows
 
 logger = logging.getLogger(__name__)
 
@@ -51,15 +51,60 @@ def fusion_targets(bmap: BackendMap, kf_id: int, config: FusionConfig) -> list[i
     return targets
 
 
+class FusionPoints:
+    """Geometry and descriptors of the points fusion projects, gathered once per fusion: they stay
+    as the last refresh left them until the refresh that ends it, whatever fusion merges meanwhile."""
+
+    def __init__(self, bmap: BackendMap, point_ids: np.ndarray) -> None:
+        self._bmap = bmap
+        self._ids = np.zeros(0, dtype=np.int64)  # sorted
+        self._geometry = PointGeometry(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0))
+        self._descriptors = np.zeros((0, 32), dtype=np.uint8)
+        self._gather(np.unique(point_ids))
+
+    def _gather(self, new_ids: np.ndarray) -> None:
+        points = [self._bmap.points[p] for p in new_ids.tolist()]
+        more = PointGeometry.of(points)
+        descriptors = np.array([pt.descriptor for pt in points], dtype=np.uint8).reshape(-1, 32)
+        ids = np.concatenate([self._ids, new_ids])
+        order = np.argsort(ids, kind="stable")
+        g = self._geometry
+        self._ids = ids[order]
+        self._geometry = PointGeometry(
+            np.concatenate([g.p_world, more.p_world])[order], np.concatenate([g.normals, more.normals])[order],
+            np.concatenate([g.min_distance_m, more.min_distance_m])[order],
+            np.concatenate([g.max_distance_m, more.max_distance_m])[order],
+        )  # fmt: skip
+        self._descriptors = np.concatenate([self._descriptors, descriptors])[order]
+
+    def take(self, point_ids: np.ndarray) -> tuple[PointGeometry, np.ndarray]:
+        """Geometry and descriptors (M, 32) of ``point_ids`` (M,), gathering any not seen yet."""
+        at = np.searchsorted(self._ids, point_ids)
+        known = at < len(self._ids)
+        known[known] = self._ids[at[known]] == point_ids[known]
+        if not known.all():
+            self._gather(np.unique(point_ids[~known]))
+            at = np.searchsorted(self._ids, point_ids)
+        return self._geometry.take(at), np.take(self._descriptors, at, axis=0)
+
+
 def match_by_projection(kf: BackendKeyframe, points: list[MapPoint], config: FusionConfig) -> tuple[np.ndarray, np.ndarray]:
     """Best keypoint of ``kf`` for each projected point: (indices into ``points``, keypoint indices)."""
+    descriptors = np.array([pt.descriptor for pt in points], dtype=np.uint8).reshape(-1, 32)
+    return match_projected(kf, PointGeometry.of(points), descriptors, config)
+
+
+def match_projected(
+    kf: BackendKeyframe, geometry: PointGeometry, descriptors: np.ndarray, config: FusionConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """``match_by_projection`` of M points given as arrays (their descriptors (M, 32)): (point rows, keypoints)."""
     empty = np.zeros(0, dtype=np.int64)
-    if not points or kf.n_keypoints == 0:
+    if len(descriptors) == 0 or kf.n_keypoints == 0:
         return empty, empty
-    proj = frustum_projection(kf, points, config.min_view_cos)
+    proj = frustum_projection(kf, geometry, config.min_view_cos)
     rows = np.flatnonzero(proj.visible)
     radius = config.search_radius_px * kf.scale_factors[proj.level[rows]]
-    order = np.argsort(kf.keypoints_px[:, 0], kind="stable")
+    order = kf.u_order()
     sorted_u = kf.keypoints_px[order, 0]
     lo = np.searchsorted(sorted_u, proj.px[rows, 0] - radius, side="right")
     hi = np.searchsorted(sorted_u, proj.px[rows, 0] + radius, side="left")
@@ -68,18 +113,19 @@ def match_by_projection(kf: BackendKeyframe, points: list[MapPoint], config: Fus
     offsets = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
     kp = order[np.repeat(lo, counts) + offsets]
     p = rows[pair_row]
-    d = kf.keypoints_px[kp] - proj.px[p]
+    d = np.take(kf.keypoints_px, kp, axis=0) - np.take(proj.px, p, axis=0)
     level = kf.levels[kp]
     keep = (np.abs(d[:, 1]) < radius[pair_row]) & (level >= proj.level[p] - 1) & (level <= proj.level[p])
-    stereo = kf.has_right[kp]
-    err2 = np.sum(d**2, axis=1) + np.where(stereo, (np.nan_to_num(proj.right_u[p]) - kf.right_u[kp]) ** 2, 0.0)
+    right_u = kf.right_u[kp]
+    stereo = right_u >= 0
+    d2 = d**2
+    err2 = (d2[:, 0] + d2[:, 1]) + np.where(stereo, (np.nan_to_num(proj.right_u[p]) - right_u) ** 2, 0.0)
     inv_sigma2 = 1.0 / kf.level_sigma2[level]
     keep &= np.where(stereo, err2 * inv_sigma2 <= config.chi2_stereo, err2 * inv_sigma2 <= config.chi2_mono)
     p, kp = p[keep], kp[keep]
     if len(p) == 0:
         return empty, empty
-    descriptors = np.stack([points[i].descriptor for i in p.tolist()])
-    dist = hamming_distance_pairs(descriptors, kf.descriptors[kp])
+    dist = hamming_distance_rows(descriptors, p, kf.descriptors, kp)
     order = np.lexsort((kp, dist, p))
     p, kp, dist = p[order], kp[order], dist[order]
     first = np.r_[True, p[1:] != p[:-1]]
@@ -87,21 +133,32 @@ def match_by_projection(kf: BackendKeyframe, points: list[MapPoint], config: Fus
     return p[good].astype(np.int64), kp[good].astype(np.int64)
 
 
-def fuse_into_keyframe(bmap: BackendMap, kf_id: int, point_ids: list[int], config: FusionConfig) -> int:
-    """Project ``point_ids`` into ``kf_id`` and add observations or merge duplicates; returns matches applied."""
+def fuse_into_keyframe(
+    bmap: BackendMap, kf_id: int, point_ids: list[int], config: FusionConfig, gathered: FusionPoints | None = None
+) -> int:
+    """Project ``point_ids`` into ``kf_id`` and add observations or merge duplicates; returns matches applied.
+
+    ``gathered`` holds the points' arrays when the caller has them (``fuse_with_neighbours``)."""
+    live = bmap.points
+    return _fuse_into(bmap, kf_id, np.asarray([p for p in point_ids if p in live], dtype=np.int64), config, gathered)
+
+
+def _fuse_into(bmap: BackendMap, kf_id: int, point_ids: np.ndarray, config: FusionConfig, gathered: FusionPoints | None) -> int:
+    """``fuse_into_keyframe`` of live points ``point_ids`` (M,) int64."""
     kf = bmap.keyframe(kf_id)
     live = bmap.points
-    points = [pt for p in point_ids if (pt := live.get(p)) is not None and kf_id not in pt.observations]
-    rows, keypoints = match_by_projection(kf, points, config)
+    candidates = point_ids[~np.isin(point_ids, kf.map_point_ids)]  # those it does not observe yet
+    gathered = gathered if gathered is not None else FusionPoints(bmap, candidates)
+    geometry, descriptors = gathered.take(candidates)
+    rows, keypoints = match_projected(kf, geometry, descriptors, config)
     fused = 0
-    for row, keypoint in zip(rows.tolist(), keypoints.tolist()):
-        point_id = points[row].id
-        if point_id not in bmap.points or kf_id in bmap.points[point_id].observations:
+    for point_id, keypoint in zip(candidates[rows].tolist(), keypoints.tolist()):
+        if point_id not in live or kf_id in live[point_id].observations:
             continue  # merged away, or moved into this keyframe by an earlier merge
         there = int(kf.map_point_ids[keypoint])
         if there < 0:
             bmap.add_observation(point_id, kf_id, keypoint)
-        elif bmap.points[there].weighted_observations > bmap.points[point_id].weighted_observations:
+        elif live[there].weighted_observations > live[point_id].weighted_observations:
             bmap.replace_point(point_id, there)
         else:
             bmap.replace_point(there, point_id)
@@ -113,16 +170,14 @@ def fuse_with_neighbours(bmap: BackendMap, kf_id: int, config: FusionConfig) -> 
     """ORB-SLAM's ``SearchInNeighbors`` for keyframe ``kf_id``; returns matches applied both ways."""
     bmap.refresh_points()
     targets = fusion_targets(bmap, kf_id, config)
+    # Every point either pass projects: merges only swap one of these for another of these.
+    gathered = FusionPoints(bmap, np.concatenate([bmap.keyframe_point_ids(k) for k in [kf_id, *targets]]))
     fused = 0
     for target in targets:
-        fused += fuse_into_keyframe(bmap, target, bmap.keyframe_point_ids(kf_id).tolist(), config)
-    candidates, seen = [], set()
-    for target in targets:
-        for point_id in bmap.keyframe_point_ids(target).tolist():
-            if point_id not in seen:
-                seen.add(point_id)
-                candidates.append(point_id)
-    fused += fuse_into_keyframe(bmap, kf_id, candidates, config)
+        fused += _fuse_into(bmap, target, bmap.keyframe_point_ids(kf_id), config, gathered)
+    candidates = np.concatenate([bmap.keyframe_point_ids(target) for target in targets] or [np.zeros(0, np.int64)])
+    _, first = np.unique(candidates, return_index=True)
+    fused += _fuse_into(bmap, kf_id, candidates[np.sort(first)], config, gathered)
     bmap.refresh_points()
     logger.debug("keyframe %d: %d fusion matches over %d target keyframes", kf_id, fused, len(targets))
     return fused

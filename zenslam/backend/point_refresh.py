@@ -1,0 +1,140 @@
+"""Recomputing map points' derived attributes (ORB-SLAM's ComputeDistinctiveDescriptors and UpdateNormalAndDepth).
+
+The points' observations are flattened into arrays once per refresh, each point's sorted by
+keyframe id, and the work is done per group of points with equally many observations, so that
+every group is one (P, K, ...) array computation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from itertools import chain
+
+import numpy as np
+
+from zenslam.backend.keyframe import BackendKeyframe
+from zenslam.backend.map_point import MapPoint
+from zenslam.map_point_rules import mean_viewing_directions, representative_descriptors, scale_invariance_range
+
+
+@dataclass(frozen=True)
+class ObservationTable:
+    """The observations of P points as flat arrays, each point's contiguous and by increasing keyframe id."""
+
+    counts: np.ndarray  # (P,) observations per point
+    starts: np.ndarray  # (P,) index of each point's first observation
+    keyframe_ids: np.ndarray  # (O,) observing keyframe
+    keyframe_rows: np.ndarray  # (O,) its row in the map's keyframe insertion order
+    keypoints: np.ndarray  # (O,) keypoint index in that keyframe
+
+    @classmethod
+    def of(cls, points: list[MapPoint], keyframe_order: np.ndarray) -> ObservationTable:
+        """Observations of ``points``; ``keyframe_order`` (K,) int64 lists the map's keyframe ids in insertion order."""
+        observations = [pt.observations for pt in points]
+        counts = np.fromiter(map(len, observations), dtype=np.int64, count=len(observations))
+        total = int(counts.sum())
+        kf_ids = np.fromiter(chain.from_iterable(observations), dtype=np.int64, count=total)
+        keypoints = np.fromiter(chain.from_iterable(o.values() for o in observations), dtype=np.int64, count=total)
+        owner = np.repeat(np.arange(len(points), dtype=np.int64), counts)
+        order = np.lexsort((kf_ids, owner))
+        kf_ids, keypoints = kf_ids[order], keypoints[order]
+        sorter = np.argsort(keyframe_order, kind="stable")
+        rows = sorter[np.searchsorted(keyframe_order, kf_ids, sorter=sorter)]
+        return cls(counts, np.cumsum(counts) - counts, kf_ids, rows, keypoints)
+
+    def groups(self, selected: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+        """The ``selected`` points (bool (P,)) by increasing observation count K: for each K, the
+        points (in order) and the (P_K, K) indices of their observations."""
+        out = []
+        for k in np.unique(self.counts[selected]).tolist():
+            members = np.flatnonzero(selected & (self.counts == k))
+            out.append((members, self.starts[members][:, None] + np.arange(k)))
+        return out
+
+
+def _descriptors_at(keyframes: list[BackendKeyframe], rows: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
+    """Descriptors (M, 32) uint8 of (keyframe row in insertion order, keypoint) pairs, in order."""
+    out = np.empty((len(rows), 32), dtype=np.uint8)
+    order = np.argsort(rows, kind="stable")
+    bounds = np.flatnonzero(np.diff(rows[order])) + 1
+    for sel in np.split(order, bounds) if len(order) else []:
+        out[sel] = np.take(keyframes[int(rows[sel[0]])].descriptors, keypoints[sel], axis=0)
+    return out
+
+
+def refresh_descriptors(
+    keyframes: list[BackendKeyframe], points: list[MapPoint], table: ObservationTable, selected: np.ndarray
+) -> None:
+    """Give each ``selected`` point the representative descriptor of its observations."""
+    groups = table.groups(selected)
+    if not groups:
+        return
+    needed = np.concatenate([idx.ravel() for _, idx in groups])
+    descriptors = np.empty((len(table.keypoints), 32), dtype=np.uint8)
+    descriptors[needed] = _descriptors_at(keyframes, table.keyframe_rows[needed], table.keypoints[needed])
+    for members, idx in groups:
+        for i, descriptor in zip(members.tolist(), representative_descriptors(descriptors[idx])):
+            points[i].descriptor = descriptor
+
+
+def refresh_geometry(
+    keyframes: list[BackendKeyframe], points: list[MapPoint], table: ObservationTable, selected: np.ndarray
+) -> None:
+    """Give each ``selected`` point its mean viewing direction and scale-invariance distance range
+    (from its distance to its reference keyframe and the keypoint's level there)."""
+    chosen = np.flatnonzero(selected)
+    if len(chosen) == 0:
+        return
+    centres = np.array([kf.T_world_cam[:3, 3] for kf in keyframes], dtype=float)
+    p_world = np.zeros((len(points), 3))
+    p_world[chosen] = np.array([points[i].p_world for i in chosen.tolist()])
+    ref = _reference_observations(points, table, chosen)
+    distance = np.linalg.norm(p_world[chosen] - centres[table.keyframe_rows[ref]], axis=1)
+    ref_rows, ref_keypoints = table.keyframe_rows[ref], table.keypoints[ref]
+    level = np.zeros(len(chosen), dtype=np.int64)
+    pyramid: dict[tuple[float, int], list[np.ndarray]] = {}
+    order = np.argsort(ref_rows, kind="stable")
+    for sel in np.split(order, np.flatnonzero(np.diff(ref_rows[order])) + 1):
+        kf = keyframes[int(ref_rows[sel[0]])]
+        level[sel] = kf.levels[ref_keypoints[sel]]
+        pyramid.setdefault((kf.scale_factor, kf.n_levels), []).append(sel)
+    lo, hi = np.zeros(len(chosen)), np.zeros(len(chosen))
+    for (scale_factor, n_levels), parts in sorted(pyramid.items()):
+        sel = np.sort(np.concatenate(parts))
+        lo[sel], hi[sel] = scale_invariance_range(distance[sel], level[sel], scale_factor, n_levels)
+    for members, idx in table.groups(selected):
+        normals = mean_viewing_directions(p_world[members], centres[table.keyframe_rows[idx]])  # (P, K, 3) observers
+        for i, normal in zip(members.tolist(), normals):
+            points[i].normal = normal
+    for k, i in enumerate(chosen.tolist()):
+        pt = points[i]
+        pt.min_distance_m, pt.max_distance_m = float(lo[k]), float(hi[k])
+
+
+def _reference_observations(points: list[MapPoint], table: ObservationTable, chosen: np.ndarray) -> np.ndarray:
+    """Index (into the table) of each chosen point's reference observation: by the keyframe that
+    created it while it still observes it, else by the observer with the smallest id."""
+    starts, counts = table.starts[chosen], table.counts[chosen]
+    owner = np.repeat(np.arange(len(chosen)), counts)
+    at = np.arange(len(owner)) + np.repeat(starts - (np.cumsum(counts) - counts), counts)
+    first = np.array([points[i].first_keyframe_id for i in chosen.tolist()], dtype=np.int64)
+    hit = table.keyframe_ids[at] == first[owner]
+    ref = starts.copy()
+    ref[owner[hit]] = at[hit]
+    return ref
+
+
+def refresh_points(
+    keyframes: dict[int, BackendKeyframe], points: dict[int, MapPoint], descriptor_ids: list[int], geometry_ids: list[int]
+) -> None:
+    """Recompute the representative descriptors of ``descriptor_ids`` and the viewing directions and
+    distance ranges of ``geometry_ids`` (sorted ids of observed points)."""
+    ids = sorted(set(descriptor_ids) | set(geometry_ids))
+    if not ids:
+        return
+    pts = [points[p] for p in ids]
+    kf_list = list(keyframes.values())
+    table = ObservationTable.of(pts, np.fromiter(keyframes, dtype=np.int64, count=len(keyframes)))
+    ids_arr = np.asarray(ids, dtype=np.int64)
+    refresh_descriptors(kf_list, pts, table, np.isin(ids_arr, np.asarray(descriptor_ids, dtype=np.int64)))
+    refresh_geometry(kf_list, pts, table, np.isin(ids_arr, np.asarray(geometry_ids, dtype=np.int64)))
