@@ -24,6 +24,7 @@ from zenslam.backend.keyframe import BackendKeyframe
 from zenslam.backend.map_consistency import consistency_problems
 from zenslam.backend.map_point import FrustumProjection, MapPoint, PointGeometry, frustum_projection
 from zenslam.backend.point_refresh import refresh_points
+from zenslam.backend.point_store import PointStore
 from zenslam.backend.spanning_tree import SpanningTree, choose_parent
 from zenslam.errors import ZenslamError
 from zenslam.schemas.map_update import BACKEND_POINT_ID_BASE
@@ -77,6 +78,7 @@ class BackendMap:
     ) -> None:
         self.keyframes: dict[int, BackendKeyframe] = {}  # in insertion order
         self.points: dict[int, MapPoint] = {}
+        self.point_store = PointStore()  # the points' positions, descriptors, normals and ranges (rows)
         self.covisibility = CovisibilityGraph(min_covisibility_weight)
         self.spanning_tree = SpanningTree()
         self.essential_graph = EssentialGraph(self.spanning_tree, self.covisibility, essential_min_weight)
@@ -132,6 +134,28 @@ class BackendMap:
         ids = self.keyframe(kf_id).map_point_ids
         return ids[ids >= 0].copy()
 
+    def point_rows(self, point_ids) -> np.ndarray:
+        """Rows (int64) of ``point_ids`` (an iterable of ints or an int array) in ``point_store``; MapError when one is unknown."""
+        ids = point_ids.tolist() if isinstance(point_ids, np.ndarray) else point_ids
+        points = self.points
+        try:
+            return np.fromiter((points[p].row for p in ids), dtype=np.int64, count=len(ids))
+        except KeyError as missing:
+            raise MapError(f"map point {missing.args[0]} is not in the backend map") from None
+
+    def positions(self, point_ids) -> np.ndarray:
+        """(M, 3) positions of ``point_ids`` (metres, world frame; a copy)."""
+        return np.take(self.point_store.p_world, self.point_rows(point_ids), axis=0)
+
+    def point_descriptors(self, point_ids) -> np.ndarray:
+        """(M, 32) uint8 representative descriptors of ``point_ids`` (a copy, as last refreshed)."""
+        return np.take(self.point_store.descriptor, self.point_rows(point_ids), axis=0)
+
+    def point_geometry(self, point_ids) -> PointGeometry:
+        """Positions, viewing directions and distance ranges of ``point_ids`` as arrays, in order
+        (as last refreshed: call ``refresh_points`` first for current ones)."""
+        return PointGeometry.at(self.point_store, self.point_rows(point_ids))
+
     # ---- points ------------------------------------------------------------------------------------
     def add_point(self, point_id: int, p_world: np.ndarray, first_keyframe_id: int) -> MapPoint:
         """A point without observations yet (add them with ``add_observation``)."""
@@ -139,10 +163,22 @@ class BackendMap:
             raise MapError(f"map point id {point_id} is already used; ids are never reused")
         if point_id < 0:
             raise MapError(f"map point ids are non-negative, got {point_id}")
-        pt = MapPoint(int(point_id), np.array(p_world, dtype=float).reshape(3), int(first_keyframe_id), self._next_serial - 1)
+        if self.point_store.full and 2 * len(self.points) <= self.point_store.capacity:
+            self._compact_point_store()
+        row = self.point_store.append()
+        self.point_store.p_world[row] = np.asarray(p_world, dtype=float).reshape(3)
+        pt = MapPoint(point_id, self.point_store, row, first_keyframe_id, self._next_serial - 1)
         self.points[pt.id] = pt
         self.changes.points.add(pt.id)
         return pt
+
+    def _compact_point_store(self) -> None:
+        """Move the live points into a new store without the rows of removed ones."""
+        points = list(self.points.values())
+        store = self.point_store.compacted(np.fromiter((pt.row for pt in points), dtype=np.int64, count=len(points)))
+        for row, pt in enumerate(points):
+            pt.move_to(store, row)
+        self.point_store = store
 
     def new_point(self, p_world: np.ndarray, first_keyframe_id: int) -> MapPoint:
         """A point created by the backend, with the next id of its own id space."""
@@ -225,19 +261,14 @@ class BackendMap:
 
     def set_point_position(self, point_id: int, p_world: np.ndarray) -> None:
         """Move a point (metres, world frame)."""
-        self.point(point_id).p_world = np.array(p_world, dtype=float).reshape(3)
+        self.point(point_id).p_world = np.asarray(p_world, dtype=float).reshape(3)
         self._stale_geometry.add(point_id)
         self.changes.points.add(point_id)
 
     def set_point_positions(self, point_ids: list[int], p_world: np.ndarray) -> None:
         """Move points ``point_ids`` to the rows of ``p_world`` (N, 3) (metres, world frame)."""
-        rows = np.array(p_world, dtype=float).reshape(len(point_ids), 3)
-        points = self.points
-        missing = [p for p in point_ids if p not in points]
-        if missing:
-            raise MapError(f"map points {missing[:5]} are not in the backend map")
-        for point_id, row in zip(point_ids, rows):
-            points[point_id].p_world = row
+        rows = self.point_rows(point_ids)
+        self.point_store.p_world[rows] = np.asarray(p_world, dtype=float).reshape(len(rows), 3)
         self._stale_geometry.update(point_ids)
         self.changes.points.update(point_ids)
 
@@ -307,17 +338,12 @@ class BackendMap:
         points = self.points
         desc_ids = sorted(p for p in self._stale_descriptor if points[p].observations)
         geo_ids = sorted(p for p in self._stale_geometry if points[p].observations)
-        refresh_points(self.keyframes, points, desc_ids, geo_ids)
+        refresh_points(self.keyframes, points, self.point_store, desc_ids, geo_ids)
         self.changes.points.update(desc_ids)
         self.changes.points.update(geo_ids)
         self._stale_descriptor.clear()
         self._stale_geometry.clear()
         return len(set(desc_ids) | set(geo_ids))
-
-    def point_geometry(self, point_ids: list[int]) -> PointGeometry:
-        """Positions, viewing directions and distance ranges of ``point_ids`` as arrays, in order
-        (as last refreshed: call ``refresh_points`` first for current ones)."""
-        return PointGeometry.of([self.points[p] for p in point_ids])
 
     # ---- change log and checks -----------------------------------------------------------------------
     def take_changes(self) -> MapChanges:

@@ -2,30 +2,94 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from zenslam.backend.keyframe import BackendKeyframe
+from zenslam.backend.point_store import PointStore
 from zenslam.map_point_rules import predict_scale_level
 
 
-@dataclass(eq=False)
 class MapPoint:
-    """A 3D point with its keyframe observations (keyframe id -> keypoint index)."""
+    """A 3D point with its keyframe observations (keyframe id -> keypoint index).
 
-    id: int
-    p_world: np.ndarray  # (3,) metres, world frame
-    first_keyframe_id: int  # the keyframe at which the point was created
-    created_serial: int  # serial of the newest keyframe in the map when the point was created
-    descriptor: np.ndarray = field(default_factory=lambda: np.zeros(32, dtype=np.uint8))  # representative
-    normal: np.ndarray = field(default_factory=lambda: np.zeros(3))  # mean viewing direction, world
-    min_distance_m: float = 0.0  # scale-invariance range, metres
-    max_distance_m: float = float("inf")
-    observations: dict[int, int] = field(default_factory=dict)
-    n_visible: int = 1  # keyframes whose frustum held the point (counted by the backend)
-    n_found: int = 1  # keyframes that observed it among those
-    weighted_observations: int = 0  # ORB-SLAM's Observations(): a stereo/RGB-D observation counts 2
+    Its position, descriptor, viewing direction and distance range live in a row of the map's
+    ``PointStore``; the attributes read and write that row (reading an array gives a view of it).
+    A point removed from the map keeps its row, which nothing else writes any more."""
+
+    __slots__ = (
+        "id", "first_keyframe_id", "created_serial", "observations", "n_visible", "n_found", "weighted_observations",
+        "_store", "_row",
+    )  # fmt: skip
+
+    def __init__(self, point_id: int, store: PointStore, row: int, first_keyframe_id: int, created_serial: int) -> None:
+        self.id = int(point_id)
+        self.first_keyframe_id = int(first_keyframe_id)  # the keyframe at which the point was created
+        self.created_serial = int(created_serial)  # serial of the newest keyframe in the map when the point was created
+        self.observations: dict[int, int] = {}
+        self.n_visible = 1  # keyframes whose frustum held the point (counted by the backend)
+        self.n_found = 1  # keyframes that observed it among those
+        self.weighted_observations = 0  # ORB-SLAM's Observations(): a stereo/RGB-D observation counts 2
+        self._store = store
+        self._row = int(row)
+
+    def __repr__(self) -> str:
+        return f"MapPoint(id={self.id}, p_world={self.p_world.tolist()}, observations={self.observations})"
+
+    @property
+    def row(self) -> int:
+        """The point's row in the map's ``PointStore``."""
+        return self._row
+
+    @property
+    def p_world(self) -> np.ndarray:
+        """(3,) metres, world frame."""
+        return self._store.p_world[self._row]
+
+    @p_world.setter
+    def p_world(self, value: np.ndarray) -> None:
+        self._store.p_world[self._row] = value
+
+    @property
+    def descriptor(self) -> np.ndarray:
+        """(32,) uint8 representative descriptor."""
+        return self._store.descriptor[self._row]
+
+    @descriptor.setter
+    def descriptor(self, value: np.ndarray) -> None:
+        self._store.descriptor[self._row] = value
+
+    @property
+    def normal(self) -> np.ndarray:
+        """(3,) mean viewing direction, world frame."""
+        return self._store.normal[self._row]
+
+    @normal.setter
+    def normal(self, value: np.ndarray) -> None:
+        self._store.normal[self._row] = value
+
+    @property
+    def min_distance_m(self) -> float:
+        """Scale-invariance range minimum, metres."""
+        return float(self._store.min_distance_m[self._row])
+
+    @min_distance_m.setter
+    def min_distance_m(self, value: float) -> None:
+        self._store.min_distance_m[self._row] = value
+
+    @property
+    def max_distance_m(self) -> float:
+        """Scale-invariance range maximum, metres."""
+        return float(self._store.max_distance_m[self._row])
+
+    @max_distance_m.setter
+    def max_distance_m(self, value: float) -> None:
+        self._store.max_distance_m[self._row] = value
+
+    def move_to(self, store: PointStore, row: int) -> None:
+        """Read and write ``row`` of ``store`` from now on (the map compacting its store)."""
+        self._store, self._row = store, int(row)
 
     def found_ratio(self) -> float:
         """Found / visible."""
@@ -53,12 +117,23 @@ class PointGeometry:
     @classmethod
     def of(cls, points: list[MapPoint]) -> PointGeometry:
         """The arrays of ``points``, in order."""
+        stores = {id(pt._store) for pt in points}
+        if len(stores) == 1:
+            return cls.at(points[0]._store, np.fromiter((pt._row for pt in points), dtype=np.int64, count=len(points)))
         return cls(
             np.array([pt.p_world for pt in points], dtype=float).reshape(-1, 3),
             np.array([pt.normal for pt in points], dtype=float).reshape(-1, 3),
             np.array([pt.min_distance_m for pt in points], dtype=float),
             np.array([pt.max_distance_m for pt in points], dtype=float),
         )
+
+    @classmethod
+    def at(cls, store: PointStore, rows: np.ndarray) -> PointGeometry:
+        """The arrays of the points in ``rows`` of ``store`` (copies), in order."""
+        return cls(
+            np.take(store.p_world, rows, axis=0), np.take(store.normal, rows, axis=0),
+            np.take(store.min_distance_m, rows), np.take(store.max_distance_m, rows),
+        )  # fmt: skip
 
     def take(self, rows: np.ndarray) -> PointGeometry:
         """The points at ``rows``, in that order."""

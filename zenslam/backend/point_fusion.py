@@ -63,9 +63,8 @@ class FusionPoints:
         self._gather(np.unique(point_ids))
 
     def _gather(self, new_ids: np.ndarray) -> None:
-        points = [self._bmap.points[p] for p in new_ids.tolist()]
-        more = PointGeometry.of(points)
-        descriptors = np.array([pt.descriptor for pt in points], dtype=np.uint8).reshape(-1, 32)
+        more = self._bmap.point_geometry(new_ids)
+        descriptors = self._bmap.point_descriptors(new_ids)
         ids = np.concatenate([self._ids, new_ids])
         order = np.argsort(ids, kind="stable")
         g = self._geometry

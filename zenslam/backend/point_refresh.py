@@ -14,6 +14,7 @@ import numpy as np
 
 from zenslam.backend.keyframe import BackendKeyframe
 from zenslam.backend.map_point import MapPoint
+from zenslam.backend.point_store import PointStore
 from zenslam.map_point_rules import mean_viewing_directions, representative_descriptors, scale_invariance_range
 
 
@@ -63,9 +64,10 @@ def _descriptors_at(keyframes: list[BackendKeyframe], rows: np.ndarray, keypoint
 
 
 def refresh_descriptors(
-    keyframes: list[BackendKeyframe], points: list[MapPoint], table: ObservationTable, selected: np.ndarray
+    keyframes: list[BackendKeyframe], store: PointStore, rows: np.ndarray, table: ObservationTable, selected: np.ndarray
 ) -> None:
-    """Give each ``selected`` point the representative descriptor of its observations."""
+    """Give each ``selected`` point (bool (P,) over the table's points, whose rows in ``store`` are
+    ``rows``) the representative descriptor of its observations."""
     groups = table.groups(selected)
     if not groups:
         return
@@ -73,12 +75,16 @@ def refresh_descriptors(
     descriptors = np.empty((len(table.keypoints), 32), dtype=np.uint8)
     descriptors[needed] = _descriptors_at(keyframes, table.keyframe_rows[needed], table.keypoints[needed])
     for members, idx in groups:
-        for i, descriptor in zip(members.tolist(), representative_descriptors(descriptors[idx])):
-            points[i].descriptor = descriptor
+        store.descriptor[rows[members]] = representative_descriptors(descriptors[idx])
 
 
 def refresh_geometry(
-    keyframes: list[BackendKeyframe], points: list[MapPoint], table: ObservationTable, selected: np.ndarray
+    keyframes: list[BackendKeyframe],
+    store: PointStore,
+    rows: np.ndarray,
+    first_keyframe_ids: np.ndarray,
+    table: ObservationTable,
+    selected: np.ndarray,
 ) -> None:
     """Give each ``selected`` point its mean viewing direction and scale-invariance distance range
     (from its distance to its reference keyframe and the keypoint's level there)."""
@@ -86,9 +92,8 @@ def refresh_geometry(
     if len(chosen) == 0:
         return
     centres = np.array([kf.T_world_cam[:3, 3] for kf in keyframes], dtype=float)
-    p_world = np.zeros((len(points), 3))
-    p_world[chosen] = np.array([points[i].p_world for i in chosen.tolist()])
-    ref = _reference_observations(points, table, chosen)
+    p_world = np.take(store.p_world, rows, axis=0)
+    ref = _reference_observations(table, chosen, first_keyframe_ids[chosen])
     distance = np.linalg.norm(p_world[chosen] - centres[table.keyframe_rows[ref]], axis=1)
     ref_rows, ref_keypoints = table.keyframe_rows[ref], table.keypoints[ref]
     level = np.zeros(len(chosen), dtype=np.int64)
@@ -98,43 +103,45 @@ def refresh_geometry(
         kf = keyframes[int(ref_rows[sel[0]])]
         level[sel] = kf.levels[ref_keypoints[sel]]
         pyramid.setdefault((kf.scale_factor, kf.n_levels), []).append(sel)
-    lo, hi = np.zeros(len(chosen)), np.zeros(len(chosen))
     for (scale_factor, n_levels), parts in sorted(pyramid.items()):
         sel = np.sort(np.concatenate(parts))
-        lo[sel], hi[sel] = scale_invariance_range(distance[sel], level[sel], scale_factor, n_levels)
+        lo, hi = scale_invariance_range(distance[sel], level[sel], scale_factor, n_levels)
+        store.min_distance_m[rows[chosen[sel]]] = lo
+        store.max_distance_m[rows[chosen[sel]]] = hi
     for members, idx in table.groups(selected):
-        normals = mean_viewing_directions(p_world[members], centres[table.keyframe_rows[idx]])  # (P, K, 3) observers
-        for i, normal in zip(members.tolist(), normals):
-            points[i].normal = normal
-    for k, i in enumerate(chosen.tolist()):
-        pt = points[i]
-        pt.min_distance_m, pt.max_distance_m = float(lo[k]), float(hi[k])
+        store.normal[rows[members]] = mean_viewing_directions(p_world[members], centres[table.keyframe_rows[idx]])
 
 
-def _reference_observations(points: list[MapPoint], table: ObservationTable, chosen: np.ndarray) -> np.ndarray:
+def _reference_observations(table: ObservationTable, chosen: np.ndarray, first_keyframe_ids: np.ndarray) -> np.ndarray:
     """Index (into the table) of each chosen point's reference observation: by the keyframe that
-    created it while it still observes it, else by the observer with the smallest id."""
+    created it (``first_keyframe_ids``, one per chosen point) while it still observes it, else by
+    the observer with the smallest id."""
     starts, counts = table.starts[chosen], table.counts[chosen]
     owner = np.repeat(np.arange(len(chosen)), counts)
     at = np.arange(len(owner)) + np.repeat(starts - (np.cumsum(counts) - counts), counts)
-    first = np.array([points[i].first_keyframe_id for i in chosen.tolist()], dtype=np.int64)
-    hit = table.keyframe_ids[at] == first[owner]
+    hit = table.keyframe_ids[at] == first_keyframe_ids[owner]
     ref = starts.copy()
     ref[owner[hit]] = at[hit]
     return ref
 
 
 def refresh_points(
-    keyframes: dict[int, BackendKeyframe], points: dict[int, MapPoint], descriptor_ids: list[int], geometry_ids: list[int]
+    keyframes: dict[int, BackendKeyframe],
+    points: dict[int, MapPoint],
+    store: PointStore,
+    descriptor_ids: list[int],
+    geometry_ids: list[int],
 ) -> None:
     """Recompute the representative descriptors of ``descriptor_ids`` and the viewing directions and
-    distance ranges of ``geometry_ids`` (sorted ids of observed points)."""
+    distance ranges of ``geometry_ids`` (sorted ids of observed points, whose rows are in ``store``)."""
     ids = sorted(set(descriptor_ids) | set(geometry_ids))
     if not ids:
         return
     pts = [points[p] for p in ids]
     kf_list = list(keyframes.values())
     table = ObservationTable.of(pts, np.fromiter(keyframes, dtype=np.int64, count=len(keyframes)))
+    rows = np.fromiter((pt.row for pt in pts), dtype=np.int64, count=len(pts))
+    first = np.fromiter((pt.first_keyframe_id for pt in pts), dtype=np.int64, count=len(pts))
     ids_arr = np.asarray(ids, dtype=np.int64)
-    refresh_descriptors(kf_list, pts, table, np.isin(ids_arr, np.asarray(descriptor_ids, dtype=np.int64)))
-    refresh_geometry(kf_list, pts, table, np.isin(ids_arr, np.asarray(geometry_ids, dtype=np.int64)))
+    refresh_descriptors(kf_list, store, rows, table, np.isin(ids_arr, np.asarray(descriptor_ids, dtype=np.int64)))
+    refresh_geometry(kf_list, store, rows, first, table, np.isin(ids_arr, np.asarray(geometry_ids, dtype=np.int64)))

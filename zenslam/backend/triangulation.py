@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from zenslam.backend.map import BackendKeyframe, BackendMap
-from zenslam.descriptors import hamming_distance_pairs
+from zenslam.descriptors import hamming_distance_rows
 from zenslam.geometry import skew, transform_points
 
 logger = logging.getLogger(__name__)
@@ -89,17 +89,17 @@ def match_for_triangulation(
         return empty, empty
     r, c = _epipolar_pairs(kf1, idx1, kf2, idx2, F12, config)
     i1, i2 = idx1[r], idx2[c]
-    dist = hamming_distance_pairs(kf1.descriptors[i1], kf2.descriptors[i2])
+    dist = hamming_distance_rows(kf1.descriptors, i1, kf2.descriptors, i2)
     keep = dist <= config.max_descriptor_distance
-    both_mono = ~kf1.has_right[i1] & ~kf2.has_right[i2]
+    both_mono = (kf1.right_u[i1] < 0) & (kf2.right_u[i2] < 0)
     if np.any(both_mono):
         # Keypoints next to the epipole triangulate badly without stereo (rays nearly parallel).
         centre1_in_2 = transform_points(kf2.T_cam_world, kf1.centre_world[None])[0]
         if centre1_in_2[2] > 1e-9:
             epipole = kf2.calibration.K @ (centre1_in_2 / centre1_in_2[2])
-            d2 = np.sum((kf2.keypoints_px[i2] - epipole[:2]) ** 2, axis=1)
-            near = d2 < config.epipole_min_distance_px**2 * kf2.scale_factors[kf2.levels[i2]]
-            keep &= ~(both_mono & near)
+            d2 = np.sum((kf2.keypoints_px[idx2] - epipole[:2]) ** 2, axis=1)
+            near = d2 < config.epipole_min_distance_px**2 * kf2.scale_factors[kf2.levels[idx2]]
+            keep &= ~(both_mono & near[c])
     i1, i2, dist = i1[keep], i2[keep], dist[keep]
     if config.match_ratio < 1.0 and len(i1):
         i1, i2, dist = _ratio_test(i1, i2, dist, config.match_ratio)
