@@ -1,8 +1,8 @@
 """Recomputing map points' derived attributes (ORB-SLAM's ComputeDistinctiveDescriptors and UpdateNormalAndDepth).
 
 The points' observations are flattened into arrays once per refresh, each point's sorted by
-keyframe id, and the work is done per group of points with equally many observations, so that
-every group is one (P, K, ...) array computation.
+keyframe id, and the work is done per group of points with similar observation counts, each
+group one padded (P, K, ...) array computation giving what one computation per point would.
 """
 
 from __future__ import annotations
@@ -43,13 +43,22 @@ class ObservationTable:
         rows = sorter[np.searchsorted(keyframe_order, kf_ids, sorter=sorter)]
         return cls(counts, np.cumsum(counts) - counts, kf_ids, rows, keypoints)
 
-    def groups(self, selected: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
-        """The ``selected`` points (bool (P,)) by increasing observation count K: for each K, the
-        points (in order) and the (P_K, K) indices of their observations."""
+    def groups(self, selected: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """The ``selected`` points (bool (P,)) in groups of similar observation counts: for each, the
+        points (in order), their counts (G,) and the (G, K) indices of their observations, K the
+        largest count in the group (shorter rows repeat their first observation as padding).
+        Counts 1, 2, 3-4, 5-8, ... share a group: few array computations, at most twice the work."""
+        counts = self.counts[selected]
+        if len(counts) == 0:
+            return []
+        widths = 1 << np.ceil(np.log2(np.maximum(counts, 1))).astype(np.int64)  # 1, 2, 4, 8, ...
+        chosen = np.flatnonzero(selected)
         out = []
-        for k in np.unique(self.counts[selected]).tolist():
-            members = np.flatnonzero(selected & (self.counts == k))
-            out.append((members, self.starts[members][:, None] + np.arange(k)))
+        for width in np.unique(widths).tolist():
+            members = chosen[widths == width]
+            k = int(self.counts[members].max())
+            offsets = np.minimum(np.arange(k), self.counts[members][:, None] - 1)
+            out.append((members, self.counts[members], self.starts[members][:, None] + offsets))
         return out
 
 
@@ -71,11 +80,11 @@ def refresh_descriptors(
     groups = table.groups(selected)
     if not groups:
         return
-    needed = np.concatenate([idx.ravel() for _, idx in groups])
+    needed = np.concatenate([idx.ravel() for _, _, idx in groups])
     descriptors = np.empty((len(table.keypoints), 32), dtype=np.uint8)
     descriptors[needed] = _descriptors_at(keyframes, table.keyframe_rows[needed], table.keypoints[needed])
-    for members, idx in groups:
-        store.descriptor[rows[members]] = representative_descriptors(descriptors[idx])
+    for members, counts, idx in groups:
+        store.descriptor[rows[members]] = representative_descriptors(descriptors[idx], counts)
 
 
 def refresh_geometry(
@@ -108,8 +117,8 @@ def refresh_geometry(
         lo, hi = scale_invariance_range(distance[sel], level[sel], scale_factor, n_levels)
         store.min_distance_m[rows[chosen[sel]]] = lo
         store.max_distance_m[rows[chosen[sel]]] = hi
-    for members, idx in table.groups(selected):
-        store.normal[rows[members]] = mean_viewing_directions(p_world[members], centres[table.keyframe_rows[idx]])
+    for members, counts, idx in table.groups(selected):
+        store.normal[rows[members]] = mean_viewing_directions(p_world[members], centres[table.keyframe_rows[idx]], counts)
 
 
 def _reference_observations(table: ObservationTable, chosen: np.ndarray, first_keyframe_ids: np.ndarray) -> np.ndarray:
