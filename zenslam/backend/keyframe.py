@@ -13,7 +13,8 @@ from zenslam.schemas.codec import KeyframeMessage
 
 @dataclass(eq=False)
 class BackendKeyframe:
-    """A keyframe as the backend keeps it; ``map_point_ids`` (N,) int64 (-1 none) is owned by the map."""
+    """A keyframe as the backend keeps it; ``map_point_ids`` (N,) int64 (-1 none) and ``map_point_rows``
+    (the points' rows in the map's ``PointStore``, -1 none) are owned by the map."""
 
     id: int
     stamp_ns: int
@@ -29,10 +30,15 @@ class BackendKeyframe:
     scale_factors: np.ndarray  # (L,) float64, scale_factor**level
     map_point_ids: np.ndarray  # (N,) int64
     serial: int = -1  # insertion order in the map (0 for the first keyframe)
+    map_point_rows: np.ndarray | None = None  # (N,) int64; None: none yet (all -1)
     # The inverse pose with the bytes of the pose it inverts: recomputed when the pose changes,
     # whether it was replaced or written in place.
     _inverse: tuple[bytes, np.ndarray] | None = field(default=None, init=False, repr=False)
     _u_order: tuple[np.ndarray, np.ndarray] | None = field(default=None, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.map_point_rows is None:
+            self.map_point_rows = np.full(len(self.map_point_ids), -1, dtype=np.int64)
 
     @classmethod
     def from_message(cls, msg: KeyframeMessage) -> BackendKeyframe:

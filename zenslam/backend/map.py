@@ -134,6 +134,12 @@ class BackendMap:
         ids = self.keyframe(kf_id).map_point_ids
         return ids[ids >= 0].copy()
 
+    def keyframe_points(self, kf_id: int) -> tuple[np.ndarray, np.ndarray]:
+        """Ids and ``point_store`` rows (each (M,) int64) of the points ``kf_id`` observes, in keypoint order."""
+        kf = self.keyframe(kf_id)
+        associated = kf.map_point_ids >= 0
+        return kf.map_point_ids[associated], kf.map_point_rows[associated]
+
     def point_rows(self, point_ids) -> np.ndarray:
         """Rows (int64) of ``point_ids`` (an iterable of ints or an int array) in ``point_store``; MapError when one is unknown."""
         ids = point_ids.tolist() if isinstance(point_ids, np.ndarray) else point_ids
@@ -175,9 +181,15 @@ class BackendMap:
     def _compact_point_store(self) -> None:
         """Move the live points into a new store without the rows of removed ones."""
         points = list(self.points.values())
-        store = self.point_store.compacted(np.fromiter((pt.row for pt in points), dtype=np.int64, count=len(points)))
+        old_rows = np.fromiter((pt.row for pt in points), dtype=np.int64, count=len(points))
+        store = self.point_store.compacted(old_rows)
         for row, pt in enumerate(points):
             pt.move_to(store, row)
+        new_row = np.full(self.point_store.n_rows, -1, dtype=np.int64)
+        new_row[old_rows] = np.arange(len(points))
+        for kf in self.keyframes.values():
+            associated = kf.map_point_rows >= 0
+            kf.map_point_rows[associated] = new_row[kf.map_point_rows[associated]]
         self.point_store = store
 
     def new_point(self, p_world: np.ndarray, first_keyframe_id: int) -> MapPoint:
@@ -201,6 +213,7 @@ class BackendMap:
         pt.observations[kf.id] = keypoint
         pt.weighted_observations += 2 if kf.right_u[keypoint] >= 0 else 1
         kf.map_point_ids[keypoint] = pt.id
+        kf.map_point_rows[keypoint] = pt.row
         self._touch(pt.id, kf.id)
 
     def remove_observation(self, point_id: int, kf_id: int) -> None:
@@ -216,6 +229,7 @@ class BackendMap:
         keypoint = pt.observations.pop(kf.id)
         pt.weighted_observations -= 2 if kf.right_u[keypoint] >= 0 else 1
         kf.map_point_ids[keypoint] = -1
+        kf.map_point_rows[keypoint] = -1
         self._touch(pt.id, kf.id)
 
     def _touch(self, point_id: int, kf_id: int) -> None:
@@ -289,6 +303,7 @@ class BackendMap:
             )
         older = list(self.keyframes)
         kf.map_point_ids = np.full(kf.n_keypoints, -1, dtype=np.int64)
+        kf.map_point_rows = np.full(kf.n_keypoints, -1, dtype=np.int64)
         kf.serial = self._next_serial
         self._next_serial += 1
         self.keyframes[kf.id] = kf

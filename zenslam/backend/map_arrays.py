@@ -150,6 +150,11 @@ def map_from_arrays(
         bmap.keyframes[kf_id] = kf
         bmap.covisibility.add_keyframe(kf_id)
     _points_from_arrays(a, bmap)
+    sorter = np.argsort(a["point_ids"], kind="stable")
+    for kf in bmap.keyframes.values():
+        associated = kf.map_point_ids >= 0
+        kf.map_point_rows = np.full(kf.n_keypoints, -1, dtype=np.int64)
+        kf.map_point_rows[associated] = sorter[np.searchsorted(a["point_ids"], kf.map_point_ids[associated], sorter=sorter)]
     _graphs_from_arrays(a, bmap, ids)
     bmap.first_keyframe_id = next((k for k, p in zip(ids, a["spanning_tree_parents"].tolist()) if p < 0), None)
     fused = dict(zip(a["fused_point_ids"][:, 0].tolist(), a["fused_point_ids"][:, 1].tolist()))

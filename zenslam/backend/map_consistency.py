@@ -31,6 +31,10 @@ def consistency_problems(bmap: BackendMap) -> list[str]:
             pt = bmap.points.get(int(kf.map_point_ids[keypoint]))
             if pt is None or pt.observations.get(kf_id) != keypoint:
                 problems.append(f"keyframe {kf_id} keypoint {keypoint} -> point {kf.map_point_ids[keypoint]} is not mirrored")
+            elif kf.map_point_rows[keypoint] != pt.row:
+                problems.append(f"keyframe {kf_id} keypoint {keypoint}: row {kf.map_point_rows[keypoint]} != point row {pt.row}")
+        if np.any((kf.map_point_rows >= 0) != (kf.map_point_ids >= 0)):
+            problems.append(f"keyframe {kf_id}: point rows and ids disagree on which keypoints are associated")
     shared: Counter[tuple[int, int]] = Counter()
     for pt in bmap.points.values():
         observers = sorted(pt.observations)

@@ -51,42 +51,6 @@ def fusion_targets(bmap: BackendMap, kf_id: int, config: FusionConfig) -> list[i
     return targets
 
 
-class FusionPoints:
-    """Geometry and descriptors of the points fusion projects, gathered once per fusion: they stay
-    as the last refresh left them until the refresh that ends it, whatever fusion merges meanwhile."""
-
-    def __init__(self, bmap: BackendMap, point_ids: np.ndarray) -> None:
-        self._bmap = bmap
-        self._ids = np.zeros(0, dtype=np.int64)  # sorted
-        self._geometry = PointGeometry(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0))
-        self._descriptors = np.zeros((0, 32), dtype=np.uint8)
-        self._gather(np.unique(point_ids))
-
-    def _gather(self, new_ids: np.ndarray) -> None:
-        more = self._bmap.point_geometry(new_ids)
-        descriptors = self._bmap.point_descriptors(new_ids)
-        ids = np.concatenate([self._ids, new_ids])
-        order = np.argsort(ids, kind="stable")
-        g = self._geometry
-        self._ids = ids[order]
-        self._geometry = PointGeometry(
-            np.concatenate([g.p_world, more.p_world])[order], np.concatenate([g.normals, more.normals])[order],
-            np.concatenate([g.min_distance_m, more.min_distance_m])[order],
-            np.concatenate([g.max_distance_m, more.max_distance_m])[order],
-        )  # fmt: skip
-        self._descriptors = np.concatenate([self._descriptors, descriptors])[order]
-
-    def take(self, point_ids: np.ndarray) -> tuple[PointGeometry, np.ndarray]:
-        """Geometry and descriptors (M, 32) of ``point_ids`` (M,), gathering any not seen yet."""
-        at = np.searchsorted(self._ids, point_ids)
-        known = at < len(self._ids)
-        known[known] = self._ids[at[known]] == point_ids[known]
-        if not known.all():
-            self._gather(np.unique(point_ids[~known]))
-            at = np.searchsorted(self._ids, point_ids)
-        return self._geometry.take(at), np.take(self._descriptors, at, axis=0)
-
-
 def match_by_projection(kf: BackendKeyframe, points: list[MapPoint], config: FusionConfig) -> tuple[np.ndarray, np.ndarray]:
     """Best keypoint of ``kf`` for each projected point: (indices into ``points``, keypoint indices)."""
     descriptors = np.array([pt.descriptor for pt in points], dtype=np.uint8).reshape(-1, 32)
@@ -132,26 +96,31 @@ def match_projected(
     return p[good].astype(np.int64), kp[good].astype(np.int64)
 
 
-def fuse_into_keyframe(
-    bmap: BackendMap, kf_id: int, point_ids: list[int], config: FusionConfig, gathered: FusionPoints | None = None
-) -> int:
-    """Project ``point_ids`` into ``kf_id`` and add observations or merge duplicates; returns matches applied.
-
-    ``gathered`` holds the points' arrays when the caller has them (``fuse_with_neighbours``)."""
-    live = bmap.points
-    return _fuse_into(bmap, kf_id, np.asarray([p for p in point_ids if p in live], dtype=np.int64), config, gathered)
+def fuse_into_keyframe(bmap: BackendMap, kf_id: int, point_ids: list[int], config: FusionConfig) -> int:
+    """Project ``point_ids`` into ``kf_id`` and add observations or merge duplicates; returns matches applied."""
+    ids = np.asarray([p for p in point_ids if p in bmap.points], dtype=np.int64)
+    return _fuse_into(bmap, kf_id, ids, bmap.point_rows(ids), config)
 
 
-def _fuse_into(bmap: BackendMap, kf_id: int, point_ids: np.ndarray, config: FusionConfig, gathered: FusionPoints | None) -> int:
-    """``fuse_into_keyframe`` of live points ``point_ids`` (M,) int64."""
+def _observed_by(kf: BackendKeyframe, point_ids: np.ndarray) -> np.ndarray:
+    """(M,) bool: ``kf`` observes point ``point_ids[m]`` (its associations mirror the observations)."""
+    associated = np.sort(kf.map_point_ids)
+    at = np.minimum(np.searchsorted(associated, point_ids), len(associated) - 1)
+    return associated[at] == point_ids if len(associated) else np.zeros(len(point_ids), dtype=bool)
+
+
+def _fuse_into(bmap: BackendMap, kf_id: int, point_ids: np.ndarray, rows: np.ndarray, config: FusionConfig) -> int:
+    """``fuse_into_keyframe`` of live points ``point_ids`` (M,) int64 at ``rows`` of the map's point store.
+
+    The points' columns are read as the last refresh left them: nothing writes them before the next."""
     kf = bmap.keyframe(kf_id)
     live = bmap.points
-    candidates = point_ids[~np.isin(point_ids, kf.map_point_ids)]  # those it does not observe yet
-    gathered = gathered if gathered is not None else FusionPoints(bmap, candidates)
-    geometry, descriptors = gathered.take(candidates)
-    rows, keypoints = match_projected(kf, geometry, descriptors, config)
+    new = ~_observed_by(kf, point_ids)
+    candidates, rows = point_ids[new], rows[new]
+    store = bmap.point_store
+    matched, keypoints = match_projected(kf, PointGeometry.at(store, rows), np.take(store.descriptor, rows, axis=0), config)
     fused = 0
-    for point_id, keypoint in zip(candidates[rows].tolist(), keypoints.tolist()):
+    for point_id, keypoint in zip(candidates[matched].tolist(), keypoints.tolist()):
         if point_id not in live or kf_id in live[point_id].observations:
             continue  # merged away, or moved into this keyframe by an earlier merge
         there = int(kf.map_point_ids[keypoint])
@@ -169,14 +138,14 @@ def fuse_with_neighbours(bmap: BackendMap, kf_id: int, config: FusionConfig) -> 
     """ORB-SLAM's ``SearchInNeighbors`` for keyframe ``kf_id``; returns matches applied both ways."""
     bmap.refresh_points()
     targets = fusion_targets(bmap, kf_id, config)
-    # Every point either pass projects: merges only swap one of these for another of these.
-    gathered = FusionPoints(bmap, np.concatenate([bmap.keyframe_point_ids(k) for k in [kf_id, *targets]]))
     fused = 0
     for target in targets:
-        fused += _fuse_into(bmap, target, bmap.keyframe_point_ids(kf_id), config, gathered)
-    candidates = np.concatenate([bmap.keyframe_point_ids(target) for target in targets] or [np.zeros(0, np.int64)])
-    _, first = np.unique(candidates, return_index=True)
-    fused += _fuse_into(bmap, kf_id, candidates[np.sort(first)], config, gathered)
+        fused += _fuse_into(bmap, target, *bmap.keyframe_points(kf_id), config)
+    if targets:
+        ids, rows = (np.concatenate(parts) for parts in zip(*(bmap.keyframe_points(t) for t in targets)))
+        _, first = np.unique(ids, return_index=True)
+        first.sort()  # each point once, where it first appears
+        fused += _fuse_into(bmap, kf_id, ids[first], rows[first], config)
     bmap.refresh_points()
     logger.debug("keyframe %d: %d fusion matches over %d target keyframes", kf_id, fused, len(targets))
     return fused
