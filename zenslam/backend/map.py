@@ -178,6 +178,16 @@ class BackendMap:
         self.changes.points.add(pt.id)
         return pt
 
+    def add_observed_points(self, point_ids: list[int], p_world: np.ndarray, kf_id: int, keypoints: list[int]) -> None:
+        """Points ``point_ids`` created at keyframe ``kf_id`` (metres, world frame, rows of ``p_world``
+        (M, 3)), each observed by it at ``keypoints[m]``: ``add_point`` then ``add_observation`` for each."""
+        kf = self.keyframe(kf_id)
+        p_world = np.asarray(p_world, dtype=float).reshape(len(point_ids), 3)
+        for point_id, p, keypoint in zip(point_ids, p_world, keypoints):
+            if kf.map_point_ids[keypoint] >= 0:
+                raise MapError(f"keypoint {keypoint} of keyframe {kf_id} already observes point {kf.map_point_ids[keypoint]}")
+            self._observe(self.add_point(point_id, p, kf_id), kf, int(keypoint))
+
     def _compact_point_store(self) -> None:
         """Move the live points into a new store without the rows of removed ones."""
         points = list(self.points.values())
