@@ -36,12 +36,15 @@ class ObservationTable:
         total = int(counts.sum())
         kf_ids = np.fromiter(chain.from_iterable(observations), dtype=np.int64, count=total)
         keypoints = np.fromiter(chain.from_iterable(o.values() for o in observations), dtype=np.int64, count=total)
-        owner = np.repeat(np.arange(len(points), dtype=np.int64), counts)
-        order = np.lexsort((kf_ids, owner))
-        kf_ids, keypoints = kf_ids[order], keypoints[order]
+        starts = np.cumsum(counts) - counts
+        # Observations are mostly made in keyframe order: sort only when some point's are not.
+        step_down = np.flatnonzero(np.diff(kf_ids) <= 0) + 1  # where the id does not increase
+        if np.any(np.isin(step_down, starts, invert=True)):  # ... other than at a point's first observation
+            order = np.lexsort((kf_ids, np.repeat(np.arange(len(points), dtype=np.int64), counts)))
+            kf_ids, keypoints = kf_ids[order], keypoints[order]
         sorter = np.argsort(keyframe_order, kind="stable")
         rows = sorter[np.searchsorted(keyframe_order, kf_ids, sorter=sorter)]
-        return cls(counts, np.cumsum(counts) - counts, kf_ids, rows, keypoints)
+        return cls(counts, starts, kf_ids, rows, keypoints)
 
     def groups(self, selected: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
         """The ``selected`` points (bool (P,)) in groups of similar observation counts: for each, the
@@ -143,7 +146,7 @@ def refresh_points(
 ) -> None:
     """Recompute the representative descriptors of ``descriptor_ids`` and the viewing directions and
     distance ranges of ``geometry_ids`` (sorted ids of observed points, whose rows are in ``store``)."""
-    ids = sorted(set(descriptor_ids) | set(geometry_ids))
+    ids = sorted(set(descriptor_ids) | set(geometry_ids)) if descriptor_ids and geometry_ids else descriptor_ids or geometry_ids
     if not ids:
         return
     pts = [points[p] for p in ids]
@@ -152,5 +155,12 @@ def refresh_points(
     rows = np.fromiter((pt.row for pt in pts), dtype=np.int64, count=len(pts))
     first = np.fromiter((pt.first_keyframe_id for pt in pts), dtype=np.int64, count=len(pts))
     ids_arr = np.asarray(ids, dtype=np.int64)
-    refresh_descriptors(kf_list, store, rows, table, np.isin(ids_arr, np.asarray(descriptor_ids, dtype=np.int64)))
-    refresh_geometry(kf_list, store, rows, first, table, np.isin(ids_arr, np.asarray(geometry_ids, dtype=np.int64)))
+    refresh_descriptors(kf_list, store, rows, table, _members(ids_arr, descriptor_ids))
+    refresh_geometry(kf_list, store, rows, first, table, _members(ids_arr, geometry_ids))
+
+
+def _members(ids: np.ndarray, subset: list[int]) -> np.ndarray:
+    """(len(ids),) bool: ``ids`` (sorted) that are in ``subset`` (sorted, a subset of ``ids``)."""
+    mask = np.zeros(len(ids), dtype=bool)
+    mask[np.searchsorted(ids, np.asarray(subset, dtype=np.int64))] = True
+    return mask
