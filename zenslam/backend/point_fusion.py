@@ -69,22 +69,25 @@ def match_projected(
     radius = config.search_radius_px * kf.scale_factors[proj.level[rows]]
     order = kf.u_order()
     sorted_u = kf.keypoints_px[order, 0]
-    lo = np.searchsorted(sorted_u, proj.px[rows, 0] - radius, side="right")
-    hi = np.searchsorted(sorted_u, proj.px[rows, 0] + radius, side="left")
+    u = proj.px[rows, 0]
+    lo = np.searchsorted(sorted_u, u - radius, side="right")
+    hi = np.searchsorted(sorted_u, u + radius, side="left")
     counts = np.maximum(hi - lo, 0)
     pair_row = np.repeat(np.arange(len(rows)), counts)
     offsets = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
     kp = order[np.repeat(lo, counts) + offsets]
     p = rows[pair_row]
-    d = np.take(kf.keypoints_px, kp, axis=0) - np.take(proj.px, p, axis=0)
+    # The window's v side and the level first: most pairs of the u window fail them.
+    dv = kf.keypoints_px[kp, 1] - proj.px[p, 1]
     level = kf.levels[kp]
-    keep = (np.abs(d[:, 1]) < radius[pair_row]) & (level >= proj.level[p] - 1) & (level <= proj.level[p])
+    keep = (np.abs(dv) < radius[pair_row]) & (level >= proj.level[p] - 1) & (level <= proj.level[p])
+    p, kp, level, dv = p[keep], kp[keep], level[keep], dv[keep]
+    du = kf.keypoints_px[kp, 0] - proj.px[p, 0]
     right_u = kf.right_u[kp]
     stereo = right_u >= 0
-    d2 = d**2
-    err2 = (d2[:, 0] + d2[:, 1]) + np.where(stereo, (np.nan_to_num(proj.right_u[p]) - right_u) ** 2, 0.0)
+    err2 = (du**2 + dv**2) + np.where(stereo, (np.nan_to_num(proj.right_u[p]) - right_u) ** 2, 0.0)
     inv_sigma2 = 1.0 / kf.level_sigma2[level]
-    keep &= np.where(stereo, err2 * inv_sigma2 <= config.chi2_stereo, err2 * inv_sigma2 <= config.chi2_mono)
+    keep = np.where(stereo, err2 * inv_sigma2 <= config.chi2_stereo, err2 * inv_sigma2 <= config.chi2_mono)
     p, kp = p[keep], kp[keep]
     if len(p) == 0:
         return empty, empty
