@@ -35,6 +35,7 @@ class BackendKeyframe:
     # whether it was replaced or written in place.
     _inverse: tuple[bytes, np.ndarray] | None = field(default=None, init=False, repr=False)
     _u_order: tuple[np.ndarray, np.ndarray] | None = field(default=None, init=False, repr=False)
+    _K_inv: tuple[PinholeCalibration, np.ndarray] | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
         if self.map_point_rows is None:
@@ -91,6 +92,13 @@ class BackendKeyframe:
         if self._inverse is None or self._inverse[0] != key:
             self._inverse = (key, invert_T(self.T_world_cam))
         return self._inverse[1]
+
+    @property
+    def K_inv(self) -> np.ndarray:
+        """The inverse (3, 3) of the calibration matrix (computed once per calibration; not to be written)."""
+        if self._K_inv is None or self._K_inv[0] is not self.calibration:
+            self._K_inv = (self.calibration, np.linalg.inv(self.calibration.K))
+        return self._K_inv[1]
 
     def u_order(self) -> np.ndarray:
         """Keypoint indices (N,) by increasing u (stable), computed once per keypoint array."""

@@ -20,7 +20,7 @@ class MapPoint:
 
     __slots__ = (
         "id", "first_keyframe_id", "created_serial", "observations", "n_visible", "n_found", "weighted_observations",
-        "_store", "_row",
+        "_store", "row",
     )  # fmt: skip
 
     def __init__(self, point_id: int, store: PointStore, row: int, first_keyframe_id: int, created_serial: int) -> None:
@@ -32,64 +32,59 @@ class MapPoint:
         self.n_found = 1  # keyframes that observed it among those
         self.weighted_observations = 0  # ORB-SLAM's Observations(): a stereo/RGB-D observation counts 2
         self._store = store
-        self._row = int(row)
+        self.row = int(row)  # the point's row in the map's ``PointStore`` (set by the map)
 
     def __repr__(self) -> str:
         return f"MapPoint(id={self.id}, p_world={self.p_world.tolist()}, observations={self.observations})"
 
     @property
-    def row(self) -> int:
-        """The point's row in the map's ``PointStore``."""
-        return self._row
-
-    @property
     def p_world(self) -> np.ndarray:
         """(3,) metres, world frame."""
-        return self._store.p_world[self._row]
+        return self._store.p_world[self.row]
 
     @p_world.setter
     def p_world(self, value: np.ndarray) -> None:
-        self._store.p_world[self._row] = value
+        self._store.p_world[self.row] = value
 
     @property
     def descriptor(self) -> np.ndarray:
         """(32,) uint8 representative descriptor."""
-        return self._store.descriptor[self._row]
+        return self._store.descriptor[self.row]
 
     @descriptor.setter
     def descriptor(self, value: np.ndarray) -> None:
-        self._store.descriptor[self._row] = value
+        self._store.descriptor[self.row] = value
 
     @property
     def normal(self) -> np.ndarray:
         """(3,) mean viewing direction, world frame."""
-        return self._store.normal[self._row]
+        return self._store.normal[self.row]
 
     @normal.setter
     def normal(self, value: np.ndarray) -> None:
-        self._store.normal[self._row] = value
+        self._store.normal[self.row] = value
 
     @property
     def min_distance_m(self) -> float:
         """Scale-invariance range minimum, metres."""
-        return float(self._store.min_distance_m[self._row])
+        return float(self._store.min_distance_m[self.row])
 
     @min_distance_m.setter
     def min_distance_m(self, value: float) -> None:
-        self._store.min_distance_m[self._row] = value
+        self._store.min_distance_m[self.row] = value
 
     @property
     def max_distance_m(self) -> float:
         """Scale-invariance range maximum, metres."""
-        return float(self._store.max_distance_m[self._row])
+        return float(self._store.max_distance_m[self.row])
 
     @max_distance_m.setter
     def max_distance_m(self, value: float) -> None:
-        self._store.max_distance_m[self._row] = value
+        self._store.max_distance_m[self.row] = value
 
     def move_to(self, store: PointStore, row: int) -> None:
         """Read and write ``row`` of ``store`` from now on (the map compacting its store)."""
-        self._store, self._row = store, int(row)
+        self._store, self.row = store, int(row)
 
     def found_ratio(self) -> float:
         """Found / visible."""
@@ -119,7 +114,7 @@ class PointGeometry:
         """The arrays of ``points``, in order."""
         stores = {id(pt._store) for pt in points}
         if len(stores) == 1:
-            return cls.at(points[0]._store, np.fromiter((pt._row for pt in points), dtype=np.int64, count=len(points)))
+            return cls.at(points[0]._store, np.fromiter((pt.row for pt in points), dtype=np.int64, count=len(points)))
         return cls(
             np.array([pt.p_world for pt in points], dtype=float).reshape(-1, 3),
             np.array([pt.normal for pt in points], dtype=float).reshape(-1, 3),

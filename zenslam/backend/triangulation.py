@@ -56,7 +56,7 @@ def fundamental_matrix(kf1: BackendKeyframe, kf2: BackendKeyframe) -> np.ndarray
     """F12 (3, 3) with x1^T F12 x2 = 0 for pixels x1 in kf1 and x2 in kf2 of one world point."""
     T_1_2 = kf1.T_cam_world @ kf2.T_world_cam
     E = skew(T_1_2[:3, 3]) @ T_1_2[:3, :3]
-    return np.linalg.inv(kf1.calibration.K).T @ E @ np.linalg.inv(kf2.calibration.K)
+    return kf1.K_inv.T @ E @ kf2.K_inv
 
 
 def _epipolar_pairs(kf1, idx1, kf2, idx2, F12, config) -> tuple[np.ndarray, np.ndarray]:
