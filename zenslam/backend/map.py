@@ -2,10 +2,14 @@
 
 Every change goes through ``BackendMap`` methods, which keep the two sides of each observation
 (``MapPoint.observations[kf_id] = keypoint`` and ``BackendKeyframe.map_point_ids[keypoint] =
-point id``), the covisibility weights, the spanning tree and the essential graph's loop edges in
-step, and record what changed (``MapChanges``) so the local mapper can publish a map update.
-Keyframes and points are small objects in dicts: the backend handles a few keyframes per second,
-and the per-keyframe work over thousands of points is done on arrays gathered from them.
+point id``, with the point's store row in ``map_point_rows``), the covisibility weights, the
+spanning tree and the essential graph's loop edges in step, and record what changed
+(``MapChanges``) so the local mapper can publish a map update.
+
+Keyframes and points are objects in dicts (ids, observations, counts); the points' positions,
+descriptors, viewing directions and distance ranges are columns of a ``PointStore``, so the
+per-keyframe work over thousands of points reads and writes them as arrays (``point_geometry``,
+``positions``, the rows a keyframe keeps of its points) rather than one object at a time.
 """
 
 from __future__ import annotations
@@ -141,7 +145,7 @@ class BackendMap:
         return kf.map_point_ids[associated], kf.map_point_rows[associated]
 
     def point_rows(self, point_ids) -> np.ndarray:
-        """Rows (int64) of ``point_ids`` (an iterable of ints or an int array) in ``point_store``; MapError when one is unknown."""
+        """Rows (int64) in ``point_store`` of ``point_ids`` (ints or an int array); MapError when one is unknown."""
         ids = point_ids.tolist() if isinstance(point_ids, np.ndarray) else point_ids
         points = self.points
         try:
