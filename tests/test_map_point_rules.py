@@ -93,3 +93,25 @@ def test_batched_viewing_directions_match_one_by_one() -> None:
     batched = mean_viewing_directions(p_world, centres)
     for k in range(6):
         np.testing.assert_array_equal(batched[k], mean_viewing_direction(p_world[k], centres[k]))
+
+
+def test_padded_representatives_match_each_group_alone() -> None:
+    rng = np.random.default_rng(3)
+    counts = np.array([1, 2, 3, 5, 8, 8, 4, 7])
+    groups = rng.integers(0, 256, (len(counts), 8, 32), dtype=np.uint8)
+    groups[2, 1] = groups[2, 0]  # a tie
+    padded = representative_descriptors(groups, counts)
+    for g, k, b in zip(groups, counts, padded):
+        assert np.array_equal(representative_descriptor(g[:k]), b)
+
+
+def test_padded_viewing_directions_have_the_bits_of_each_point_alone() -> None:
+    rng = np.random.default_rng(4)
+    counts = np.array([1, 2, 3, 9, 16, 5])
+    p = rng.normal(size=(len(counts), 3)) * 10
+    centres = rng.normal(size=(len(counts), 16, 3))
+    p[1], centres[1, :2] = [-0.0, 1.0, 1.0], [[0.0, 0.0, 0.0], [0.0, 2.0, 3.0]]  # a sum of -0.0 stays -0.0
+    padded = mean_viewing_directions(p, centres, counts)
+    for k in range(len(counts)):
+        alone = mean_viewing_directions(p[k : k + 1], centres[k : k + 1, : counts[k]])[0]
+        assert padded[k].tobytes() == alone.tobytes()

@@ -23,15 +23,33 @@ def representative_descriptor(descriptors: np.ndarray) -> np.ndarray:
     return representative_descriptors(descriptors[None])[0]
 
 
-def representative_descriptors(groups: np.ndarray) -> np.ndarray:
-    """Representative descriptors (P, 32) of P groups of K descriptors each, ``groups`` (P, K, 32)."""
+def representative_descriptors(groups: np.ndarray, counts: np.ndarray | None = None) -> np.ndarray:
+    """Representative descriptors (P, 32) of P groups of K descriptors each, ``groups`` (P, K, 32).
+
+    With ``counts`` (P,), group p holds only its first ``counts[p]`` descriptors (1..K); the rest is
+    padding, ignored."""
     groups = np.ascontiguousarray(groups, dtype=np.uint8)
     n_groups, k = groups.shape[:2]
-    if k == 1:
-        return groups[:, 0].copy()
+    if k <= 2:
+        return groups[:, 0].copy()  # two descriptors: both medians are 0 (the distance to itself), the first wins
     words = groups.view(np.uint64).reshape(n_groups, k, 4)
-    dists = np.bitwise_count(words[:, :, None, :] ^ words[:, None, :, :]).sum(axis=3, dtype=np.int32)
-    medians = np.sort(dists, axis=2)[:, :, (k - 1) // 2]
+    # All K x K pairs gathered as contiguous rows: much cheaper than broadcasting (P, K, 1, 4) ^ (P, 1, K, 4).
+    xor = np.take(words, np.repeat(np.arange(k), k), axis=1)
+    xor ^= np.take(words, np.tile(np.arange(k), k), axis=1)
+    bits = np.bitwise_count(xor)  # (P, K * K, 4) bits set per 64-bit word
+    dists = bits[..., 0].astype(np.int16)
+    for word in range(1, 4):
+        dists += bits[..., word]
+    dists = dists.reshape(n_groups, k, k)
+    if counts is None:
+        medians = np.sort(dists, axis=2)[:, :, (k - 1) // 2]
+    else:
+        counts = np.asarray(counts, dtype=np.int64)
+        padding = np.arange(k) >= counts[:, None]  # (P, K)
+        dists[np.broadcast_to(padding[:, None, :], dists.shape)] = np.iinfo(np.int16).max  # sorted last
+        middle = ((counts - 1) // 2)[:, None, None]
+        medians = np.take_along_axis(np.sort(dists, axis=2), np.broadcast_to(middle, (n_groups, k, 1)), axis=2)[..., 0]
+        medians[padding] = np.iinfo(np.int16).max  # padding is never the representative
     best = np.argmin(medians, axis=1)
     return groups[np.arange(n_groups), best]
 
@@ -76,11 +94,18 @@ def mean_viewing_direction(p_world: np.ndarray, centres_world: np.ndarray) -> np
     return mean_viewing_directions(p_world[None], np.asarray(centres_world, dtype=float)[None])[0]
 
 
-def mean_viewing_directions(p_world: np.ndarray, centres_world: np.ndarray) -> np.ndarray:
-    """``mean_viewing_direction`` of P points (P, 3), each seen from K camera centres (P, K, 3) -> (P, 3)."""
+def mean_viewing_directions(p_world: np.ndarray, centres_world: np.ndarray, counts: np.ndarray | None = None) -> np.ndarray:
+    """``mean_viewing_direction`` of P points (P, 3), each seen from K camera centres (P, K, 3) -> (P, 3).
+
+    With ``counts`` (P,), point p is seen from its first ``counts[p]`` centres (1..K) only; the rest
+    is padding, ignored (it adds -0.0, which leaves every sum unchanged, signed zeros included)."""
     rays = np.asarray(p_world, dtype=float)[:, None, :] - np.asarray(centres_world, dtype=float)
     rays /= np.maximum(np.linalg.norm(rays, axis=2, keepdims=True), 1e-12)
-    return rays.mean(axis=1)
+    if counts is None:
+        return rays.mean(axis=1)
+    counts = np.asarray(counts, dtype=np.int64)
+    rays[np.arange(rays.shape[1]) >= counts[:, None]] = -0.0
+    return rays.sum(axis=1) / counts[:, None]
 
 
 def radius_by_viewing_cos(view_cos: np.ndarray) -> np.ndarray:

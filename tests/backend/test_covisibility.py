@@ -61,3 +61,17 @@ def test_removing_a_keyframe_drops_its_weights() -> None:
     graph.remove_keyframe(1)
     assert graph.keyframes() == [0, 2]
     assert graph.weights(0) == {} and graph.connected(2) == []
+
+
+def test_shared_counts_and_pair_removal_equal_one_observation_at_a_time() -> None:
+    batched, single = CovisibilityGraph(), CovisibilityGraph()
+    for graph in (batched, single):
+        for kf in (0, 1, 2, 3):
+            graph.add_keyframe(kf)
+    batched.add_shared(3, {0: 2, 1: 1, 2: 3})
+    for others in ([0, 2], [0, 1, 2], [2]):
+        single.add_observation(3, others)
+    assert batched.weights(3) == single.weights(3) == {0: 2, 1: 1, 2: 3}
+    batched.change_weight(0, 2, 1)
+    batched.remove_shared([0, 2, 3])  # a point seen by 0, 2 and 3 leaves: -1 for each pair
+    assert batched.weight(0, 3) == 1 and batched.weight(2, 3) == 2 and 2 not in batched.weights(0)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from zenslam.backend.keyframe_culling import KeyframeCullingConfig, cull_redundant_keyframes, is_redundant
+from zenslam.backend.keyframe_culling import KeyframeCullingConfig, cull_redundant_keyframes, is_redundant, redundant_keyframes
 from zenslam.backend.map import BackendKeyframe, BackendMap
 from zenslam.camera import PinholeCalibration
 from zenslam.geometry import make_T
@@ -71,3 +71,37 @@ def test_loop_edge_keyframes_and_disabled_culling_are_left_alone() -> None:
     culled, _ = cull_redundant_keyframes(bmap, 4, CONFIG)
     assert culled == [2]
     assert cull_redundant_keyframes(build(), 4, KeyframeCullingConfig(enabled=False)) == ([], [])
+
+
+def _redundant_one_point_at_a_time(bmap: BackendMap, kf_id: int, config: KeyframeCullingConfig) -> bool:
+    kf = bmap.keyframes[kf_id]
+    keypoints = np.flatnonzero(kf.map_point_ids >= 0)
+    if kf.sensor != "mono":
+        depth = kf.depth_m[keypoints]
+        keypoints = keypoints[(depth >= 0) & (depth <= config.close_depth_baselines * kf.calibration.baseline_m)]
+    redundant = 0
+    for keypoint in keypoints.tolist():
+        pt = bmap.points[int(kf.map_point_ids[keypoint])]
+        max_level = kf.levels[keypoint] + config.level_margin
+        finer = [k for k, i in pt.observations.items() if k != kf_id and bmap.keyframes[k].levels[i] <= max_level]
+        redundant += len(finer) >= config.min_other_observers
+    return redundant > config.redundant_fraction * len(keypoints)
+
+
+def test_all_candidates_at_once_agree_with_counting_each_point() -> None:
+    rng = np.random.default_rng(3)
+    bmap = BackendMap()
+    for k in range(8):
+        seen = rng.choice(60, size=45, replace=False)
+        kf = keyframe(k, np.full(60, -1), stereo=k % 2 == 0, depth=float(rng.choice([2.0, 50.0])))
+        kf.levels[:] = rng.integers(0, 4, 60)
+        kf.map_point_ids[seen] = seen  # point i at keypoint i
+        for p in seen.tolist():
+            if p not in bmap.points:
+                bmap.add_point(p, [0.0, 0.0, 2.0], k)
+        bmap.add_keyframe(kf)
+    config = KeyframeCullingConfig(redundant_fraction=0.6)
+    ids = list(bmap.keyframes)
+    expected = [_redundant_one_point_at_a_time(bmap, k, config) for k in ids]
+    assert redundant_keyframes(bmap, ids, config).tolist() == expected
+    assert any(expected) and not all(expected)

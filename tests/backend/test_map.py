@@ -192,3 +192,73 @@ def test_frustum_projection_applies_orb_slam_visibility_rules() -> None:
     assert proj.visible.tolist() == [True, False, False]
     np.testing.assert_allclose(proj.px[0], [320.0, 240.0])
     assert proj.depth_m[0] == pytest.approx(5.0)
+
+
+def test_refresh_of_many_points_matches_the_rules_point_by_point() -> None:
+    """Points with 1 to 9 observations, some of them made out of keyframe-id order (merges), some
+    no longer seen by the keyframe that created them: each gets what the rules give it alone."""
+    rng = np.random.default_rng(7)
+    bmap = BackendMap()
+    kfs = [keyframe(k, n=60, x=0.3 * k, stereo=k % 2 == 1) for k in (0, 1, 2, 3, 4, 5, 6, 7, 8)]
+    for kf in kfs:
+        bmap.add_keyframe(kf)
+    for p in range(40):
+        observers = rng.choice(9, size=1 + p % 9, replace=False).tolist()  # in a random order
+        creator = observers[-1] if p % 2 else (set(range(9)) - set(observers) or {observers[0]}).pop()
+        bmap.add_point(p, [rng.uniform(-1, 1), rng.uniform(-1, 1), rng.uniform(4, 8)], first_keyframe_id=creator)
+        for k in observers:
+            bmap.add_observation(p, k, p)
+    bmap.refresh_points()
+    centres = {k: bmap.keyframes[k].centre_world for k in bmap.keyframes}
+    for p, pt in bmap.points.items():
+        observers = sorted(pt.observations)
+        descriptors = np.stack([bmap.keyframes[k].descriptors[pt.observations[k]] for k in observers])
+        assert np.array_equal(pt.descriptor, representative_descriptor(descriptors))
+        normal = mean_viewing_direction(pt.p_world, np.stack([centres[k] for k in observers]))
+        assert pt.normal.tobytes() == normal.tobytes()
+        ref = pt.reference_keyframe_id
+        distance = np.linalg.norm((pt.p_world - centres[ref])[None], axis=1)  # as for many points at once
+        lo, hi = scale_invariance_range(distance, bmap.keyframes[ref].levels[pt.observations[ref]], 1.2, 8)
+        assert (pt.min_distance_m, pt.max_distance_m) == (float(lo[0]), float(hi[0]))
+
+
+def test_points_keep_their_values_when_the_store_is_compacted() -> None:
+    bmap = BackendMap()
+    bmap.add_keyframe(keyframe(0, n=1000))
+    bmap.add_keyframe(keyframe(1, n=1000, x=0.2))
+    for p in range(900):
+        bmap.add_point(p, [p * 0.01, 0.0, 5.0], 0)
+        bmap.add_observation(p, 0, p)
+        bmap.add_observation(p, 1, p)
+    bmap.refresh_points()
+    removed = bmap.points[7]
+    before = (removed.p_world.copy(), removed.descriptor.copy(), removed.normal.copy())
+    survivors = {p: bmap.points[p].p_world.copy() for p in range(800, 900)}
+    for p in range(800):
+        bmap.remove_point(p)
+    store = bmap.point_store
+    for p in range(5000, 5000 + store.capacity - store.n_rows + 1):  # fills the store, then one more
+        bmap.add_point(p, [0.0, 0.0, float(p)], 1)
+    assert bmap.point_store is not store  # the live points moved to a compact store
+    assert bmap.point_store.n_rows == len(bmap.points)
+    assert all(np.array_equal(bmap.points[p].p_world, xyz) for p, xyz in survivors.items())
+    assert np.array_equal(removed.p_world, before[0]) and np.array_equal(removed.normal, before[2])
+    assert np.array_equal(removed.descriptor, before[1])
+    assert bmap.check_consistency() == []  # the keyframes' point rows were remapped
+    np.testing.assert_array_equal(bmap.positions([850, 5003]), [survivors[850], [0.0, 0.0, 5003.0]])
+
+
+def test_batched_new_points_equal_one_by_one_insertion() -> None:
+    one, batch = map_with_points(3), map_with_points(3)
+    kf_one, kf_batch = add_observing(one, 1, [0, 1, 2]), add_observing(batch, 1, [0, 1, 2])
+    p_world = np.array([[0.0, 1.0, 5.0], [1.0, 0.0, 6.0]])
+    for point_id, p, keypoint in zip([50, 51], p_world, [10, 11]):
+        one.add_point(point_id, p, 1)
+        one.add_observation(point_id, 1, keypoint)
+    batch.add_observed_points([50, 51], p_world, 1, [10, 11])
+    assert kf_one.map_point_ids.tolist() == kf_batch.map_point_ids.tolist()
+    assert batch.points[51].observations == one.points[51].observations == {1: 11}
+    np.testing.assert_array_equal(batch.positions([50, 51]), p_world)
+    assert batch.check_consistency() == [] and batch.take_changes().points == one.take_changes().points
+    with pytest.raises(MapError, match="already"):
+        batch.add_observed_points([52], p_world[:1], 1, [10])

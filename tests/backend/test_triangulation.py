@@ -12,6 +12,7 @@ from zenslam.backend.triangulation import (
     fundamental_matrix,
     match_for_triangulation,
     triangulate_matches,
+    triangulate_pairs,
 )
 from zenslam.camera import PinholeCalibration
 from zenslam.geometry import invert_T, make_T, so3_exp, transform_points
@@ -154,3 +155,42 @@ def test_create_new_points_adds_observed_points_with_backend_ids() -> None:
 def test_stereo_neighbours_closer_than_the_stereo_baseline_are_skipped() -> None:
     bmap, _, _ = two_keyframe_map(stereo=True, T2=make_T(np.eye(3), [0.05, 0.0, 0.0]))
     assert create_new_points(bmap, 1, CONFIG) == []
+
+
+def test_pairs_with_several_keyframes_triangulate_as_each_keyframe_alone() -> None:
+    rng, p, d, T1, T2 = scene(80, seed=4)
+    kf1, _ = view(0, T1, p, d, rng, stereo=True)
+    kf2, _ = view(1, T2, p, d, rng, stereo=True)
+    kf3, _ = view(2, make_T(so3_exp([0.02, -0.04, 0.0]), [-0.5, 0.05, 0.3]), p, d, rng)
+    pairs = [match_for_triangulation(kf1, k, fundamental_matrix(kf1, k), CONFIG) for k in (kf2, kf3)]
+    which = np.repeat([0, 1], [len(pairs[0][0]), len(pairs[1][0])])
+    idx1, idx2 = (np.concatenate(a) for a in zip(*pairs))
+    mixed = rng.permutation(len(which))  # pairs of both keyframes interleaved
+    together = triangulate_pairs(kf1, [kf2, kf3], which[mixed], idx1[mixed], idx2[mixed], CONFIG)
+    alone = [triangulate_matches(kf1, k, i1, i2, CONFIG) for k, (i1, i2) in zip((kf2, kf3), pairs)]
+    p_world = np.concatenate([a.p_world for a in alone])[mixed]
+    ok = np.concatenate([a.ok for a in alone])[mixed]
+    assert ok.sum() > 100
+    assert together.ok.tolist() == ok.tolist()
+    assert together.p_world[ok].tobytes() == p_world[ok].tobytes()
+
+
+def test_each_neighbour_triangulates_from_the_keypoints_the_previous_ones_left() -> None:
+    """Two neighbours seeing the same points: the first (strongest) gets most of them, the second
+    only keypoints the first left free."""
+    rng, p, d, T1, T2 = scene(100, seed=5)
+    kf0, o0 = view(0, T1, p, d, rng)
+    kf1, o1 = view(1, T2, p, d, rng)
+    kf2, o2 = view(2, make_T(so3_exp([0.0, -0.05, 0.0]), [-0.6, 0.1, 0.2]), p, d, rng)
+    bmap = BackendMap()
+    for i in range(40):
+        bmap.add_point(i, p[i], 0)
+    shared = {0: (kf0, o0, 40), 1: (kf1, o1, 40), 2: (kf2, o2, 20)}  # keyframe 1 shares most with 0
+    for kf, o, n in shared.values():
+        kf.map_point_ids[np.argsort(o)[:n]] = np.arange(n)
+        bmap.add_keyframe(kf)
+    assert bmap.covisibility.best_covisible(0, 10) == [1, 2]
+    created = create_new_points(bmap, 0, CONFIG)
+    by_neighbour = {k: [c for c in created if k in bmap.points[c].observations] for k in (1, 2)}
+    assert len(by_neighbour[1]) >= 50 and len(by_neighbour[2]) <= 60 - len(by_neighbour[1])
+    assert bmap.check_consistency() == []  # among others: no keypoint of keyframe 0 observes two points

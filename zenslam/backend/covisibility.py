@@ -9,7 +9,7 @@ increasing keyframe id, so every query is deterministic.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 
 
 class CovisibilityGraph:
@@ -67,6 +67,27 @@ class CovisibilityGraph:
         """``kf_id`` no longer sees a point the ``other_observers`` still see: -1 with each of them."""
         for other in other_observers:
             self.change_weight(kf_id, other, -1)
+
+    def add_shared(self, kf_id: int, counts: Mapping[int, int]) -> None:
+        """``kf_id`` now shares ``counts[other]`` more points with each other keyframe (applied in
+        the mapping's order; the same as that many ``add_observation`` calls)."""
+        links = self._weights[kf_id]
+        for other, delta in counts.items():
+            if other == kf_id or delta == 0:
+                continue
+            new = links.get(other, 0) + delta
+            if new <= 0:
+                raise ValueError(f"covisibility weight of keyframes {kf_id} and {other} would become {new}")
+            links[other] = new
+            self._weights[other][kf_id] = new
+        self._cache.clear()
+
+    def remove_shared(self, observers: list[int]) -> None:
+        """The keyframes ``observers`` (distinct) stop sharing one point: -1 for every pair of them."""
+        for i, a in enumerate(observers):
+            for b in observers[i + 1 :]:
+                self.change_weight(a, b, -1)
+        self._cache.clear()
 
     def weight(self, a: int, b: int) -> int:
         """Map points observed by both keyframes."""

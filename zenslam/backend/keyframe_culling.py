@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from zenslam.backend.map import BackendMap
+from zenslam.backend.map import BackendKeyframe, BackendMap
 
 logger = logging.getLogger(__name__)
 
@@ -33,26 +33,51 @@ class KeyframeCullingConfig:
 
 def is_redundant(bmap: BackendMap, kf_id: int, config: KeyframeCullingConfig) -> bool:
     """Whether keyframe ``kf_id`` is redundant under ORB-SLAM's rule."""
-    kf = bmap.keyframe(kf_id)
+    return bool(redundant_keyframes(bmap, [kf_id], config)[0])
+
+
+def _counted_keypoints(kf: BackendKeyframe, config: KeyframeCullingConfig) -> np.ndarray:
+    """The keypoints of ``kf`` whose points the rule counts: all associated ones, for stereo/RGB-D
+    only those with a depth below ``close_depth_baselines`` baselines."""
     keypoints = np.flatnonzero(kf.map_point_ids >= 0)
     if kf.sensor != "mono":
         th_depth = config.close_depth_baselines * (kf.calibration.baseline_m or 0.0)
         depth = kf.depth_m[keypoints]
         keypoints = keypoints[(depth >= 0) & (depth <= th_depth)]
-    n_redundant = 0
-    for keypoint in keypoints.tolist():
-        pt = bmap.points[int(kf.map_point_ids[keypoint])]
-        if len(pt.observations) - 1 < config.min_other_observers:
-            continue
-        max_level = kf.levels[keypoint] + config.level_margin
-        seen = 0
-        for other, other_keypoint in pt.observations.items():
-            if other != kf_id and bmap.keyframes[other].levels[other_keypoint] <= max_level:
-                seen += 1
-                if seen >= config.min_other_observers:
-                    n_redundant += 1
-                    break
-    return n_redundant > config.redundant_fraction * len(keypoints)
+    return keypoints
+
+
+def redundant_keyframes(bmap: BackendMap, kf_ids: list[int], config: KeyframeCullingConfig) -> np.ndarray:
+    """(K,) bool: ``is_redundant`` of each of ``kf_ids`` in the current map, all at once.
+
+    A point's observers are the keyframes associating it, all among the keyframes sharing points
+    with the one tested: their associations (store row, level) sorted by row give, for each
+    counted keypoint, its point's other observers and their levels."""
+    observer_ids = sorted(set(kf_ids).union(*(bmap.covisibility.weights(k) for k in kf_ids)))
+    rows, owner, level = [], [], []
+    for k in observer_ids:
+        kf = bmap.keyframes[k]
+        associated = np.flatnonzero(kf.map_point_rows >= 0)
+        rows.append(kf.map_point_rows[associated])
+        owner.append(np.full(len(associated), k, dtype=np.int64))
+        level.append(kf.levels[associated])
+    order = np.argsort(np.concatenate(rows), kind="stable")
+    obs_row, obs_owner, obs_level = (np.concatenate(a)[order] for a in (rows, owner, level))
+    tested = [_counted_keypoints(bmap.keyframes[k], config) for k in kf_ids]
+    counts = np.array([len(t) for t in tested], dtype=np.int64)
+    which = np.repeat(np.arange(len(kf_ids)), counts)  # (T,) the tested keyframe of each counted keypoint
+    kp_row = np.concatenate([bmap.keyframes[k].map_point_rows[t] for k, t in zip(kf_ids, tested)] or [np.zeros(0, np.int64)])
+    max_level = np.concatenate([bmap.keyframes[k].levels[t] for k, t in zip(kf_ids, tested)] or [np.zeros(0, np.int64)])
+    max_level = max_level + config.level_margin
+    start = np.searchsorted(obs_row, kp_row, "left")
+    n = np.searchsorted(obs_row, kp_row, "right") - start
+    entry = np.repeat(np.arange(len(kp_row)), n)
+    at = np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n) + np.repeat(start, n)
+    tested_ids = np.asarray(kf_ids, dtype=np.int64)
+    seen = (obs_owner[at] != tested_ids[which[entry]]) & (obs_level[at] <= max_level[entry])
+    redundant_point = np.bincount(entry[seen], minlength=len(kp_row)) >= config.min_other_observers
+    n_redundant = np.bincount(which[redundant_point], minlength=len(kf_ids))
+    return n_redundant > config.redundant_fraction * counts
 
 
 def cull_redundant_keyframes(bmap: BackendMap, current_id: int, config: KeyframeCullingConfig) -> tuple[list[int], list[int]]:
@@ -64,12 +89,19 @@ def cull_redundant_keyframes(bmap: BackendMap, current_id: int, config: Keyframe
         return [], []
     culled: list[int] = []
     touched: list[int] = []
-    for kf_id in bmap.covisibility.connected(current_id):
-        if kf_id == bmap.first_keyframe_id or bmap.essential_graph.has_loop_edge(kf_id):
-            continue
-        if is_redundant(bmap, kf_id, config):
-            touched.extend(bmap.remove_keyframe(kf_id))
-            culled.append(kf_id)
+    candidates = [
+        k for k in bmap.covisibility.connected(current_id)
+        if k != bmap.first_keyframe_id and not bmap.essential_graph.has_loop_edge(k)
+    ]  # fmt: skip
+    while candidates:
+        # All at once; a removal changes the others' verdicts, so those after it are tested again.
+        redundant = redundant_keyframes(bmap, candidates, config)
+        if not redundant.any():
+            break
+        first = int(np.argmax(redundant))
+        touched.extend(bmap.remove_keyframe(candidates[first]))
+        culled.append(candidates[first])
+        candidates = candidates[first + 1 :]
     if culled:
         logger.debug("keyframe %d: culled redundant keyframes %s", current_id, culled)
     return culled, touched

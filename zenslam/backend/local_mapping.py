@@ -200,15 +200,17 @@ class LocalMapper:
             kf.map_point_ids[keypoint] = live
         dropped += self._drop_far_associations(kf)
         self.map.add_keyframe(kf)
-        received = []
-        for point_id, p_world in zip(np.asarray(msg.new_point_ids).tolist(), np.asarray(msg.new_points_world)):
+        received, rows, keypoints = [], [], []
+        for row, point_id in enumerate(np.asarray(msg.new_point_ids).tolist()):
             keypoint = keypoint_of_new.get(int(point_id))
             if keypoint is None:
                 logger.warning("keyframe %d: new point %d is at no keypoint; ignored", kf.id, point_id)
                 continue
-            self.map.add_point(int(point_id), p_world, kf.id)
-            self.map.add_observation(int(point_id), kf.id, keypoint)
             received.append(int(point_id))
+            rows.append(row)
+            keypoints.append(keypoint)
+        new_world = np.asarray(msg.new_points_world, dtype=float).reshape(-1, 3)
+        self.map.add_observed_points(received, new_world[rows], kf.id, keypoints)
         self.map.refresh_points()
         count_visibility(self.map, kf.id, self.recent_points, self.config.point_culling)
         self.recent_points.extend(received)
@@ -220,7 +222,7 @@ class LocalMapper:
         keypoints = np.flatnonzero(kf.map_point_ids >= 0)
         if len(keypoints) == 0:
             return 0
-        p_world = np.array([self.map.points[int(p)].p_world for p in kf.map_point_ids[keypoints]])
+        p_world = self.map.positions(kf.map_point_ids[keypoints])
         px, _, z = kf.project(p_world)
         chi2 = np.sum((px - kf.keypoints_px[keypoints]) ** 2, axis=1) / kf.level_sigma2[kf.levels[keypoints]]
         far = (z <= 0) | ~(chi2 <= self.config.max_association_chi2)
@@ -420,7 +422,7 @@ def map_update_from_changes(
     the same step never reach the frontend, so they are not listed as removed."""
     kf_ids = sorted(k for k in changes.keyframes if k in bmap.keyframes)
     point_ids = sorted(p for p in changes.points if p in bmap.points)
-    points = [bmap.points[p] for p in point_ids]
+    rows, store = bmap.point_rows(point_ids), bmap.point_store
     return MapUpdate(
         keyframe_id=kf_id,
         stamp_ns=int(stamp_ns),
@@ -429,11 +431,11 @@ def map_update_from_changes(
             for k in kf_ids
         ),
         point_ids=np.asarray(point_ids, dtype=np.int64),
-        p_world=np.array([p.p_world for p in points], dtype=float).reshape(-1, 3),
-        descriptors=np.array([p.descriptor for p in points], dtype=np.uint8).reshape(-1, 32),
-        normals=np.array([p.normal for p in points], dtype=float).reshape(-1, 3),
-        min_distance_m=np.array([p.min_distance_m for p in points], dtype=float),
-        max_distance_m=np.array([p.max_distance_m for p in points], dtype=float),
+        p_world=store.p_world[rows],
+        descriptors=store.descriptor[rows],
+        normals=store.normal[rows],
+        min_distance_m=store.min_distance_m[rows],
+        max_distance_m=store.max_distance_m[rows],
         removed_point_ids=np.asarray(sorted(changes.removed_points - changes.created_points), dtype=np.int64),
         removed_keyframe_ids=np.asarray(sorted(changes.removed_keyframes), dtype=np.int64),
         kind=kind,

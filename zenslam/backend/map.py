@@ -2,10 +2,14 @@
 
 Every change goes through ``BackendMap`` methods, which keep the two sides of each observation
 (``MapPoint.observations[kf_id] = keypoint`` and ``BackendKeyframe.map_point_ids[keypoint] =
-point id``), the covisibility weights, the spanning tree and the essential graph's loop edges in
-step, and record what changed (``MapChanges``) so the local mapper can publish a map update.
-Keyframes and points are small objects in dicts: the backend handles a few keyframes per second,
-and the per-keyframe work over thousands of points is done on arrays gathered from them.
+point id``, with the point's store row in ``map_point_rows``), the covisibility weights, the
+spanning tree and the essential graph's loop edges in step, and record what changed
+(``MapChanges``) so the local mapper can publish a map update.
+
+Keyframes and points are objects in dicts (ids, observations, counts); the points' positions,
+descriptors, viewing directions and distance ranges are columns of a ``PointStore``, so the
+per-keyframe work over thousands of points reads and writes them as arrays (``point_geometry``,
+``positions``, the rows a keyframe keeps of its points) rather than one object at a time.
 """
 
 from __future__ import annotations
@@ -13,26 +17,28 @@ from __future__ import annotations
 import logging
 from collections import Counter
 from dataclasses import dataclass, field
+from itertools import chain
 
 import numpy as np
 
 from zenslam.backend.covisibility import CovisibilityGraph
 from zenslam.backend.culled_keyframes import CulledKeyframes
 from zenslam.backend.essential_graph import EssentialGraph
+from zenslam.backend.keyframe import BackendKeyframe
+from zenslam.backend.map_consistency import consistency_problems
+from zenslam.backend.map_point import FrustumProjection, MapPoint, PointGeometry, frustum_projection
+from zenslam.backend.point_refresh import refresh_points
+from zenslam.backend.point_store import PointStore
 from zenslam.backend.spanning_tree import SpanningTree, choose_parent
-from zenslam.camera import PinholeCalibration, SensorKind
 from zenslam.errors import ZenslamError
-from zenslam.geometry import invert_T, transform_points
-from zenslam.map_point_rules import (
-    mean_viewing_directions,
-    predict_scale_level,
-    representative_descriptors,
-    scale_invariance_range,
-)
-from zenslam.schemas.codec import KeyframeMessage
 from zenslam.schemas.map_update import BACKEND_POINT_ID_BASE
 
 logger = logging.getLogger(__name__)
+
+__all__ = [
+    "BackendKeyframe", "BackendMap", "FrustumProjection", "IdAllocator", "MapChanges", "MapError", "MapPoint",
+    "PointGeometry", "frustum_projection",
+]  # fmt: skip
 
 
 class MapError(ZenslamError):
@@ -57,130 +63,6 @@ class IdAllocator:
         return self._next
 
 
-@dataclass(eq=False)
-class BackendKeyframe:
-    """A keyframe as the backend keeps it; ``map_point_ids`` (N,) int64 (-1 none) is owned by the map."""
-
-    id: int
-    stamp_ns: int
-    T_world_cam: np.ndarray  # (4, 4) maps camera coordinates (x right, y down, z forward) to world
-    calibration: PinholeCalibration
-    sensor: SensorKind
-    keypoints_px: np.ndarray  # (N, 2) float64 level-0 pixels
-    levels: np.ndarray  # (N,) int64 pyramid level
-    angles_deg: np.ndarray  # (N,) float64
-    right_u: np.ndarray  # (N,) float64 right-image u, pixels; -1 none
-    depth_m: np.ndarray  # (N,) float64 metres; -1 none
-    descriptors: np.ndarray  # (N, 32) uint8
-    scale_factors: np.ndarray  # (L,) float64, scale_factor**level
-    map_point_ids: np.ndarray  # (N,) int64
-    serial: int = -1  # insertion order in the map (0 for the first keyframe)
-
-    @classmethod
-    def from_message(cls, msg: KeyframeMessage) -> BackendKeyframe:
-        """Writable copies of a keyframe message's arrays; associations start empty (all -1)."""
-        n = len(msg.keypoints_px)
-        return cls(
-            id=int(msg.id),
-            stamp_ns=int(msg.stamp_ns),
-            T_world_cam=np.array(msg.T_world_cam, dtype=float),
-            calibration=msg.calibration,
-            sensor=msg.sensor,
-            keypoints_px=np.array(msg.keypoints_px, dtype=float).reshape(n, 2),
-            levels=np.array(msg.levels, dtype=np.int64),
-            angles_deg=np.array(msg.angles_deg, dtype=float),
-            right_u=np.array(msg.right_u, dtype=float),
-            depth_m=np.array(msg.depth_m, dtype=float),
-            descriptors=np.array(msg.descriptors, dtype=np.uint8).reshape(n, 32),
-            scale_factors=np.array(msg.scale_factors, dtype=float),
-            map_point_ids=np.full(n, -1, dtype=np.int64),
-        )
-
-    @property
-    def n_keypoints(self) -> int:
-        """Number of keypoints N."""
-        return len(self.keypoints_px)
-
-    @property
-    def scale_factor(self) -> float:
-        """Scale ratio between consecutive pyramid levels."""
-        return float(self.scale_factors[1]) if len(self.scale_factors) > 1 else 1.0
-
-    @property
-    def n_levels(self) -> int:
-        """Pyramid levels L."""
-        return len(self.scale_factors)
-
-    @property
-    def level_sigma2(self) -> np.ndarray:
-        """(L,) keypoint position variance per level, px^2 (ORB-SLAM: scale_factor**(2 level))."""
-        return self.scale_factors**2
-
-    @property
-    def T_cam_world(self) -> np.ndarray:
-        """The pose as a world -> camera transform (4, 4)."""
-        return invert_T(self.T_world_cam)
-
-    @property
-    def centre_world(self) -> np.ndarray:
-        """Camera centre (3,) metres, world frame."""
-        return np.asarray(self.T_world_cam)[:3, 3].copy()
-
-    @property
-    def has_right(self) -> np.ndarray:
-        """(N,) bool: the keypoint has a right-image coordinate (stereo/RGB-D measurement)."""
-        return self.right_u >= 0
-
-    def project(self, p_world: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Pixels (M, 2), right-image u (M,) (nan for mono) and depth z (M,) metres of world points (M, 3)."""
-        p_cam = transform_points(self.T_cam_world, np.asarray(p_world, dtype=float).reshape(-1, 3))
-        z = p_cam[:, 2]
-        safe_z = np.where(np.abs(z) > 1e-12, z, 1e-12)
-        c = self.calibration
-        px = np.column_stack([c.fx * p_cam[:, 0] / safe_z + c.cx, c.fy * p_cam[:, 1] / safe_z + c.cy])
-        right_u = px[:, 0] - c.bf / safe_z if c.baseline_m is not None else np.full(len(z), np.nan)
-        return px, right_u, z
-
-    def unproject(self, keypoints: np.ndarray) -> np.ndarray:
-        """World points (K, 3) metres of keypoints (indices) with a depth, from their pixel and depth."""
-        keypoints = np.asarray(keypoints, dtype=np.int64)
-        c, z = self.calibration, self.depth_m[keypoints]
-        uv = self.keypoints_px[keypoints]
-        p_cam = np.column_stack([(uv[:, 0] - c.cx) * z / c.fx, (uv[:, 1] - c.cy) * z / c.fy, z])
-        return transform_points(self.T_world_cam, p_cam)
-
-
-@dataclass(eq=False)
-class MapPoint:
-    """A 3D point with its keyframe observations (keyframe id -> keypoint index)."""
-
-    id: int
-    p_world: np.ndarray  # (3,) metres, world frame
-    first_keyframe_id: int  # the keyframe at which the point was created
-    created_serial: int  # serial of the newest keyframe in the map when the point was created
-    descriptor: np.ndarray = field(default_factory=lambda: np.zeros(32, dtype=np.uint8))  # representative
-    normal: np.ndarray = field(default_factory=lambda: np.zeros(3))  # mean viewing direction, world
-    min_distance_m: float = 0.0  # scale-invariance range, metres
-    max_distance_m: float = float("inf")
-    observations: dict[int, int] = field(default_factory=dict)
-    n_visible: int = 1  # keyframes whose frustum held the point (counted by the backend)
-    n_found: int = 1  # keyframes that observed it among those
-    weighted_observations: int = 0  # ORB-SLAM's Observations(): a stereo/RGB-D observation counts 2
-
-    def found_ratio(self) -> float:
-        """Found / visible."""
-        return self.n_found / max(self.n_visible, 1)
-
-    @property
-    def reference_keyframe_id(self) -> int | None:
-        """The keyframe the point's position is tied to (ORB-SLAM's reference keyframe): the one that
-        created it while it still observes it, else the observer with the smallest id; None unobserved.
-        Corrections of keyframe poses (loop closing, global BA) move a point with this keyframe."""
-        if self.first_keyframe_id in self.observations:
-            return self.first_keyframe_id
-        return min(self.observations) if self.observations else None
-
-
 @dataclass
 class MapChanges:
     """What changed in the map since the last ``BackendMap.take_changes``."""
@@ -192,49 +74,6 @@ class MapChanges:
     removed_keyframes: set[int] = field(default_factory=set)
 
 
-def _group_by_observation_count(points: dict[int, MapPoint], ids: list[int]) -> list[list[int]]:
-    """``ids`` split into groups of points with equal observation counts (each group keeps the order)."""
-    groups: dict[int, list[int]] = {}
-    for point_id in ids:
-        groups.setdefault(len(points[point_id].observations), []).append(point_id)
-    return [groups[k] for k in sorted(groups)]
-
-
-@dataclass(frozen=True)
-class FrustumProjection:
-    """Points projected into a keyframe with ORB-SLAM's frustum verdict (``isInFrustum``)."""
-
-    visible: np.ndarray  # (M,) bool: in front, in the image, within the distance range, viewing angle ok
-    px: np.ndarray  # (M, 2) pixels
-    right_u: np.ndarray  # (M,) right-image u, pixels (nan for mono)
-    depth_m: np.ndarray  # (M,) z in the camera, metres
-    distance_m: np.ndarray  # (M,) distance to the camera centre, metres
-    level: np.ndarray  # (M,) int64 predicted pyramid level
-
-
-def frustum_projection(kf: BackendKeyframe, points: list[MapPoint], min_view_cos: float = 0.5) -> FrustumProjection:
-    """Project map points into ``kf``: visible when z > 0, inside the image, the distance within
-    [0.8 min, 1.2 max] of the point's scale-invariance range and the viewing ray within
-    acos(min_view_cos) of its mean viewing direction (ORB-SLAM's margins)."""
-    p = np.array([pt.p_world for pt in points], dtype=float).reshape(-1, 3)
-    normals = np.array([pt.normal for pt in points], dtype=float).reshape(-1, 3)
-    lo = np.array([pt.min_distance_m for pt in points], dtype=float)
-    hi = np.array([pt.max_distance_m for pt in points], dtype=float)
-    px, right_u, z = kf.project(p)
-    rays = p - kf.centre_world
-    dist = np.linalg.norm(rays, axis=1)
-    view_cos = np.einsum("ij,ij->i", rays, normals) / np.maximum(dist, 1e-12)
-    c = kf.calibration
-    visible = (
-        (z > 0)
-        & (px[:, 0] >= 0) & (px[:, 0] < c.width) & (px[:, 1] >= 0) & (px[:, 1] < c.height)
-        & (dist >= 0.8 * lo) & (dist <= 1.2 * hi)
-        & (view_cos >= min_view_cos)
-    )  # fmt: skip
-    level = predict_scale_level(dist, hi, kf.scale_factor, kf.n_levels)
-    return FrustumProjection(visible, px, right_u, z, dist, level)
-
-
 class BackendMap:
     """Keyframes, map points and their graphs, changed only through these methods."""
 
@@ -243,6 +82,7 @@ class BackendMap:
     ) -> None:
         self.keyframes: dict[int, BackendKeyframe] = {}  # in insertion order
         self.points: dict[int, MapPoint] = {}
+        self.point_store = PointStore()  # the points' positions, descriptors, normals and ranges (rows)
         self.covisibility = CovisibilityGraph(min_covisibility_weight)
         self.spanning_tree = SpanningTree()
         self.essential_graph = EssentialGraph(self.spanning_tree, self.covisibility, essential_min_weight)
@@ -298,6 +138,34 @@ class BackendMap:
         ids = self.keyframe(kf_id).map_point_ids
         return ids[ids >= 0].copy()
 
+    def keyframe_points(self, kf_id: int) -> tuple[np.ndarray, np.ndarray]:
+        """Ids and ``point_store`` rows (each (M,) int64) of the points ``kf_id`` observes, in keypoint order."""
+        kf = self.keyframe(kf_id)
+        associated = kf.map_point_ids >= 0
+        return kf.map_point_ids[associated], kf.map_point_rows[associated]
+
+    def point_rows(self, point_ids) -> np.ndarray:
+        """Rows (int64) in ``point_store`` of ``point_ids`` (ints or an int array); MapError when one is unknown."""
+        ids = point_ids.tolist() if isinstance(point_ids, np.ndarray) else point_ids
+        points = self.points
+        try:
+            return np.fromiter((points[p].row for p in ids), dtype=np.int64, count=len(ids))
+        except KeyError as missing:
+            raise MapError(f"map point {missing.args[0]} is not in the backend map") from None
+
+    def positions(self, point_ids) -> np.ndarray:
+        """(M, 3) positions of ``point_ids`` (metres, world frame; a copy)."""
+        return np.take(self.point_store.p_world, self.point_rows(point_ids), axis=0)
+
+    def point_descriptors(self, point_ids) -> np.ndarray:
+        """(M, 32) uint8 representative descriptors of ``point_ids`` (a copy, as last refreshed)."""
+        return np.take(self.point_store.descriptor, self.point_rows(point_ids), axis=0)
+
+    def point_geometry(self, point_ids) -> PointGeometry:
+        """Positions, viewing directions and distance ranges of ``point_ids`` as arrays, in order
+        (as last refreshed: call ``refresh_points`` first for current ones)."""
+        return PointGeometry.at(self.point_store, self.point_rows(point_ids))
+
     # ---- points ------------------------------------------------------------------------------------
     def add_point(self, point_id: int, p_world: np.ndarray, first_keyframe_id: int) -> MapPoint:
         """A point without observations yet (add them with ``add_observation``)."""
@@ -305,10 +173,38 @@ class BackendMap:
             raise MapError(f"map point id {point_id} is already used; ids are never reused")
         if point_id < 0:
             raise MapError(f"map point ids are non-negative, got {point_id}")
-        pt = MapPoint(int(point_id), np.array(p_world, dtype=float).reshape(3), int(first_keyframe_id), self._next_serial - 1)
+        if self.point_store.full and 2 * len(self.points) <= self.point_store.capacity:
+            self._compact_point_store()
+        row = self.point_store.append()
+        self.point_store.p_world[row] = np.asarray(p_world, dtype=float).reshape(3)
+        pt = MapPoint(point_id, self.point_store, row, first_keyframe_id, self._next_serial - 1)
         self.points[pt.id] = pt
         self.changes.points.add(pt.id)
         return pt
+
+    def add_observed_points(self, point_ids: list[int], p_world: np.ndarray, kf_id: int, keypoints: list[int]) -> None:
+        """Points ``point_ids`` created at keyframe ``kf_id`` (metres, world frame, rows of ``p_world``
+        (M, 3)), each observed by it at ``keypoints[m]``: ``add_point`` then ``add_observation`` for each."""
+        kf = self.keyframe(kf_id)
+        p_world = np.asarray(p_world, dtype=float).reshape(len(point_ids), 3)
+        for point_id, p, keypoint in zip(point_ids, p_world, keypoints):
+            if kf.map_point_ids[keypoint] >= 0:
+                raise MapError(f"keypoint {keypoint} of keyframe {kf_id} already observes point {kf.map_point_ids[keypoint]}")
+            self._observe(self.add_point(point_id, p, kf_id), kf, int(keypoint))
+
+    def _compact_point_store(self) -> None:
+        """Move the live points into a new store without the rows of removed ones."""
+        points = list(self.points.values())
+        old_rows = np.fromiter((pt.row for pt in points), dtype=np.int64, count=len(points))
+        store = self.point_store.compacted(old_rows)
+        for row, pt in enumerate(points):
+            pt.move_to(store, row)
+        new_row = np.full(self.point_store.n_rows, -1, dtype=np.int64)
+        new_row[old_rows] = np.arange(len(points))
+        for kf in self.keyframes.values():
+            associated = kf.map_point_rows >= 0
+            kf.map_point_rows[associated] = new_row[kf.map_point_rows[associated]]
+        self.point_store = store
 
     def new_point(self, p_world: np.ndarray, first_keyframe_id: int) -> MapPoint:
         """A point created by the backend, with the next id of its own id space."""
@@ -324,21 +220,31 @@ class BackendMap:
         if kf.map_point_ids[keypoint] >= 0:
             raise MapError(f"keypoint {keypoint} of keyframe {kf_id} already observes point {kf.map_point_ids[keypoint]}")
         self.covisibility.add_observation(kf_id, pt.observations.keys())
-        pt.observations[kf_id] = int(keypoint)
+        self._observe(pt, kf, int(keypoint))
+
+    def _observe(self, pt: MapPoint, kf: BackendKeyframe, keypoint: int) -> None:
+        """Record one observation on both sides (covisibility is the caller's)."""
+        pt.observations[kf.id] = keypoint
         pt.weighted_observations += 2 if kf.right_u[keypoint] >= 0 else 1
-        kf.map_point_ids[keypoint] = point_id
-        self._touch(point_id, kf_id)
+        kf.map_point_ids[keypoint] = pt.id
+        kf.map_point_rows[keypoint] = pt.row
+        self._touch(pt.id, kf.id)
 
     def remove_observation(self, point_id: int, kf_id: int) -> None:
         """Keyframe ``kf_id`` no longer observes point ``point_id`` (the point stays)."""
         pt, kf = self.point(point_id), self.keyframe(kf_id)
-        keypoint = pt.observations.pop(kf_id, None)
-        if keypoint is None:
+        if kf_id not in pt.observations:
             raise MapError(f"point {point_id} is not observed by keyframe {kf_id}")
+        self._unobserve(pt, kf)
+        self.covisibility.remove_observation(kf_id, pt.observations.keys())
+
+    def _unobserve(self, pt: MapPoint, kf: BackendKeyframe) -> None:
+        """Drop one observation on both sides (covisibility is the caller's)."""
+        keypoint = pt.observations.pop(kf.id)
         pt.weighted_observations -= 2 if kf.right_u[keypoint] >= 0 else 1
         kf.map_point_ids[keypoint] = -1
-        self.covisibility.remove_observation(kf_id, pt.observations.keys())
-        self._touch(point_id, kf_id)
+        kf.map_point_rows[keypoint] = -1
+        self._touch(pt.id, kf.id)
 
     def _touch(self, point_id: int, kf_id: int) -> None:
         self._stale_descriptor.add(point_id)
@@ -349,8 +255,10 @@ class BackendMap:
     def remove_point(self, point_id: int) -> None:
         """Delete a point and all its observations."""
         pt = self.point(point_id)
-        for kf_id in sorted(pt.observations):
-            self.remove_observation(point_id, kf_id)
+        observers = sorted(pt.observations)
+        self.covisibility.remove_shared(observers)
+        for kf_id in observers:
+            self._unobserve(pt, self.keyframes[kf_id])
         del self.points[point_id]
         self._stale_descriptor.discard(point_id)
         self._stale_geometry.discard(point_id)
@@ -381,15 +289,14 @@ class BackendMap:
 
     def set_point_position(self, point_id: int, p_world: np.ndarray) -> None:
         """Move a point (metres, world frame)."""
-        self.point(point_id).p_world = np.array(p_world, dtype=float).reshape(3)
+        self.point(point_id).p_world = np.asarray(p_world, dtype=float).reshape(3)
         self._stale_geometry.add(point_id)
         self.changes.points.add(point_id)
 
     def set_point_positions(self, point_ids: list[int], p_world: np.ndarray) -> None:
         """Move points ``point_ids`` to the rows of ``p_world`` (N, 3) (metres, world frame)."""
-        rows = np.array(p_world, dtype=float).reshape(len(point_ids), 3)
-        for point_id, row in zip(point_ids, rows):
-            self.point(point_id).p_world = row
+        rows = self.point_rows(point_ids)
+        self.point_store.p_world[rows] = np.asarray(p_world, dtype=float).reshape(len(rows), 3)
         self._stale_geometry.update(point_ids)
         self.changes.points.update(point_ids)
 
@@ -400,20 +307,27 @@ class BackendMap:
         if kf.id in self.keyframes or kf.id in self.spanning_tree:
             raise MapError(f"keyframe {kf.id} is already in the backend map; keyframe ids must be unique")
         requested = np.asarray(kf.map_point_ids, dtype=np.int64).copy()
-        known = requested[requested >= 0]
-        missing = sorted({int(p) for p in known if int(p) not in self.points})
+        keypoints = np.flatnonzero(requested >= 0)
+        known = requested[keypoints]
+        points = self.points
+        missing = sorted({p for p in known.tolist() if p not in points})
         if missing or len(np.unique(known)) != len(known):
             raise MapError(
                 f"keyframe {kf.id} associates unknown points {missing[:5]} or one point twice; resolve ids first"
             )
         older = list(self.keyframes)
         kf.map_point_ids = np.full(kf.n_keypoints, -1, dtype=np.int64)
+        kf.map_point_rows = np.full(kf.n_keypoints, -1, dtype=np.int64)
         kf.serial = self._next_serial
         self._next_serial += 1
         self.keyframes[kf.id] = kf
         self.covisibility.add_keyframe(kf.id)
-        for keypoint in np.flatnonzero(requested >= 0).tolist():
-            self.add_observation(int(requested[keypoint]), kf.id, keypoint)
+        observed = [points[p] for p in known.tolist()]
+        # Each point is observed once, so the new keyframe shares with every other keyframe as many
+        # points as it sees of that keyframe's (counted in first-seen order).
+        self.covisibility.add_shared(kf.id, Counter(chain.from_iterable(pt.observations for pt in observed)))
+        for pt, keypoint in zip(observed, keypoints.tolist()):
+            self._observe(pt, kf, keypoint)
         self.spanning_tree.add(kf.id, choose_parent(kf.id, self.covisibility, older))
         if self.first_keyframe_id is None:
             self.first_keyframe_id = kf.id
@@ -430,8 +344,8 @@ class BackendMap:
         if parent is not None:
             self.culled.record(kf_id, kf.stamp_ns, parent, self.keyframes[parent].T_world_cam, kf.T_world_cam)
         for point_id in point_ids:
-            self.remove_observation(point_id, kf_id)
-        self.covisibility.remove_keyframe(kf_id)
+            self._unobserve(self.points[point_id], kf)
+        self.covisibility.remove_keyframe(kf_id)  # with all its weights: it no longer shares any point
         self.spanning_tree.remove(kf_id, self.covisibility)
         self.essential_graph.remove_keyframe(kf_id)
         del self.keyframes[kf_id]
@@ -450,61 +364,15 @@ class BackendMap:
     def refresh_points(self) -> int:
         """Recompute stale representative descriptors, viewing directions and scale-invariance ranges
         (ORB-SLAM's ComputeDistinctiveDescriptors and UpdateNormalAndDepth). Returns points refreshed."""
-        desc_ids = sorted(p for p in self._stale_descriptor if self.points[p].observations)
-        geo_ids = sorted(p for p in self._stale_geometry if self.points[p].observations)
-        row_of_kf = {k: row for row, k in enumerate(self.keyframes)}
-        for ids in _group_by_observation_count(self.points, desc_ids):
-            pts = [self.points[p] for p in ids]
-            pairs = [(row_of_kf[k], i) for pt in pts for k, i in sorted(pt.observations.items())]
-            groups = self._descriptors_at(pairs).reshape(len(pts), -1, 32)
-            for pt, descriptor in zip(pts, representative_descriptors(groups)):
-                pt.descriptor = descriptor
-        if geo_ids:
-            centres = np.array([kf.T_world_cam[:3, 3] for kf in self.keyframes.values()], dtype=float)
-            for ids in _group_by_observation_count(self.points, geo_ids):
-                self._refresh_geometry([self.points[p] for p in ids], row_of_kf, centres)
+        points = self.points
+        desc_ids = sorted(p for p in self._stale_descriptor if points[p].observations)
+        geo_ids = sorted(p for p in self._stale_geometry if points[p].observations)
+        refresh_points(self.keyframes, points, self.point_store, desc_ids, geo_ids)
         self.changes.points.update(desc_ids)
         self.changes.points.update(geo_ids)
         self._stale_descriptor.clear()
         self._stale_geometry.clear()
         return len(set(desc_ids) | set(geo_ids))
-
-    def _descriptors_at(self, pairs: list[tuple[int, int]]) -> np.ndarray:
-        """Descriptors (M, 32) uint8 of (keyframe row in insertion order, keypoint) pairs, in order."""
-        rows, keypoints = np.array(pairs, dtype=np.int64).reshape(-1, 2).T
-        out = np.empty((len(rows), 32), dtype=np.uint8)
-        keyframes = list(self.keyframes.values())
-        order = np.argsort(rows, kind="stable")
-        distinct, starts = np.unique(rows[order], return_index=True)
-        for row, sel in zip(distinct.tolist(), np.split(order, starts[1:])):
-            out[sel] = keyframes[row].descriptors[keypoints[sel]]
-        return out
-
-    def _refresh_geometry(self, pts: list[MapPoint], row_of_kf: dict[int, int], centres: np.ndarray) -> None:
-        """Normals and distance ranges of points that all have the same number of observations;
-        ``centres`` (K, 3) are the keyframes' centres by row of ``row_of_kf`` (metres, world)."""
-        p_world = np.array([pt.p_world for pt in pts])
-        observer_rows = np.array([row_of_kf[k] for pt in pts for k in sorted(pt.observations)], dtype=np.int64)
-        normals = mean_viewing_directions(p_world, centres[observer_rows.reshape(len(pts), -1)])  # (P, K, 3) observers
-        refs = [pt.first_keyframe_id if pt.first_keyframe_id in pt.observations else min(pt.observations) for pt in pts]
-        distance = np.linalg.norm(p_world - centres[[row_of_kf[r] for r in refs]], axis=1)
-        keypoint = np.array([pt.observations[r] for pt, r in zip(pts, refs)], dtype=np.int64)
-        ref_arr = np.array(refs, dtype=np.int64)
-        level = np.zeros(len(pts), dtype=np.int64)
-        pyramid: dict[tuple[float, int], list[int]] = {}
-        order = np.argsort(ref_arr, kind="stable")
-        distinct, starts = np.unique(ref_arr[order], return_index=True)
-        for r, sel in zip(distinct.tolist(), np.split(order, starts[1:])):
-            kf = self.keyframes[r]
-            level[sel] = kf.levels[keypoint[sel]]
-            pyramid.setdefault((kf.scale_factor, kf.n_levels), []).extend(sel.tolist())
-        lo, hi = np.zeros(len(pts)), np.zeros(len(pts))
-        for (scale_factor, n_levels), rows in sorted(pyramid.items()):
-            sel = np.array(sorted(rows), dtype=np.int64)
-            lo[sel], hi[sel] = scale_invariance_range(distance[sel], level[sel], scale_factor, n_levels)
-        for k, pt in enumerate(pts):
-            pt.normal = normals[k]
-            pt.min_distance_m, pt.max_distance_m = float(lo[k]), float(hi[k])
 
     # ---- change log and checks -----------------------------------------------------------------------
     def take_changes(self) -> MapChanges:
@@ -515,45 +383,4 @@ class BackendMap:
 
     def check_consistency(self) -> list[str]:
         """Every broken invariant, described (empty when the map is consistent)."""
-        problems: list[str] = []
-        for point_id, pt in self.points.items():
-            weighted = 0
-            for kf_id, keypoint in pt.observations.items():
-                kf = self.keyframes.get(kf_id)
-                if kf is None or kf.map_point_ids[keypoint] != point_id:
-                    problems.append(f"point {point_id} -> keyframe {kf_id} keypoint {keypoint} is not mirrored")
-                else:
-                    weighted += 2 if kf.right_u[keypoint] >= 0 else 1
-            if weighted != pt.weighted_observations:
-                problems.append(f"point {point_id} weighted observations {pt.weighted_observations} != {weighted}")
-        shared: Counter[tuple[int, int]] = Counter()
-        for kf_id, kf in self.keyframes.items():
-            for keypoint in np.flatnonzero(kf.map_point_ids >= 0).tolist():
-                pt = self.points.get(int(kf.map_point_ids[keypoint]))
-                if pt is None or pt.observations.get(kf_id) != keypoint:
-                    problems.append(f"keyframe {kf_id} keypoint {keypoint} -> point {kf.map_point_ids[keypoint]} is not mirrored")
-        for pt in self.points.values():
-            observers = sorted(pt.observations)
-            shared.update((a, b) for i, a in enumerate(observers) for b in observers[i + 1 :])
-        actual = {(a, b): w for a in self.covisibility.keyframes() for b, w in self.covisibility.weights(a).items() if a < b}
-        if actual != dict(shared):
-            diff = set(actual.items()) ^ set(shared.items())
-            problems.append(f"covisibility weights differ from the recomputed ones at {sorted(diff)[:5]}")
-        problems.extend(self._check_graph_nodes())
-        return problems
-
-    def _check_graph_nodes(self) -> list[str]:
-        problems = []
-        ids = sorted(self.keyframes)
-        if self.covisibility.keyframes() != ids or self.spanning_tree.keyframes() != ids:
-            problems.append("the graphs' keyframes differ from the map's")
-            return problems
-        for kf_id in ids:
-            node, steps = kf_id, 0
-            while (parent := self.spanning_tree.parent(node)) is not None and steps <= len(ids):
-                if node not in self.spanning_tree.children(parent):
-                    problems.append(f"keyframe {node} is not among the children of its parent {parent}")
-                node, steps = parent, steps + 1
-            if node != self.first_keyframe_id:
-                problems.append(f"keyframe {kf_id} does not reach the first keyframe in the spanning tree")
-        return problems
+        return consistency_problems(self)

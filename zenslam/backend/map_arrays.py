@@ -16,6 +16,7 @@ import numpy as np
 from zenslam.backend.culled_keyframes import CulledKeyframe
 from zenslam.backend.map import BackendKeyframe, BackendMap, MapPoint
 from zenslam.backend.place_recognition import PlaceRecognition
+from zenslam.backend.point_store import PointStore
 from zenslam.camera import PinholeCalibration, SensorKind
 from zenslam.vocabulary import BowVector, FeatureVector
 
@@ -62,15 +63,17 @@ def map_to_arrays(bmap: BackendMap, places: PlaceRecognition | None) -> dict[str
 
 def _points_to_arrays(bmap: BackendMap) -> dict[str, np.ndarray]:
     pts = list(bmap.points.values())
+    rows = bmap.point_rows(list(bmap.points))
+    store = bmap.point_store
     return {
         "point_ids": np.array([p.id for p in pts], dtype="<i8"),
-        "point_p_world": np.array([p.p_world for p in pts], dtype="<f8").reshape(-1, 3),
+        "point_p_world": store.p_world[rows].astype("<f8").reshape(-1, 3),
         "point_first_keyframe_ids": np.array([p.first_keyframe_id for p in pts], dtype="<i8"),
         "point_created_serials": np.array([p.created_serial for p in pts], dtype="<i8"),
-        "point_descriptors": np.array([p.descriptor for p in pts], dtype="u1").reshape(-1, 32),
-        "point_normals": np.array([p.normal for p in pts], dtype="<f8").reshape(-1, 3),
-        "point_min_distance_m": np.array([p.min_distance_m for p in pts], dtype="<f8"),
-        "point_max_distance_m": np.array([p.max_distance_m for p in pts], dtype="<f8"),
+        "point_descriptors": store.descriptor[rows].astype("u1").reshape(-1, 32),
+        "point_normals": store.normal[rows].astype("<f8").reshape(-1, 3),
+        "point_min_distance_m": store.min_distance_m[rows].astype("<f8"),
+        "point_max_distance_m": store.max_distance_m[rows].astype("<f8"),
         "point_n_visible": np.array([p.n_visible for p in pts], dtype="<i8"),
         "point_n_found": np.array([p.n_found for p in pts], dtype="<i8"),
         "point_observation_offsets": _offsets([len(p.observations) for p in pts]),
@@ -147,6 +150,11 @@ def map_from_arrays(
         bmap.keyframes[kf_id] = kf
         bmap.covisibility.add_keyframe(kf_id)
     _points_from_arrays(a, bmap)
+    sorter = np.argsort(a["point_ids"], kind="stable")
+    for kf in bmap.keyframes.values():
+        associated = kf.map_point_ids >= 0
+        kf.map_point_rows = np.full(kf.n_keypoints, -1, dtype=np.int64)
+        kf.map_point_rows[associated] = sorter[np.searchsorted(a["point_ids"], kf.map_point_ids[associated], sorter=sorter)]
     _graphs_from_arrays(a, bmap, ids)
     bmap.first_keyframe_id = next((k for k, p in zip(ids, a["spanning_tree_parents"].tolist()) if p < 0), None)
     fused = dict(zip(a["fused_point_ids"][:, 0].tolist(), a["fused_point_ids"][:, 1].tolist()))
@@ -173,18 +181,25 @@ def _weighted_observations(a: dict[str, np.ndarray]) -> np.ndarray:
 def _points_from_arrays(a: dict[str, np.ndarray], bmap: BackendMap) -> None:
     counts = np.diff(a["point_observation_offsets"]).tolist()
     pairs = zip(a["observation_keyframe_ids"].tolist(), a["observation_keypoints"].tolist())
-    # Each point's vectors are rows of private copies: writable, and no point shares memory with another.
+    n = len(a["point_ids"])
+    store = PointStore(max(2 * n, 1024))
+    store.n_rows = n
+    store.p_world[:n] = a["point_p_world"]
+    store.descriptor[:n] = a["point_descriptors"]
+    store.normal[:n] = a["point_normals"]
+    store.min_distance_m[:n] = a["point_min_distance_m"]
+    store.max_distance_m[:n] = a["point_max_distance_m"]
+    bmap.point_store = store
     rows = zip(
-        a["point_ids"].tolist(), list(a["point_p_world"].copy()), a["point_first_keyframe_ids"].tolist(),
-        a["point_created_serials"].tolist(), list(a["point_descriptors"].copy()), list(a["point_normals"].copy()),
-        a["point_min_distance_m"].tolist(), a["point_max_distance_m"].tolist(), a["point_n_visible"].tolist(),
-        a["point_n_found"].tolist(), _weighted_observations(a).tolist(), counts,
+        a["point_ids"].tolist(), a["point_first_keyframe_ids"].tolist(), a["point_created_serials"].tolist(),
+        a["point_n_visible"].tolist(), a["point_n_found"].tolist(), _weighted_observations(a).tolist(), counts,
     )  # fmt: skip
     points = bmap.points
-    for pid, p_world, first, serial, descriptor, normal, lo, hi, visible, found, weighted, count in rows:
-        points[pid] = MapPoint(
-            pid, p_world, first, serial, descriptor, normal, lo, hi, dict(islice(pairs, count)), visible, found, weighted
-        )
+    for row, (pid, first, serial, visible, found, weighted, count) in enumerate(rows):
+        pt = MapPoint(pid, store, row, first, serial)
+        pt.observations = dict(islice(pairs, count))
+        pt.n_visible, pt.n_found, pt.weighted_observations = visible, found, weighted
+        points[pid] = pt
 
 
 def _graphs_from_arrays(a: dict[str, np.ndarray], bmap: BackendMap, ids: list[int]) -> None:

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from zenslam.backend.map import BackendKeyframe, BackendMap, MapPoint, frustum_projection
-from zenslam.descriptors import hamming_distance_pairs
+from zenslam.backend.map import BackendKeyframe, BackendMap, MapPoint, PointGeometry, frustum_projection
+from zenslam.descriptors import hamming_distance_rows
 
 logger = logging.getLogger(__name__)
 
@@ -53,33 +53,45 @@ def fusion_targets(bmap: BackendMap, kf_id: int, config: FusionConfig) -> list[i
 
 def match_by_projection(kf: BackendKeyframe, points: list[MapPoint], config: FusionConfig) -> tuple[np.ndarray, np.ndarray]:
     """Best keypoint of ``kf`` for each projected point: (indices into ``points``, keypoint indices)."""
+    descriptors = np.array([pt.descriptor for pt in points], dtype=np.uint8).reshape(-1, 32)
+    return match_projected(kf, PointGeometry.of(points), descriptors, config)
+
+
+def match_projected(
+    kf: BackendKeyframe, geometry: PointGeometry, descriptors: np.ndarray, config: FusionConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """``match_by_projection`` of M points given as arrays (their descriptors (M, 32)): (point rows, keypoints)."""
     empty = np.zeros(0, dtype=np.int64)
-    if not points or kf.n_keypoints == 0:
+    if len(descriptors) == 0 or kf.n_keypoints == 0:
         return empty, empty
-    proj = frustum_projection(kf, points, config.min_view_cos)
+    proj = frustum_projection(kf, geometry, config.min_view_cos)
     rows = np.flatnonzero(proj.visible)
     radius = config.search_radius_px * kf.scale_factors[proj.level[rows]]
-    order = np.argsort(kf.keypoints_px[:, 0], kind="stable")
+    order = kf.u_order()
     sorted_u = kf.keypoints_px[order, 0]
-    lo = np.searchsorted(sorted_u, proj.px[rows, 0] - radius, side="right")
-    hi = np.searchsorted(sorted_u, proj.px[rows, 0] + radius, side="left")
+    u = proj.px[rows, 0]
+    lo = np.searchsorted(sorted_u, u - radius, side="right")
+    hi = np.searchsorted(sorted_u, u + radius, side="left")
     counts = np.maximum(hi - lo, 0)
     pair_row = np.repeat(np.arange(len(rows)), counts)
     offsets = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
     kp = order[np.repeat(lo, counts) + offsets]
     p = rows[pair_row]
-    d = kf.keypoints_px[kp] - proj.px[p]
+    # The window's v side and the level first: most pairs of the u window fail them.
+    dv = kf.keypoints_px[kp, 1] - proj.px[p, 1]
     level = kf.levels[kp]
-    keep = (np.abs(d[:, 1]) < radius[pair_row]) & (level >= proj.level[p] - 1) & (level <= proj.level[p])
-    stereo = kf.has_right[kp]
-    err2 = np.sum(d**2, axis=1) + np.where(stereo, (np.nan_to_num(proj.right_u[p]) - kf.right_u[kp]) ** 2, 0.0)
+    keep = (np.abs(dv) < radius[pair_row]) & (level >= proj.level[p] - 1) & (level <= proj.level[p])
+    p, kp, level, dv = p[keep], kp[keep], level[keep], dv[keep]
+    du = kf.keypoints_px[kp, 0] - proj.px[p, 0]
+    right_u = kf.right_u[kp]
+    stereo = right_u >= 0
+    err2 = (du**2 + dv**2) + np.where(stereo, (np.nan_to_num(proj.right_u[p]) - right_u) ** 2, 0.0)
     inv_sigma2 = 1.0 / kf.level_sigma2[level]
-    keep &= np.where(stereo, err2 * inv_sigma2 <= config.chi2_stereo, err2 * inv_sigma2 <= config.chi2_mono)
+    keep = np.where(stereo, err2 * inv_sigma2 <= config.chi2_stereo, err2 * inv_sigma2 <= config.chi2_mono)
     p, kp = p[keep], kp[keep]
     if len(p) == 0:
         return empty, empty
-    descriptors = np.stack([points[i].descriptor for i in p.tolist()])
-    dist = hamming_distance_pairs(descriptors, kf.descriptors[kp])
+    dist = hamming_distance_rows(descriptors, p, kf.descriptors, kp)
     order = np.lexsort((kp, dist, p))
     p, kp, dist = p[order], kp[order], dist[order]
     first = np.r_[True, p[1:] != p[:-1]]
@@ -89,19 +101,35 @@ def match_by_projection(kf: BackendKeyframe, points: list[MapPoint], config: Fus
 
 def fuse_into_keyframe(bmap: BackendMap, kf_id: int, point_ids: list[int], config: FusionConfig) -> int:
     """Project ``point_ids`` into ``kf_id`` and add observations or merge duplicates; returns matches applied."""
+    ids = np.asarray([p for p in point_ids if p in bmap.points], dtype=np.int64)
+    return _fuse_into(bmap, kf_id, ids, bmap.point_rows(ids), config)
+
+
+def _observed_by(kf: BackendKeyframe, point_ids: np.ndarray) -> np.ndarray:
+    """(M,) bool: ``kf`` observes point ``point_ids[m]`` (its associations mirror the observations)."""
+    associated = np.sort(kf.map_point_ids)
+    at = np.minimum(np.searchsorted(associated, point_ids), len(associated) - 1)
+    return associated[at] == point_ids if len(associated) else np.zeros(len(point_ids), dtype=bool)
+
+
+def _fuse_into(bmap: BackendMap, kf_id: int, point_ids: np.ndarray, rows: np.ndarray, config: FusionConfig) -> int:
+    """``fuse_into_keyframe`` of live points ``point_ids`` (M,) int64 at ``rows`` of the map's point store.
+
+    The points' columns are read as the last refresh left them: nothing writes them before the next."""
     kf = bmap.keyframe(kf_id)
     live = bmap.points
-    points = [pt for p in point_ids if (pt := live.get(p)) is not None and kf_id not in pt.observations]
-    rows, keypoints = match_by_projection(kf, points, config)
+    new = ~_observed_by(kf, point_ids)
+    candidates, rows = point_ids[new], rows[new]
+    store = bmap.point_store
+    matched, keypoints = match_projected(kf, PointGeometry.at(store, rows), np.take(store.descriptor, rows, axis=0), config)
     fused = 0
-    for row, keypoint in zip(rows.tolist(), keypoints.tolist()):
-        point_id = points[row].id
-        if point_id not in bmap.points or kf_id in bmap.points[point_id].observations:
+    for point_id, keypoint in zip(candidates[matched].tolist(), keypoints.tolist()):
+        if point_id not in live or kf_id in live[point_id].observations:
             continue  # merged away, or moved into this keyframe by an earlier merge
         there = int(kf.map_point_ids[keypoint])
         if there < 0:
             bmap.add_observation(point_id, kf_id, keypoint)
-        elif bmap.points[there].weighted_observations > bmap.points[point_id].weighted_observations:
+        elif live[there].weighted_observations > live[point_id].weighted_observations:
             bmap.replace_point(point_id, there)
         else:
             bmap.replace_point(there, point_id)
@@ -115,14 +143,12 @@ def fuse_with_neighbours(bmap: BackendMap, kf_id: int, config: FusionConfig) -> 
     targets = fusion_targets(bmap, kf_id, config)
     fused = 0
     for target in targets:
-        fused += fuse_into_keyframe(bmap, target, bmap.keyframe_point_ids(kf_id).tolist(), config)
-    candidates, seen = [], set()
-    for target in targets:
-        for point_id in bmap.keyframe_point_ids(target).tolist():
-            if point_id not in seen:
-                seen.add(point_id)
-                candidates.append(point_id)
-    fused += fuse_into_keyframe(bmap, kf_id, candidates, config)
+        fused += _fuse_into(bmap, target, *bmap.keyframe_points(kf_id), config)
+    if targets:
+        ids, rows = (np.concatenate(parts) for parts in zip(*(bmap.keyframe_points(t) for t in targets)))
+        _, first = np.unique(ids, return_index=True)
+        first.sort()  # each point once, where it first appears
+        fused += _fuse_into(bmap, kf_id, ids[first], rows[first], config)
     bmap.refresh_points()
     logger.debug("keyframe %d: %d fusion matches over %d target keyframes", kf_id, fused, len(targets))
     return fused

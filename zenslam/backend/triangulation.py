@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from zenslam.backend.map import BackendKeyframe, BackendMap
-from zenslam.descriptors import hamming_distance_pairs
+from zenslam.descriptors import hamming_distance_rows
 from zenslam.geometry import skew, transform_points
 
 logger = logging.getLogger(__name__)
@@ -56,7 +56,7 @@ def fundamental_matrix(kf1: BackendKeyframe, kf2: BackendKeyframe) -> np.ndarray
     """F12 (3, 3) with x1^T F12 x2 = 0 for pixels x1 in kf1 and x2 in kf2 of one world point."""
     T_1_2 = kf1.T_cam_world @ kf2.T_world_cam
     E = skew(T_1_2[:3, 3]) @ T_1_2[:3, :3]
-    return np.linalg.inv(kf1.calibration.K).T @ E @ np.linalg.inv(kf2.calibration.K)
+    return kf1.K_inv.T @ E @ kf2.K_inv
 
 
 def _epipolar_pairs(kf1, idx1, kf2, idx2, F12, config) -> tuple[np.ndarray, np.ndarray]:
@@ -78,6 +78,46 @@ def _epipolar_pairs(kf1, idx1, kf2, idx2, F12, config) -> tuple[np.ndarray, np.n
     return np.concatenate(rows), np.concatenate(cols)
 
 
+def _candidates(
+    kf1: BackendKeyframe, kf2: BackendKeyframe, idx1: np.ndarray, idx2: np.ndarray, F12: np.ndarray, config: TriangulationConfig
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Keypoint pairs (i1 of kf1 among ``idx1``, i2 of kf2 among ``idx2``) in the epipolar band with
+    descriptors close enough and, without stereo, not next to the epipole; and their distances."""
+    r, c = _epipolar_pairs(kf1, idx1, kf2, idx2, F12, config)
+    i1, i2 = idx1[r], idx2[c]
+    dist = hamming_distance_rows(kf1.descriptors, i1, kf2.descriptors, i2)
+    keep = dist <= config.max_descriptor_distance
+    both_mono = (kf1.right_u[i1] < 0) & (kf2.right_u[i2] < 0)
+    if np.any(both_mono):
+        # Keypoints next to the epipole triangulate badly without stereo (rays nearly parallel).
+        centre1_in_2 = transform_points(kf2.T_cam_world, kf1.centre_world[None])[0]
+        if centre1_in_2[2] > 1e-9:
+            epipole = kf2.calibration.K @ (centre1_in_2 / centre1_in_2[2])
+            d2 = np.sum((kf2.keypoints_px[idx2] - epipole[:2]) ** 2, axis=1)
+            near = d2 < config.epipole_min_distance_px**2 * kf2.scale_factors[kf2.levels[idx2]]
+            keep &= ~(both_mono & near[c])
+    return i1[keep], i2[keep], dist[keep]
+
+
+def _one_to_one(i1: np.ndarray, i2: np.ndarray, dist: np.ndarray, config: TriangulationConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Greedy one-to-one assignment by increasing distance (ties by i1, then i2), sorted by i1; the
+    ratio test first when enabled. Returns indices into the candidates."""
+    at = np.arange(len(i1))
+    if config.match_ratio < 1.0 and len(i1):
+        at = _ratio_test(i1, i2, dist, config.match_ratio)
+    order = at[np.lexsort((i2[at], i1[at], dist[at]))]
+    used1, used2 = set(), set()
+    chosen = []
+    for k, a, b in zip(order.tolist(), i1[order].tolist(), i2[order].tolist()):
+        if a in used1 or b in used2:
+            continue
+        used1.add(a)
+        used2.add(b)
+        chosen.append(k)
+    chosen_arr = np.asarray(chosen, dtype=np.int64)
+    return chosen_arr[np.argsort(i1[chosen_arr], kind="stable")]
+
+
 def match_for_triangulation(
     kf1: BackendKeyframe, kf2: BackendKeyframe, F12: np.ndarray, config: TriangulationConfig
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -87,55 +127,32 @@ def match_for_triangulation(
     idx2 = np.flatnonzero(kf2.map_point_ids < 0)
     if len(idx1) == 0 or len(idx2) == 0:
         return empty, empty
-    r, c = _epipolar_pairs(kf1, idx1, kf2, idx2, F12, config)
-    i1, i2 = idx1[r], idx2[c]
-    dist = hamming_distance_pairs(kf1.descriptors[i1], kf2.descriptors[i2])
-    keep = dist <= config.max_descriptor_distance
-    both_mono = ~kf1.has_right[i1] & ~kf2.has_right[i2]
-    if np.any(both_mono):
-        # Keypoints next to the epipole triangulate badly without stereo (rays nearly parallel).
-        centre1_in_2 = transform_points(kf2.T_cam_world, kf1.centre_world[None])[0]
-        if centre1_in_2[2] > 1e-9:
-            epipole = kf2.calibration.K @ (centre1_in_2 / centre1_in_2[2])
-            d2 = np.sum((kf2.keypoints_px[i2] - epipole[:2]) ** 2, axis=1)
-            near = d2 < config.epipole_min_distance_px**2 * kf2.scale_factors[kf2.levels[i2]]
-            keep &= ~(both_mono & near)
-    i1, i2, dist = i1[keep], i2[keep], dist[keep]
-    if config.match_ratio < 1.0 and len(i1):
-        i1, i2, dist = _ratio_test(i1, i2, dist, config.match_ratio)
-    order = np.lexsort((i2, i1, dist))
-    used1, used2 = set(), set()
-    out1, out2 = [], []
-    for a, b in zip(i1[order].tolist(), i2[order].tolist()):
-        if a in used1 or b in used2:
-            continue
-        used1.add(a)
-        used2.add(b)
-        out1.append(a)
-        out2.append(b)
-    order = np.argsort(out1, kind="stable")
-    return np.asarray(out1, dtype=np.int64)[order], np.asarray(out2, dtype=np.int64)[order]
+    i1, i2, dist = _candidates(kf1, kf2, idx1, idx2, F12, config)
+    chosen = _one_to_one(i1, i2, dist, config)
+    return i1[chosen], i2[chosen]
 
 
-def _ratio_test(i1, i2, dist, ratio):
-    """Keep the candidates of kf1 keypoints whose best distance beats ratio x the second best."""
+def _ratio_test(i1, i2, dist, ratio) -> np.ndarray:
+    """Indices of the candidates of kf1 keypoints whose best distance beats ratio x the second best."""
     order = np.lexsort((i2, dist, i1))
-    i1, i2, dist = i1[order], i2[order], dist[order]
-    first = np.flatnonzero(np.r_[True, i1[1:] != i1[:-1]])
-    counts = np.diff(np.r_[first, len(i1)])
-    second = np.where(counts > 1, dist[np.minimum(first + 1, len(i1) - 1)], np.iinfo(np.int32).max)
-    good = dist[first] < ratio * second
-    return i1[first[good]], i2[first[good]], dist[first[good]]
+    s1, sd = i1[order], dist[order]
+    first = np.flatnonzero(np.r_[True, s1[1:] != s1[:-1]])
+    counts = np.diff(np.r_[first, len(s1)])
+    second = np.where(counts > 1, sd[np.minimum(first + 1, len(s1) - 1)], np.iinfo(np.int32).max)
+    good = sd[first] < ratio * second
+    return order[first[good]]
 
 
 def _linear_triangulation(P1: np.ndarray, P2: np.ndarray, xn1: np.ndarray, xn2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """DLT from normalised coordinates (M, 2) and world -> camera 3x4 matrices; (points (M, 3), valid)."""
+    """DLT from normalised coordinates (M, 2) and world -> camera 3x4 matrices (P2 may be one per
+    pair, (M, 3, 4)); (points (M, 3), valid)."""
+    P2 = np.broadcast_to(P2, (len(xn2), 3, 4))
     A = np.stack(
         [
             xn1[:, :1] * P1[2] - P1[0],
             xn1[:, 1:2] * P1[2] - P1[1],
-            xn2[:, :1] * P2[2] - P2[0],
-            xn2[:, 1:2] * P2[2] - P2[1],
+            xn2[:, :1] * P2[:, 2] - P2[:, 0],
+            xn2[:, 1:2] * P2[:, 2] - P2[:, 1],
         ],
         axis=1,
     )
@@ -162,15 +179,48 @@ def triangulate_matches(
     kf1: BackendKeyframe, kf2: BackendKeyframe, idx1: np.ndarray, idx2: np.ndarray, config: TriangulationConfig
 ) -> TriangulatedPoints:
     """Triangulate matched keypoints (idx1 of kf1, idx2 of kf2) and apply ORB-SLAM2's checks."""
-    xn1, xn2 = _normalised(kf1, idx1), _normalised(kf2, idx2)
-    R1, R2 = kf1.T_world_cam[:3, :3], kf2.T_world_cam[:3, :3]
-    ray1 = np.column_stack([xn1, np.ones(len(idx1))]) @ R1.T
-    ray2 = np.column_stack([xn2, np.ones(len(idx2))]) @ R2.T
+    return triangulate_pairs(kf1, [kf2], np.zeros(len(idx1), dtype=np.int64), idx1, idx2, config)
+
+
+class _PerKeyframe:
+    """Pairs grouped by their second keyframe: per-pair arrays filled one keyframe at a time, with
+    the same array operations a single-keyframe call makes on its pairs."""
+
+    def __init__(self, kf2s: list[BackendKeyframe], which: np.ndarray) -> None:
+        self.kf2s = kf2s
+        self.n = len(which)
+        order = np.argsort(which, kind="stable")
+        bounds = np.flatnonzero(np.diff(which[order])) + 1
+        self.groups = [(kf2s[int(which[sel[0]])], sel) for sel in np.split(order, bounds)] if len(order) else []
+
+    def fill(self, compute, shape: tuple[int, ...] = (), dtype=float, where: np.ndarray | None = None) -> np.ndarray:
+        """(n, *shape) with ``compute(kf2, sel)`` at the pairs ``sel`` of each keyframe (only where ``where``)."""
+        out = np.zeros((self.n, *shape), dtype=dtype)
+        for kf2, sel in self.groups:
+            if where is not None:
+                sel = sel[where[sel]]
+            if len(sel):
+                out[sel] = compute(kf2, sel)
+        return out
+
+
+def triangulate_pairs(
+    kf1: BackendKeyframe, kf2s: list[BackendKeyframe], which: np.ndarray, idx1: np.ndarray, idx2: np.ndarray,
+    config: TriangulationConfig,
+) -> TriangulatedPoints:
+    """Triangulate keypoint pairs (idx1[m] of kf1, idx2[m] of ``kf2s[which[m]]``) and apply ORB-SLAM2's
+    checks; each pair's result is the one ``triangulate_matches`` gives it."""
+    per = _PerKeyframe(kf2s, np.asarray(which, dtype=np.int64))
+    xn1 = _normalised(kf1, idx1)
+    xn2 = per.fill(lambda kf2, sel: _normalised(kf2, idx2[sel]), (2,))
+    ray1 = np.column_stack([xn1, np.ones(len(idx1))]) @ kf1.T_world_cam[:3, :3].T
+    ray2 = per.fill(lambda kf2, sel: np.column_stack([xn2[sel], np.ones(len(sel))]) @ kf2.T_world_cam[:3, :3].T, (3,))
     cos_rays = np.einsum("ij,ij->i", ray1, ray2) / (np.linalg.norm(ray1, axis=1) * np.linalg.norm(ray2, axis=1))
     stereo1 = kf1.has_right[idx1] & (kf1.depth_m[idx1] > 0)
-    stereo2 = kf2.has_right[idx2] & (kf2.depth_m[idx2] > 0)
+    stereo2 = per.fill(lambda kf2, sel: (kf2.right_u[idx2[sel]] >= 0) & (kf2.depth_m[idx2[sel]] > 0), dtype=bool)
     cos_s1 = np.where(stereo1, _stereo_parallax_cos(kf1, idx1, stereo1), cos_rays + 1.0)
-    cos_s2 = np.where(~stereo1 & stereo2, _stereo_parallax_cos(kf2, idx2, stereo2), cos_rays + 1.0)
+    parallax2 = per.fill(lambda kf2, sel: _stereo_parallax_cos(kf2, idx2[sel], stereo2[sel]))
+    cos_s2 = np.where(~stereo1 & stereo2, parallax2, cos_rays + 1.0)
     cos_stereo = np.minimum(cos_s1, cos_s2)
     linear = (cos_rays < cos_stereo) & (cos_rays > 0) & (stereo1 | stereo2 | (cos_rays < config.max_cos_parallax_mono))
     from1 = ~linear & stereo1 & (cos_s1 < cos_s2)
@@ -178,18 +228,20 @@ def triangulate_matches(
     p_world = np.zeros((len(idx1), 3))
     ok = linear | from1 | from2
     if np.any(linear):
-        X, valid = _linear_triangulation(kf1.T_cam_world[:3], kf2.T_cam_world[:3], xn1[linear], xn2[linear])
+        P2 = per.fill(lambda kf2, sel: kf2.T_cam_world[:3], (3, 4), where=linear)[linear]
+        X, valid = _linear_triangulation(kf1.T_cam_world[:3], P2, xn1[linear], xn2[linear])
         p_world[linear] = X
         ok[np.flatnonzero(linear)[~valid]] = False
     if np.any(from1):
         p_world[from1] = kf1.unproject(idx1[from1])
     if np.any(from2):
-        p_world[from2] = kf2.unproject(idx2[from2])
-    ok &= _reprojection_ok(kf1, idx1, p_world, config) & _reprojection_ok(kf2, idx2, p_world, config)
+        p_world[from2] = per.fill(lambda kf2, sel: kf2.unproject(idx2[sel]), (3,), where=from2)[from2]
+    reprojected2 = per.fill(lambda kf2, sel: _reprojection_ok(kf2, idx2[sel], p_world[sel], config), dtype=bool)
+    ok &= _reprojection_ok(kf1, idx1, p_world, config) & reprojected2
     dist1 = np.linalg.norm(p_world - kf1.centre_world, axis=1)
-    dist2 = np.linalg.norm(p_world - kf2.centre_world, axis=1)
+    dist2 = np.linalg.norm(p_world - per.fill(lambda kf2, sel: kf2.centre_world, (3,)), axis=1)
     ratio_dist = dist2 / np.maximum(dist1, 1e-12)
-    ratio_octave = kf1.scale_factors[kf1.levels[idx1]] / kf2.scale_factors[kf2.levels[idx2]]
+    ratio_octave = kf1.scale_factors[kf1.levels[idx1]] / per.fill(lambda kf2, sel: kf2.scale_factors[kf2.levels[idx2[sel]]])
     factor = config.scale_consistency_factor * kf1.scale_factor
     ok &= (dist1 > 0) & (dist2 > 0) & (ratio_dist * factor >= ratio_octave) & (ratio_dist <= ratio_octave * factor)
     return TriangulatedPoints(p_world, ok)
@@ -215,15 +267,11 @@ def scene_median_depth(bmap: BackendMap, kf: BackendKeyframe) -> float | None:
     return float(np.median(transform_points(kf.T_cam_world, p_world)[:, 2]))
 
 
-def create_new_points(bmap: BackendMap, kf_id: int, config: TriangulationConfig) -> list[int]:
-    """Triangulate new map points between ``kf_id`` and its best covisible keyframes; returns their ids.
-
-    Each new point is observed by both keyframes; ids come from the map's backend id space.
-    """
-    kf1 = bmap.keyframe(kf_id)
+def _neighbours(bmap: BackendMap, kf1: BackendKeyframe, config: TriangulationConfig) -> list[BackendKeyframe]:
+    """The best covisible keyframes of ``kf1`` far enough from it to triangulate with (in order)."""
     mono = kf1.sensor == "mono"
-    created: list[int] = []
-    for kf2_id in bmap.covisibility.best_covisible(kf_id, config.neighbours_mono if mono else config.neighbours_stereo):
+    out = []
+    for kf2_id in bmap.covisibility.best_covisible(kf1.id, config.neighbours_mono if mono else config.neighbours_stereo):
         kf2 = bmap.keyframe(kf2_id)
         baseline = float(np.linalg.norm(kf2.centre_world - kf1.centre_world))
         if not mono:
@@ -233,14 +281,43 @@ def create_new_points(bmap: BackendMap, kf_id: int, config: TriangulationConfig)
             median = scene_median_depth(bmap, kf2)
             if median is None or median <= 0 or baseline / median < config.min_baseline_depth_ratio:
                 continue
-        idx1, idx2 = match_for_triangulation(kf1, kf2, fundamental_matrix(kf1, kf2), config)
-        if len(idx1) == 0:
-            continue
-        result = triangulate_matches(kf1, kf2, idx1, idx2, config)
-        for k in np.flatnonzero(result.ok).tolist():
+        out.append(kf2)
+    return out
+
+
+def create_new_points(bmap: BackendMap, kf_id: int, config: TriangulationConfig) -> list[int]:
+    """Triangulate new map points between ``kf_id`` and its best covisible keyframes; returns their ids.
+
+    Each new point is observed by both keyframes; ids come from the map's backend id space.
+    Neighbours are served in order, each from the keypoints of ``kf_id`` still without a point. The
+    candidate pairs of all of them are found and triangulated at once beforehand (a pair's result
+    does not depend on the others), from the keypoints free at the start; each neighbour's
+    assignment then skips those taken by the ones before it.
+    """
+    kf1 = bmap.keyframe(kf_id)
+    neighbours = _neighbours(bmap, kf1, config)
+    idx1 = np.flatnonzero(kf1.map_point_ids < 0)
+    parts = []
+    for j, kf2 in enumerate(neighbours):
+        idx2 = np.flatnonzero(kf2.map_point_ids < 0)
+        if len(idx1) and len(idx2):
+            i1, i2, dist = _candidates(kf1, kf2, idx1, idx2, fundamental_matrix(kf1, kf2), config)
+            parts.append((np.full(len(i1), j, dtype=np.int64), i1, i2, dist))
+    if not parts:
+        return []
+    which, i1, i2, dist = (np.concatenate(a) for a in zip(*parts))
+    result = triangulate_pairs(kf1, neighbours, which, i1, i2, config)
+    created: list[int] = []
+    taken = np.zeros(kf1.n_keypoints, dtype=bool)
+    for j, kf2 in enumerate(neighbours):
+        mine = np.flatnonzero((which == j) & ~taken[i1])
+        matches = mine[_one_to_one(i1[mine], i2[mine], dist[mine], config)]
+        good = matches[result.ok[matches]]
+        for k in good.tolist():
             pt = bmap.new_point(result.p_world[k], kf_id)
-            bmap.add_observation(pt.id, kf_id, int(idx1[k]))
-            bmap.add_observation(pt.id, kf2_id, int(idx2[k]))
+            bmap.add_observation(pt.id, kf_id, int(i1[k]))
+            bmap.add_observation(pt.id, kf2.id, int(i2[k]))
             created.append(pt.id)
-        logger.debug("keyframe %d x %d: %d matches, %d new points", kf_id, kf2_id, len(idx1), int(result.ok.sum()))
+        taken[i1[good]] = True
+        logger.debug("keyframe %d x %d: %d matches, %d new points", kf_id, kf2.id, len(matches), len(good))
     return created

@@ -1,0 +1,166 @@
+"""Recomputing map points' derived attributes (ORB-SLAM's ComputeDistinctiveDescriptors and UpdateNormalAndDepth).
+
+The points' observations are flattened into arrays once per refresh, each point's sorted by
+keyframe id, and the work is done per group of points with similar observation counts, each
+group one padded (P, K, ...) array computation giving what one computation per point would.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from itertools import chain
+
+import numpy as np
+
+from zenslam.backend.keyframe import BackendKeyframe
+from zenslam.backend.map_point import MapPoint
+from zenslam.backend.point_store import PointStore
+from zenslam.map_point_rules import mean_viewing_directions, representative_descriptors, scale_invariance_range
+
+
+@dataclass(frozen=True)
+class ObservationTable:
+    """The observations of P points as flat arrays, each point's contiguous and by increasing keyframe id."""
+
+    counts: np.ndarray  # (P,) observations per point
+    starts: np.ndarray  # (P,) index of each point's first observation
+    keyframe_ids: np.ndarray  # (O,) observing keyframe
+    keyframe_rows: np.ndarray  # (O,) its row in the map's keyframe insertion order
+    keypoints: np.ndarray  # (O,) keypoint index in that keyframe
+
+    @classmethod
+    def of(cls, points: list[MapPoint], keyframe_order: np.ndarray) -> ObservationTable:
+        """Observations of ``points``; ``keyframe_order`` (K,) int64 lists the map's keyframe ids in insertion order."""
+        observations = [pt.observations for pt in points]
+        counts = np.fromiter(map(len, observations), dtype=np.int64, count=len(observations))
+        total = int(counts.sum())
+        kf_ids = np.fromiter(chain.from_iterable(observations), dtype=np.int64, count=total)
+        keypoints = np.fromiter(chain.from_iterable(o.values() for o in observations), dtype=np.int64, count=total)
+        starts = np.cumsum(counts) - counts
+        # Observations are mostly made in keyframe order: sort only when some point's are not.
+        step_down = np.flatnonzero(np.diff(kf_ids) <= 0) + 1  # where the id does not increase
+        if np.any(np.isin(step_down, starts, invert=True)):  # ... other than at a point's first observation
+            order = np.lexsort((kf_ids, np.repeat(np.arange(len(points), dtype=np.int64), counts)))
+            kf_ids, keypoints = kf_ids[order], keypoints[order]
+        sorter = np.argsort(keyframe_order, kind="stable")
+        rows = sorter[np.searchsorted(keyframe_order, kf_ids, sorter=sorter)]
+        return cls(counts, starts, kf_ids, rows, keypoints)
+
+    def groups(self, selected: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """The ``selected`` points (bool (P,)) in groups of similar observation counts: for each, the
+        points (in order), their counts (G,) and the (G, K) indices of their observations, K the
+        largest count in the group (shorter rows repeat their first observation as padding).
+        Counts 1, 2, 3-4, 5-8, ... share a group: few array computations, at most twice the work."""
+        counts = self.counts[selected]
+        if len(counts) == 0:
+            return []
+        widths = 1 << np.ceil(np.log2(np.maximum(counts, 1))).astype(np.int64)  # 1, 2, 4, 8, ...
+        chosen = np.flatnonzero(selected)
+        out = []
+        for width in np.unique(widths).tolist():
+            members = chosen[widths == width]
+            k = int(self.counts[members].max())
+            offsets = np.minimum(np.arange(k), self.counts[members][:, None] - 1)
+            out.append((members, self.counts[members], self.starts[members][:, None] + offsets))
+        return out
+
+
+def _descriptors_at(keyframes: list[BackendKeyframe], rows: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
+    """Descriptors (M, 32) uint8 of (keyframe row in insertion order, keypoint) pairs, in order."""
+    out = np.empty((len(rows), 32), dtype=np.uint8)
+    order = np.argsort(rows, kind="stable")
+    bounds = np.flatnonzero(np.diff(rows[order])) + 1
+    for sel in np.split(order, bounds) if len(order) else []:
+        out[sel] = np.take(keyframes[int(rows[sel[0]])].descriptors, keypoints[sel], axis=0)
+    return out
+
+
+def refresh_descriptors(
+    keyframes: list[BackendKeyframe], store: PointStore, rows: np.ndarray, table: ObservationTable, selected: np.ndarray
+) -> None:
+    """Give each ``selected`` point (bool (P,) over the table's points, whose rows in ``store`` are
+    ``rows``) the representative descriptor of its observations."""
+    groups = table.groups(selected)
+    if not groups:
+        return
+    needed = np.concatenate([idx.ravel() for _, _, idx in groups])
+    descriptors = np.empty((len(table.keypoints), 32), dtype=np.uint8)
+    descriptors[needed] = _descriptors_at(keyframes, table.keyframe_rows[needed], table.keypoints[needed])
+    for members, counts, idx in groups:
+        store.descriptor[rows[members]] = representative_descriptors(descriptors[idx], counts)
+
+
+def refresh_geometry(
+    keyframes: list[BackendKeyframe],
+    store: PointStore,
+    rows: np.ndarray,
+    first_keyframe_ids: np.ndarray,
+    table: ObservationTable,
+    selected: np.ndarray,
+) -> None:
+    """Give each ``selected`` point its mean viewing direction and scale-invariance distance range
+    (from its distance to its reference keyframe and the keypoint's level there)."""
+    chosen = np.flatnonzero(selected)
+    if len(chosen) == 0:
+        return
+    centres = np.array([kf.T_world_cam[:3, 3] for kf in keyframes], dtype=float)
+    p_world = np.take(store.p_world, rows, axis=0)
+    ref = _reference_observations(table, chosen, first_keyframe_ids[chosen])
+    distance = np.linalg.norm(p_world[chosen] - centres[table.keyframe_rows[ref]], axis=1)
+    ref_rows, ref_keypoints = table.keyframe_rows[ref], table.keypoints[ref]
+    level = np.zeros(len(chosen), dtype=np.int64)
+    pyramid: dict[tuple[float, int], list[np.ndarray]] = {}
+    order = np.argsort(ref_rows, kind="stable")
+    for sel in np.split(order, np.flatnonzero(np.diff(ref_rows[order])) + 1):
+        kf = keyframes[int(ref_rows[sel[0]])]
+        level[sel] = kf.levels[ref_keypoints[sel]]
+        pyramid.setdefault((kf.scale_factor, kf.n_levels), []).append(sel)
+    for (scale_factor, n_levels), parts in sorted(pyramid.items()):
+        sel = np.sort(np.concatenate(parts))
+        lo, hi = scale_invariance_range(distance[sel], level[sel], scale_factor, n_levels)
+        store.min_distance_m[rows[chosen[sel]]] = lo
+        store.max_distance_m[rows[chosen[sel]]] = hi
+    for members, counts, idx in table.groups(selected):
+        store.normal[rows[members]] = mean_viewing_directions(p_world[members], centres[table.keyframe_rows[idx]], counts)
+
+
+def _reference_observations(table: ObservationTable, chosen: np.ndarray, first_keyframe_ids: np.ndarray) -> np.ndarray:
+    """Index (into the table) of each chosen point's reference observation: by the keyframe that
+    created it (``first_keyframe_ids``, one per chosen point) while it still observes it, else by
+    the observer with the smallest id."""
+    starts, counts = table.starts[chosen], table.counts[chosen]
+    owner = np.repeat(np.arange(len(chosen)), counts)
+    at = np.arange(len(owner)) + np.repeat(starts - (np.cumsum(counts) - counts), counts)
+    hit = table.keyframe_ids[at] == first_keyframe_ids[owner]
+    ref = starts.copy()
+    ref[owner[hit]] = at[hit]
+    return ref
+
+
+def refresh_points(
+    keyframes: dict[int, BackendKeyframe],
+    points: dict[int, MapPoint],
+    store: PointStore,
+    descriptor_ids: list[int],
+    geometry_ids: list[int],
+) -> None:
+    """Recompute the representative descriptors of ``descriptor_ids`` and the viewing directions and
+    distance ranges of ``geometry_ids`` (sorted ids of observed points, whose rows are in ``store``)."""
+    ids = sorted(set(descriptor_ids) | set(geometry_ids)) if descriptor_ids and geometry_ids else descriptor_ids or geometry_ids
+    if not ids:
+        return
+    pts = [points[p] for p in ids]
+    kf_list = list(keyframes.values())
+    table = ObservationTable.of(pts, np.fromiter(keyframes, dtype=np.int64, count=len(keyframes)))
+    rows = np.fromiter((pt.row for pt in pts), dtype=np.int64, count=len(pts))
+    first = np.fromiter((pt.first_keyframe_id for pt in pts), dtype=np.int64, count=len(pts))
+    ids_arr = np.asarray(ids, dtype=np.int64)
+    refresh_descriptors(kf_list, store, rows, table, _members(ids_arr, descriptor_ids))
+    refresh_geometry(kf_list, store, rows, first, table, _members(ids_arr, geometry_ids))
+
+
+def _members(ids: np.ndarray, subset: list[int]) -> np.ndarray:
+    """(len(ids),) bool: ``ids`` (sorted) that are in ``subset`` (sorted, a subset of ``ids``)."""
+    mask = np.zeros(len(ids), dtype=bool)
+    mask[np.searchsorted(ids, np.asarray(subset, dtype=np.int64))] = True
+    return mask
