@@ -328,7 +328,7 @@ def ba_problem(
         T_world_cam=np.stack([bmap.keyframes[k].T_world_cam for k in kf_ids]),
         fixed=np.array(is_fixed, dtype=bool),
         point_ids=ids,
-        p_world=np.stack([bmap.points[p].p_world for p in point_ids]),
+        p_world=bmap.positions(ids),
         obs_keyframe=obs_kf_arr,
         obs_point=obs_pt_arr,
         obs_px=px,
