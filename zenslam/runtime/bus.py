@@ -26,7 +26,7 @@ from typing import Generic, Literal, TypeVar
 
 import zenoh
 
-from zenslam.errors import BusError, ConfigError, ZenslamError
+from zenslam.errors import BusError, ConfigError
 from zenslam.schemas import keys
 
 logger = logging.getLogger(__name__)
@@ -53,16 +53,22 @@ class BusConfig:
     start_timeout_s: float = 60.0  # seconds a process waits for the stages it needs to come up
 
 
+def zenoh_config_from_file(config_file: str | Path, name: str) -> zenoh.Config:
+    """The zenoh JSON5 config file ``config_file``; ConfigError naming it as ``name`` when it is
+    missing or not a valid zenoh configuration."""
+    path = Path(config_file).expanduser()
+    if not path.is_file():
+        raise ConfigError(f"{name} {path} does not exist; give the path of a zenoh JSON5 config file")
+    try:
+        return zenoh.Config.from_file(str(path))
+    except zenoh.ZError as exc:
+        raise ConfigError(f"{name} {path} is not a valid zenoh configuration: {exc}") from exc
+
+
 def zenoh_config(config: BusConfig) -> zenoh.Config:
     """The zenoh.Config of ``config`` (the config file as is, when one is named)."""
     if config.zenoh_config_file is not None:
-        path = Path(config.zenoh_config_file).expanduser()
-        if not path.is_file():
-            raise ConfigError(f"bus.zenoh_config_file {path} does not exist; give the path of a zenoh JSON5 config file")
-        try:
-            return zenoh.Config.from_file(str(path))
-        except zenoh.ZError as exc:
-            raise ConfigError(f"bus.zenoh_config_file {path} is not a valid zenoh configuration: {exc}") from exc
+        return zenoh_config_from_file(config.zenoh_config_file, "bus.zenoh_config_file")
     cfg = zenoh.Config()
     try:
         cfg.insert_json5("mode", json.dumps(config.mode))

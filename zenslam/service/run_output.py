@@ -115,8 +115,8 @@ class RunLog:
         # The frontend's first keyframe id: 0, or past a saved map's ids when the run started from one
         # (its keyframes, with smaller ids, are the saved map's, not this run's).
         self.first_keyframe_id = 0
-        # Seconds (one clock: the follower's monotonic clock, or a recording's log times) at which the
-        # first tracking state and the last state or map update arrived: the stream's span.
+        # Seconds on the follower's monotonic clock at which the first tracking state and the last
+        # state or map update arrived: the stream's span (a recording's log times are data stamps).
         self.first_state_s: float | None = None
         self.last_message_s: float | None = None
 

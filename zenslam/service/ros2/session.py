@@ -17,7 +17,8 @@ from pathlib import Path
 
 import zenoh
 
-from zenslam.errors import BusError, ConfigError
+from zenslam.errors import BusError
+from zenslam.runtime import bus
 
 RMW_ZENOH_ROUTER = "tcp/localhost:7447"  # where rmw_zenohd listens by default
 
@@ -25,13 +26,7 @@ RMW_ZENOH_ROUTER = "tcp/localhost:7447"  # where rmw_zenohd listens by default
 def ros2_zenoh_config(config_file: Path | None = None) -> zenoh.Config:
     """``config_file`` as a zenoh config, or rmw_zenoh's default session settings when None."""
     if config_file is not None:
-        path = Path(config_file).expanduser()
-        if not path.is_file():
-            raise ConfigError(f"ROS 2 zenoh config {path} does not exist; give a zenoh JSON5 session config file")
-        try:
-            return zenoh.Config.from_file(str(path))
-        except zenoh.ZError as exc:
-            raise ConfigError(f"ROS 2 zenoh config {path} is not a valid zenoh configuration: {exc}") from exc
+        return bus.zenoh_config_from_file(config_file, "ROS 2 zenoh config")
     config = zenoh.Config()
     config.insert_json5("mode", json.dumps("peer"))
     config.insert_json5("connect/endpoints", json.dumps([RMW_ZENOH_ROUTER]))
