@@ -62,11 +62,29 @@ def ate_of(stamps_ns: list[int], poses: list[np.ndarray], ground_truth: Trajecto
             "sim3_scale": sim3.ate.scale}  # fmt: skip
 
 
+def largest_jump(stamps_ns: list[int], poses: list[np.ndarray], ground_truth: Trajectory) -> dict:
+    """The largest error of a motion between consecutive tracked frames (metres), and where: a late
+    correction that moves the tracked pose shows here as a jump that the truth does not make."""
+    index = {int(s): i for i, s in enumerate(np.asarray(ground_truth.stamps_ns))}
+    worst, at = 0.0, -1
+    for k in range(1, len(stamps_ns)):
+        a, b = index.get(int(stamps_ns[k - 1])), index.get(int(stamps_ns[k]))
+        if a is None or b is None:
+            continue
+        estimated = np.linalg.inv(poses[k - 1]) @ poses[k]
+        true = np.linalg.inv(ground_truth.T_world_cam[a]) @ ground_truth.T_world_cam[b]
+        error = float(np.linalg.norm(estimated[:3, 3] - true[:3, 3]))
+        if error > worst:
+            worst, at = error, k
+    return {"max_m": worst, "at_stamp_ns": int(stamps_ns[at]) if at >= 0 else -1}
+
+
 def run_once(frames, calibration, sensor, ground_truth: Trajectory, with_backend: bool,
              frontend_config: FrontendConfig, backend_config: BackendConfig, update_lag: int = 0) -> dict:  # fmt: skip
     """Track every frame (images loaded beforehand), optionally with the backend: in lockstep, or
-    with each keyframe's map update applied ``update_lag`` frames late (a deterministic model of
-    mapping that lags tracking, as in pipelined and live runs; every keyframe fully mapped)."""
+    with each keyframe's map update (and the corrections after it) applied ``update_lag`` frames
+    late, the frontend's keyframe decision seeing those keyframes in flight, as in pipelined and
+    live runs (a deterministic model of mapping that lags tracking; every keyframe fully mapped)."""
     pipeline = FrontendPipeline(frontend_config, calibration, sensor)
     backend = BackendNode.from_config(backend_config) if with_backend else None
     stamps, poses, states, frontend_ms, backend_steps = [], [], [], [], []
@@ -76,20 +94,23 @@ def run_once(frames, calibration, sensor, ground_truth: Trajectory, with_backend
     for frame in frames:
         while late and late[0][0] <= frame.index:
             pipeline.apply_map_update(late.popleft()[1])
-        out = pipeline.step(frame.index, frame.stamp_ns, frame.left, right=frame.right, depth_m=frame.depth_m)
+        in_flight = sum(1 for _, u in late if u.answers_keyframe)
+        out = pipeline.step(frame.index, frame.stamp_ns, frame.left, right=frame.right, depth_m=frame.depth_m,
+                            keyframes_in_flight=in_flight)  # fmt: skip
         frontend_ms.append(out.timings_ms["total"])
         states.append(out.state)
         if out.T_world_cam is not None:
             stamps.append(out.stamp_ns)
             poses.append(out.T_world_cam)
-        if out.keyframe is None:
-            continue
-        n_keyframes += 1
-        if backend is not None:
-            message = codec.decode_keyframe(codec.encode_keyframe(keyframe_message(out.keyframe, calibration, sensor)))
-            update = backend.step(message)
+        for keyframe in out.keyframes_made:
+            n_keyframes += 1
+            if backend is None:
+                continue
+            message = codec.decode_keyframe(codec.encode_keyframe(keyframe_message(keyframe, calibration, sensor)))
+            step = backend.step(message)
             backend_steps.append(backend.last_timings_ms)
-            late.append((frame.index + 1 + update_lag, codec.decode_map_update(codec.encode_map_update(update))))
+            for update in step.updates:
+                late.append((frame.index + 1 + update_lag, codec.decode_map_update(codec.encode_map_update(update))))
     wall_s = time.perf_counter() - start
     result = {
         "frames": len(frames),
@@ -97,10 +118,12 @@ def run_once(frames, calibration, sensor, ground_truth: Trajectory, with_backend
         "states": {s: states.count(s) for s in ("ok", "lost", "initializing")},
         "keyframes_made": n_keyframes,
         "ate_per_frame": ate_of(stamps, poses, ground_truth),
+        "largest_jump": largest_jump(stamps, poses, ground_truth),
         "frontend_total_ms": summary(frontend_ms),
     }
     if backend is not None:
         result.update(backend_report(backend, backend_steps, ground_truth))
+        backend.close()
     return result
 
 
@@ -163,7 +186,8 @@ def print_run(r: dict) -> None:
         a = x["ate_per_frame"]
         line = (f"  {key:<14} ATE {a['rmse_m'] * 100:6.2f} cm ({a['percent_of_path']:.3f} % of {a['path_length_m']:.1f} m; "
                 f"sim3 {a['sim3_rmse_m'] * 100:.2f} cm, scale {a['sim3_scale']:.4f})"
-                f"  states {x['states']}  keyframes {x['keyframes_made']}  wall {x['wall_s']:.1f} s")  # fmt: skip
+                f"  states {x['states']}  keyframes {x['keyframes_made']}  wall {x['wall_s']:.1f} s"
+                f"\n                 largest frame-to-frame error {x['largest_jump']['max_m'] * 100:.2f} cm")  # fmt: skip
         if "keyframes_kept" in x:
             kfa = x.get("ate_keyframes", {}).get("rmse_m", float("nan"))
             line += (f"\n                 kept {x['keyframes_kept']}  points/kf {x['map_points_per_keyframe']:.0f}"
