@@ -79,22 +79,73 @@ def largest_jump(stamps_ns: list[int], poses: list[np.ndarray], ground_truth: Tr
     return {"max_m": worst, "at_stamp_ns": int(stamps_ns[at]) if at >= 0 else -1}
 
 
-def run_once(frames, calibration, sensor, ground_truth: Trajectory, with_backend: bool,
-             frontend_config: FrontendConfig, backend_config: BackendConfig, update_lag: int = 0) -> dict:  # fmt: skip
+class LaggingBackend:
+    """The backend as pipelined and live runs see it, deterministically, in frame periods: either each
+    keyframe's map update (and the corrections after it) arrives ``update_lag`` frames after the
+    frame that made it, every keyframe fully mapped; or (``backend_frames`` > 0) one keyframe is
+    mapped at a time, each taking ``backend_frames`` frame periods (a quarter of that when keyframes
+    wait behind it and local mapping defers its fusion, BA and culling), from half a period after
+    the frame that made it; its updates arrive when it is done. Time t is the start of frame t."""
+
+    def __init__(self, backend: BackendNode, update_lag: int = 0, backend_frames: float = 0.0) -> None:
+        self.backend = backend
+        self.update_lag = update_lag
+        self.backend_frames = backend_frames
+        self.steps: list[dict[str, float]] = []
+        self._queue: deque[tuple[float, object]] = deque()  # (time sent, keyframe message)
+        self._arriving: deque[tuple[float, object]] = deque()  # (time it arrives, map update)
+        self._free_at = 0.0
+
+    def send(self, frame_index: int, message) -> None:
+        if self.backend_frames <= 0:
+            self._arriving.extend((frame_index + 1.0 + self.update_lag, u) for u in self._step(message, 0).updates)
+        else:
+            self._queue.append((frame_index + 0.5, message))
+
+    def arrived(self, now: float) -> list:
+        """The map updates that have arrived by time ``now``, in order (decoded through the codec)."""
+        while self._queue and max(self._free_at, self._queue[0][0]) <= now:
+            start = max(self._free_at, self._queue[0][0])
+            message = self._queue.popleft()[1]
+            queued = sum(1 for sent, _ in self._queue if sent <= start)
+            deferred_before = self.backend.mapper.totals["deferred"]
+            step = self._step(message, queued)
+            deferred = self.backend.mapper.totals["deferred"] > deferred_before
+            self._free_at = start + self.backend_frames / (4.0 if deferred else 1.0)
+            self._arriving.extend((self._free_at, u) for u in step.updates)
+        out = []
+        while self._arriving and self._arriving[0][0] <= now:
+            out.append(codec.decode_map_update(codec.encode_map_update(self._arriving.popleft()[1])))
+        return out
+
+    @property
+    def keyframes_in_flight(self) -> int:
+        """Keyframes sent whose answer has not arrived (what the frontend's keyframe decision sees)."""
+        return len(self._queue) + sum(1 for _, u in self._arriving if u.answers_keyframe)
+
+    def _step(self, message, queued: int):
+        step = self.backend.step(message, queued=queued)
+        self.steps.append(self.backend.last_timings_ms)
+        return step
+
+
+def run_once(frames, calibration, sensor, ground_truth: Trajectory, with_backend: bool, frontend_config: FrontendConfig,
+             backend_config: BackendConfig, update_lag: int = 0, backend_frames: float = 0.0) -> dict:  # fmt: skip
     """Track every frame (images loaded beforehand), optionally with the backend: in lockstep, or
-    with each keyframe's map update (and the corrections after it) applied ``update_lag`` frames
-    late, the frontend's keyframe decision seeing those keyframes in flight, as in pipelined and
-    live runs (a deterministic model of mapping that lags tracking; every keyframe fully mapped)."""
+    lagging as ``LaggingBackend`` models it, the frontend's keyframe decision seeing the keyframes in
+    flight, as in pipelined and live runs."""
     pipeline = FrontendPipeline(frontend_config, calibration, sensor)
     backend = BackendNode.from_config(backend_config) if with_backend else None
-    stamps, poses, states, frontend_ms, backend_steps = [], [], [], [], []
-    late: deque[tuple[int, object]] = deque()  # (frame index before which it is applied, map update)
+    lagging = LaggingBackend(backend, update_lag, backend_frames) if backend is not None else None
+    stamps, poses, states, frontend_ms = [], [], [], []
     n_keyframes = 0
     start = time.perf_counter()
     for frame in frames:
-        while late and late[0][0] <= frame.index:
-            pipeline.apply_map_update(late.popleft()[1])
-        in_flight = sum(1 for _, u in late if u.answers_keyframe)
+        in_flight = 0
+        if lagging is not None:
+            for update in lagging.arrived(float(frame.index)):
+                pipeline.apply_map_update(update)
+            in_flight = lagging.keyframes_in_flight
         out = pipeline.step(frame.index, frame.stamp_ns, frame.left, right=frame.right, depth_m=frame.depth_m,
                             keyframes_in_flight=in_flight)  # fmt: skip
         frontend_ms.append(out.timings_ms["total"])
@@ -104,13 +155,8 @@ def run_once(frames, calibration, sensor, ground_truth: Trajectory, with_backend
             poses.append(out.T_world_cam)
         for keyframe in out.keyframes_made:
             n_keyframes += 1
-            if backend is None:
-                continue
-            message = codec.decode_keyframe(codec.encode_keyframe(keyframe_message(keyframe, calibration, sensor)))
-            step = backend.step(message)
-            backend_steps.append(backend.last_timings_ms)
-            for update in step.updates:
-                late.append((frame.index + 1 + update_lag, codec.decode_map_update(codec.encode_map_update(update))))
+            if lagging is not None:
+                lagging.send(frame.index, codec.decode_keyframe(codec.encode_keyframe(keyframe_message(keyframe, calibration, sensor))))
     wall_s = time.perf_counter() - start
     result = {
         "frames": len(frames),
@@ -122,7 +168,7 @@ def run_once(frames, calibration, sensor, ground_truth: Trajectory, with_backend
         "frontend_total_ms": summary(frontend_ms),
     }
     if backend is not None:
-        result.update(backend_report(backend, backend_steps, ground_truth))
+        result.update(backend_report(backend, lagging.steps, ground_truth))
         backend.close()
     return result
 
@@ -145,17 +191,19 @@ def backend_report(backend: BackendNode, steps: list[dict[str, float]], ground_t
     return report
 
 
-def run(name: str, source, backend_only: bool, max_frames: int | None = None, update_lag: int = 0) -> dict:
+def run(name: str, source, backend_only: bool, max_frames: int | None = None, update_lag: int = 0,
+        backend_frames: float = 0.0) -> dict:
     frames = list(itertools.islice(source, max_frames))
     ground_truth = source.ground_truth()
     frontend_config, backend_config = FrontendConfig(), BackendConfig()
     args = (frames, source.calibration, source.sensor, ground_truth)
     stamps = np.array([f.stamp_ns for f in frames], np.int64)
     real_s = float((stamps[-1] - stamps[0] + np.median(np.diff(stamps))) * 1e-9)
-    result = {"name": name, "sensor": source.sensor, "real_time_s": real_s, "update_lag": update_lag, "load_before": os.getloadavg()}
+    result = {"name": name, "sensor": source.sensor, "real_time_s": real_s, "update_lag": update_lag,
+              "backend_frames": backend_frames, "load_before": os.getloadavg()}
     if not backend_only:
         result["frontend_only"] = run_once(*args, False, frontend_config, backend_config)
-    result["with_backend"] = run_once(*args, True, frontend_config, backend_config, update_lag)
+    result["with_backend"] = run_once(*args, True, frontend_config, backend_config, update_lag, backend_frames)
     return result
 
 
@@ -205,10 +253,12 @@ def main() -> None:
     parser.add_argument("--backend-only", action="store_true", help="skip the frontend-only runs")
     parser.add_argument("--max-frames", type=int, default=None, help="use only the first N frames of each clip")
     parser.add_argument("--update-lag", type=int, default=0, help="apply each map update this many frames late (0: lockstep)")
+    parser.add_argument("--backend-frames", type=float, default=0.0,
+                        help="a serial backend taking this many frame periods per keyframe (0: off; see LaggingBackend)")
     args = parser.parse_args()
     runs = []
     for name, source in sources(args.data, args.synthetic, args.only):
-        runs.append(run(name, source, args.backend_only, args.max_frames, args.update_lag))
+        runs.append(run(name, source, args.backend_only, args.max_frames, args.update_lag, args.backend_frames))
         print_run(runs[-1])
     report = {"machine": platform.platform(), "python": platform.python_version(), "cpu_count": os.cpu_count(),
               "config": "FrontendConfig(), BackendConfig() defaults", "runs": runs}  # fmt: skip

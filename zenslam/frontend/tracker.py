@@ -54,6 +54,7 @@ from zenslam.frontend.motion_model import ConstantVelocityModel
 from zenslam.frontend.pose_optimizer import PoseOptimizerConfig, optimize_frame_pose
 from zenslam.frontend.relocalisation import BowTransform, RelocalisationConfig, keyframes_to_restore, relocalise
 from zenslam.frontend.visual_odometry import (
+    LastFrameSearch,
     OdometryPose,
     VisualOdometryConfig,
     last_frame_points,
@@ -248,7 +249,8 @@ class Tracker:
         if first is None:
             return self._lost(frame, "too_few_matches_motion_model_and_reference", 0)
         start, pose_ms = time.perf_counter(), self._timers["pose_optimization"]
-        T_cam_world, rows, n_inliers = self._track_local_map(frame, first[0], first[1])
+        joint = first if self.config.visual_odometry.in_local_map_optimisation else None
+        T_cam_world, rows, n_inliers = self._track_local_map(frame, first.T_cam_world, first.rows, joint)
         self._add_time("local_map_tracking", start, pose_ms)
         min_inliers = self._min_local_map_inliers(frame)
         if n_inliers < min_inliers:
@@ -288,7 +290,13 @@ class Tracker:
         self.map.apply_map_update(update)
         reference = self.map.keyframe(self._reference_slot) if self._reference_slot >= 0 else None
         if T_last_ref is not None and reference is not None:
+            before = invert_T(self._last.T_cam_world)[:3, 3]
             self._last.T_cam_world = T_last_ref @ reference.T_cam_world
+            logger.debug(
+                "map update of keyframe %d (%s) applied after frame %d: last frame moved %.3f m (reference keyframe %d)",
+                update.keyframe_id, update.kind, self._last.frame.index,
+                float(np.linalg.norm(invert_T(self._last.T_cam_world)[:3, 3] - before)), reference.id,
+            )  # fmt: skip
 
     def _evict(self, unanswered: int, force: bool = False) -> None:
         """Evict the map cache when due (or ``force``), around the last frame's window; ``unanswered``
@@ -305,6 +313,17 @@ class Tracker:
         """Charge the time since ``start`` to ``key``, less the pose optimisation done meanwhile."""
         pose_ms = self._timers["pose_optimization"] - pose_ms_at_start
         self._timers[key] += (time.perf_counter() - start) * 1e3 - pose_ms
+
+    def _optimize_with_odometry(self, T_cam_world: np.ndarray, frame: Frame, rows: np.ndarray, odometry: OdometryPose):
+        """``_optimize`` with the odometry's VO matches on keypoints without a map row added; the
+        inlier mask (N,) covers the map matches only."""
+        start = time.perf_counter()
+        kps = np.flatnonzero(rows >= 0)
+        T_cam_world, kp_inliers = optimise_with_odometry(frame, T_cam_world, kps, self.map.p_world[rows[kps]], odometry, self.pose_config)
+        inliers = np.zeros(len(rows), dtype=bool)
+        inliers[kps] = kp_inliers
+        self._timers["pose_optimization"] += (time.perf_counter() - start) * 1e3
+        return T_cam_world, inliers
 
     def _optimize(self, T_cam_world: np.ndarray, frame: Frame, rows: np.ndarray):
         """Pose optimisation of ``frame`` matched to map rows (N,) -1 none; returns (T, inlier mask (N,))."""
@@ -405,10 +424,8 @@ class Tracker:
                 return self._tracked(frame, *found, 0)
         if odometry is None and not self._on_vo:
             start, pose_ms = time.perf_counter(), self._timers["pose_optimization"]
-            first = self._track_reference_keyframe(frame)
+            odometry = self._track_reference_keyframe(frame)
             self._add_time("motion_model_tracking", start, pose_ms)
-            if first is not None:
-                odometry = OdometryPose(first[0], first[1], first[2], first[2])
         if odometry is None:
             return self._lost(frame, "too_few_matches_visual_odometry" if self._on_vo else "too_few_matches_motion_model_and_reference", 0)
         if not self._on_vo and not odometry.is_vo(self.config.visual_odometry):
@@ -424,28 +441,19 @@ class Tracker:
         return self._tracked_by_odometry(frame, odometry)
 
     def _track_odometry(self, frame: Frame) -> OdometryPose | None:
-        """The motion model (the last pose when it has no velocity) against the last frame's points."""
+        """The motion model (the last pose when it has no velocity) against the last frame's map and
+        VO points; None with fewer than ``visual_odometry.min_matches`` inliers."""
         last = self._last
         predicted = self.motion.predict(last.T_cam_world, self._frame_gap(frame))
-        lm = self.map
-        points = last_frame_points(
-            last.frame, last.rows, last.T_cam_world, lm.p_world, lm.descriptors, lm.valid, self.th_depth_m,
-            self.config.visual_odometry.max_points,
-        )  # fmt: skip
-        return track_last_frame(
-            frame, last.frame, points, last.T_cam_world if predicted is None else predicted, self.config.motion_radius_px,
-            self.config.max_descriptor_distance, self.config.check_orientation, self.pose_config, self.config.visual_odometry,
-        )  # fmt: skip
+        odometry = self._match_last_frame(frame, last.T_cam_world if predicted is None else predicted, True)
+        if odometry is None or odometry.n_total < self.config.visual_odometry.min_matches:
+            return None
+        return odometry
 
     def _with_odometry(self, frame: Frame, T_cam_world: np.ndarray, rows: np.ndarray, odometry: OdometryPose):
         """The local-map pose optimised again with the odometry's VO matches: (T, rows, map inliers)."""
-        start = time.perf_counter()
-        kps = np.flatnonzero(rows >= 0)
-        T_cam_world, inliers = optimise_with_odometry(frame, T_cam_world, kps, self.map.p_world[rows[kps]], odometry, self.pose_config)
-        self._timers["pose_optimization"] += (time.perf_counter() - start) * 1e3
-        rows = rows.copy()
-        rows[kps[~inliers]] = -1
-        return T_cam_world, rows, int(np.count_nonzero(inliers))
+        T_cam_world, inliers = self._optimize_with_odometry(T_cam_world, frame, rows, odometry)
+        return T_cam_world, np.where(inliers, rows, -1), int(np.count_nonzero(inliers))
 
     def _tracked_by_odometry(self, frame: Frame, odometry: OdometryPose) -> TrackResult:
         """A frame placed by visual odometry: the motion model goes on, the map is not touched."""
@@ -526,8 +534,8 @@ class Tracker:
         return self.config.min_local_map_inliers
 
     # ---- stage 1: last frame (motion model) or reference keyframe ---------------------------------
-    def _track_last_frame_or_reference(self, frame: Frame):
-        """(T_cam_world, rows, inliers) from the motion model or the reference keyframe, or None."""
+    def _track_last_frame_or_reference(self, frame: Frame) -> OdometryPose | None:
+        """The pose from the motion model or the reference keyframe, or None."""
         last = self._last
         predicted = self.motion.predict(last.T_cam_world, self._frame_gap(frame))
         if predicted is not None:
@@ -543,66 +551,28 @@ class Tracker:
         """Frame indices from the last tracked frame to ``frame`` (1 unless live mode skipped frames)."""
         return max(frame.index - self._last.frame.index, 1)
 
-    def _track_motion_model(self, frame: Frame, T_predicted: np.ndarray):
-        """Project the last frame's points with the predicted pose and match them (ORB-SLAM2)."""
-        last = self._last
-        kps_last = np.flatnonzero(last.rows >= 0)
-        kps_last = kps_last[self.map.valid[last.rows[kps_last]]]
-        if len(kps_last) < self.config.motion_min_matches:
+    def _track_motion_model(self, frame: Frame, T_predicted: np.ndarray) -> OdometryPose | None:
+        """ORB-SLAM2's TrackWithMotionModel: the last frame's points (with its VO points for a
+        stereo/RGB-D camera) matched by projection with the predicted pose, the pose optimised; None
+        with fewer than ``min_pose_inliers`` map inliers."""
+        odometry = self._match_last_frame(frame, T_predicted, self.config.visual_odometry.in_slam_mode)
+        if odometry is None or odometry.n_map < self.config.min_pose_inliers:
             return None
-        rows_last = last.rows[kps_last]
-        radius = self.config.motion_radius_px
-        rows = self._search_last_frame(frame, T_predicted, kps_last, rows_last, radius)
-        if np.count_nonzero(rows >= 0) < self.config.motion_min_matches:
-            radius *= self.config.motion_wide_factor
-            rows = self._search_last_frame(frame, T_predicted, kps_last, rows_last, radius)
-        if np.count_nonzero(rows >= 0) < self.config.motion_min_matches:
-            return None
-        return self._optimize_and_filter(frame, T_predicted, rows)
+        return odometry
 
-    def _search_last_frame(self, frame, T_predicted, kps_last, rows_last, radius_px) -> np.ndarray:
-        """Rows (N,) of the current keypoints matched to the last frame's points, -1 none."""
-        cal = self.calibration
-        feats, last_feats = frame.features, self._last.frame.features
-        p_cam = self.map.p_world[rows_last] @ T_predicted[:3, :3].T + T_predicted[:3, 3]
-        z = p_cam[:, 2]
-        safe_z = np.where(z > 1e-9, z, 1e-9)
-        u = cal.fx * p_cam[:, 0] / safe_z + cal.cx
-        v = cal.fy * p_cam[:, 1] / safe_z + cal.cy
-        ok = (z > 0) & (u >= 0) & (u < cal.width) & (v >= 0) & (v < cal.height)
-        # ORB-SLAM: moving forward, points get nearer and appear on the same or coarser levels.
-        T_last_cur = self._last.T_cam_world @ invert_T(T_predicted)
-        forward = T_last_cur[2, 3] > (cal.baseline_m or 0.0)
-        backward = -T_last_cur[2, 3] > (cal.baseline_m or 0.0)
-        min_off, max_off = (0, None) if forward else (None, 0) if backward else (-1, 1)
-        levels = last_feats.level[kps_last].astype(np.int64)
-        idx = np.flatnonzero(ok)
-        match = search_by_projection(
-            np.column_stack([u, v])[idx],
-            levels[idx],
-            self.map.descriptors[rows_last[idx]],
-            feats.px,
-            feats.level,
-            feats.descriptors,
-            radius_px * feats.scale_factors[levels[idx]],
-            max_distance=self.config.max_descriptor_distance,
-            ratio=None,
-            min_level_offset=min_off,
-            max_level_offset=max_off,
-            kp_right_u=frame.right_u,
-            proj_right_u=(u - cal.bf / safe_z)[idx] if cal.baseline_m is not None else None,
+    def _match_last_frame(self, frame: Frame, T_predicted: np.ndarray, with_vo_points: bool) -> OdometryPose | None:
+        """``track_last_frame`` on the last frame's valid map points and, ``with_vo_points``, its VO points."""
+        last, lm, cfg = self._last, self.map, self.config
+        close_depth_m, max_points = (self.th_depth_m, cfg.visual_odometry.max_points) if with_vo_points else (-1.0, 0)
+        points = last_frame_points(
+            last.frame, last.rows, last.T_cam_world, lm.p_world, lm.descriptors, lm.valid, close_depth_m, max_points
         )
-        hit = match >= 0
-        matched_kps = match[hit].astype(np.int64)
-        source = idx[hit]
-        if self.config.check_orientation and len(matched_kps):
-            keep = rotation_consistent(last_feats.angle_deg[kps_last[source]] - feats.angle_deg[matched_kps])
-            matched_kps, source = matched_kps[keep], source[keep]
-        rows = np.full(len(feats), -1, dtype=np.int64)
-        rows[matched_kps] = rows_last[source]
-        return rows
+        search = LastFrameSearch(
+            cfg.motion_radius_px, cfg.motion_wide_factor, cfg.motion_min_matches, cfg.max_descriptor_distance, cfg.check_orientation
+        )
+        return track_last_frame(frame, last.frame, points, T_predicted, search, self.pose_config)
 
-    def _track_reference_keyframe(self, frame: Frame):
+    def _track_reference_keyframe(self, frame: Frame) -> OdometryPose | None:
         """Match the frame to the reference keyframe's points by descriptor; pose from the last frame.
 
         ORB-SLAM2 matches by bag of words against the keyframe's keypoint descriptors; here a
@@ -631,20 +601,16 @@ class Tracker:
             return None
         rows = np.full(len(feats), -1, dtype=np.int64)
         rows[pairs[:, 1]] = kf_rows[kf_kps[pairs[:, 0]]]
-        return self._optimize_and_filter(frame, self._last.T_cam_world, rows)
-
-    def _optimize_and_filter(self, frame: Frame, T_init: np.ndarray, rows: np.ndarray):
-        """Optimise, drop outlier matches; (T, rows, n_inliers) or None below ``min_pose_inliers``."""
-        T_cam_world, inliers = self._optimize(T_init, frame, rows)
-        rows = np.where(inliers, rows, -1)
+        T_cam_world, inliers = self._optimize(self._last.T_cam_world, frame, rows)
         n_inliers = int(np.count_nonzero(inliers))
         if n_inliers < self.config.min_pose_inliers:
             return None
-        return T_cam_world, rows, n_inliers
+        return OdometryPose(T_cam_world, np.where(inliers, rows, -1), n_inliers, n_inliers)
 
     # ---- stage 2: local map -------------------------------------------------------------------------
-    def _track_local_map(self, frame: Frame, T_cam_world: np.ndarray, rows: np.ndarray):
-        """ORB-SLAM2's TrackLocalMap: match local points by projection, optimise; (T, rows, inliers)."""
+    def _track_local_map(self, frame: Frame, T_cam_world: np.ndarray, rows: np.ndarray, odometry: OdometryPose | None = None):
+        """ORB-SLAM2's TrackLocalMap: match local points by projection, optimise (with the VO matches
+        of ``odometry`` on keypoints left free, when given); (T, rows, map inliers)."""
         window = self.map.local_window(rows)
         if window.reference_slot >= 0:
             self._reference_slot = window.reference_slot
@@ -653,7 +619,10 @@ class Tracker:
         self.map.increase_visible(rows[matched])
         candidates = local_rows[~np.isin(local_rows, rows[matched])]
         self._search_local_points(frame, T_cam_world, rows, candidates)
-        T_cam_world, inliers = self._optimize(T_cam_world, frame, rows)
+        if odometry is not None and len(odometry.vo_keypoints):
+            T_cam_world, inliers = self._optimize_with_odometry(T_cam_world, frame, rows, odometry)
+        else:
+            T_cam_world, inliers = self._optimize(T_cam_world, frame, rows)
         self.map.increase_found(rows[inliers])
         rows = np.where(inliers, rows, -1)
         return T_cam_world, rows, int(np.count_nonzero(inliers))

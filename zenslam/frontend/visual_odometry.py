@@ -1,15 +1,21 @@
-"""Localisation mode's motion-model tracking: the last frame's map points and its own depth points (ORB-SLAM2).
+"""The motion-model match against the last frame: its map points and its temporary visual-odometry points (ORB-SLAM2).
 
-In localisation mode no keyframe, hence no point, is made, so where the map is thin or absent the
-frame would soon have nothing to track. ORB-SLAM2's ``UpdateLastFrame`` then adds temporary
-points: the last frame's keypoints with a depth (stereo or RGB-D) but no map point, nearest first,
-all those closer than the close-depth threshold and at least ``max_points``; its
-``TrackWithMotionModel`` matches the map points and these visual-odometry (VO) points by
-projection, optimises the pose, and calls the frame *VO* when fewer than ``min_map_matches`` of
-the inliers are map points. A VO frame skips local-map tracking (there is no local map to find)
-and the next frames try relocalisation as well, until it succeeds. Not ORB-SLAM's: a frame that
-does track the local map, but on few map points (``joint_below_map_inliers``), is optimised once
-more with its VO matches added (``optimise_with_odometry``).
+ORB-SLAM2's ``UpdateLastFrame`` adds temporary points to a stereo or RGB-D last frame: its
+keypoints with a depth but no map point, nearest first, all those closer than the close-depth
+threshold and at least ``max_points``, back-projected from the last frame's pose. Its
+``TrackWithMotionModel`` matches the map points and these visual-odometry (VO) points by projection
+with the predicted pose (``track_last_frame``) and optimises the pose; the VO points are then
+dropped: they never become map points, and no keyframe observes them.
+
+They keep the pose where the map is thin or late. In SLAM mode (``TrackingConfig.temporary_points``)
+that is a map whose newest points have not come back from the backend, or have been culled there:
+the last frame's near depths then still tie the frame to the one before. The VO matches also join
+the local-map pose optimisation, as in ORB-SLAM2, where they are counted apart from the map inliers.
+In localisation mode no keyframe, hence no point, is made: a frame with fewer than
+``min_map_matches`` map inliers is *VO* and skips local-map tracking until a relocalisation finds
+the map again. Not ORB-SLAM's: a localisation frame that does track the local map, but on few map
+points (``joint_below_map_inliers``), is optimised once more with its VO matches added
+(``optimise_with_odometry``).
 
 Plain numpy: the tracker owns the state (which frame is last, whether it was VO).
 """
@@ -30,8 +36,15 @@ from zenslam.geometry import invert_T
 
 @dataclass(frozen=True)
 class VisualOdometryConfig:
-    """Localisation mode's visual odometry (ORB-SLAM2's values)."""
+    """The last frame's VO points, and localisation mode's visual odometry (ORB-SLAM2's values)."""
 
+    # Stereo/RGB-D SLAM mode matches the last frame's VO points too (ORB-SLAM2 makes them in
+    # localisation mode only); with ``in_local_map_optimisation`` their matches also join the
+    # local-map pose optimisation, as ORB-SLAM2's localisation mode does. Off by default: the last
+    # frame's raw depths then weigh on every pose as much as the map's refined points, and their
+    # stereo depth bias shows as scale drift (benchmarks/README.md).
+    in_slam_mode: bool = True
+    in_local_map_optimisation: bool = False
     min_map_matches: int = 10  # fewer inlier matches to map points: the frame is on visual odometry
     min_matches: int = 20  # inlier matches (map and VO points) a pose needs, else the frame is lost
     max_points: int = 100  # VO points made beyond the close-depth threshold, nearest first
@@ -64,13 +77,16 @@ class LastFramePoints:
     p_world: np.ndarray  # (M, 3) metres
     descriptors: np.ndarray  # (M, 32) uint8
     rows: np.ndarray  # (M,) int64 map row, -1 for a VO point
+    T_cam_world_last: np.ndarray  # (4, 4) the last frame's pose the VO points were made with
 
 
 def last_frame_points(
     last: Frame, last_rows: np.ndarray, T_cam_world_last: np.ndarray, map_p_world: np.ndarray,
     map_descriptors: np.ndarray, map_valid: np.ndarray, close_depth_m: float, max_points: int,
 ) -> LastFramePoints:
-    """The last frame's valid map points and VO points made from its depths (``close_depth_m``: metres)."""
+    """The last frame's valid map points and VO points made from its depths: every keypoint with a
+    depth and no valid map point nearer than ``close_depth_m`` (metres), and at least the nearest
+    ``max_points`` of them (0 and a negative ``close_depth_m``: no VO point)."""
     with_map = np.flatnonzero(last_rows >= 0)
     with_map = with_map[map_valid[last_rows[with_map]]]
     rows = last_rows[with_map]
@@ -84,26 +100,36 @@ def last_frame_points(
         p_world=np.vstack([map_p_world[rows].reshape(-1, 3), vo_world]),
         descriptors=np.vstack([map_descriptors[rows].reshape(-1, 32), last.features.descriptors[vo]]),
         rows=np.concatenate([rows, np.full(len(vo), -1, dtype=np.int64)]),
+        T_cam_world_last=np.asarray(T_cam_world_last, dtype=float),
     )
 
 
+@dataclass(frozen=True)
+class LastFrameSearch:
+    """ORB-SLAM2's motion-model search of the last frame's points in the current frame."""
+
+    radius_px: float  # window half-width at level 0 (pixels, times the level's scale factor)
+    wide_factor: float  # window multiplier of the retry when fewer than min_matches matched
+    min_matches: int  # fewer matches after the retry: no pose
+    max_distance: int  # Hamming bits (ORB-SLAM's TH_HIGH)
+    check_orientation: bool  # keep only matches in the 3 dominant rotation-histogram bins
+
+
 def track_last_frame(
-    frame: Frame, last: Frame, points: LastFramePoints, T_predicted: np.ndarray, radius_px: float,
-    max_distance: int, check_orientation: bool, pose_config: PoseOptimizerConfig, config: VisualOdometryConfig,
+    frame: Frame, last: Frame, points: LastFramePoints, T_predicted: np.ndarray, search: LastFrameSearch,
+    pose_config: PoseOptimizerConfig,
 ) -> OdometryPose | None:
-    """Match ``points`` into ``frame`` around their projection with ``T_predicted`` (window
-    ``radius_px`` at level 0, ORB-SLAM's motion-model search), optimise the pose; None with fewer
-    than ``config.min_matches`` inliers."""
-    match = _match(frame, last, points, T_predicted, radius_px, max_distance, check_orientation)
-    if np.count_nonzero(match >= 0) < config.min_matches:
-        match = _match(frame, last, points, T_predicted, 2.0 * radius_px, max_distance, check_orientation)
+    """Match ``points`` into ``frame`` around their projection with ``T_predicted`` (T_cam_world),
+    optimise the pose and keep the inliers; None with fewer than ``search.min_matches`` matches.
+    The caller judges the inlier counts."""
+    match = _match(frame, last, points, T_predicted, search.radius_px, search)
+    if np.count_nonzero(match >= 0) < search.min_matches:
+        match = _match(frame, last, points, T_predicted, search.wide_factor * search.radius_px, search)
     kps = np.flatnonzero(match >= 0)
-    if len(kps) < config.min_matches:
+    if len(kps) < search.min_matches:
         return None
     result = optimize_frame_pose(frame, T_predicted, kps, points.p_world[match[kps]], pose_config)
     inliers = kps[result.inliers]
-    if len(inliers) < config.min_matches:
-        return None
     rows = np.full(len(frame.features), -1, dtype=np.int64)
     rows[inliers] = points.rows[match[inliers]]
     on_vo = inliers[points.rows[match[inliers]] < 0]
@@ -125,8 +151,9 @@ def optimise_with_odometry(
     return result.T_cam_world, np.asarray(result.inliers[: len(map_keypoints)], dtype=bool)
 
 
-def _match(frame, last, points: LastFramePoints, T_predicted, radius_px, max_distance, check_orientation) -> np.ndarray:
-    """(N,) index into ``points`` of each keypoint of ``frame`` matched, -1 none."""
+def _match(frame: Frame, last: Frame, points: LastFramePoints, T_predicted, radius_px: float, search: LastFrameSearch) -> np.ndarray:
+    """(N,) index into ``points`` of each keypoint of ``frame`` matched, -1 none (ORB-SLAM2's
+    ``SearchByProjection`` of a frame in the last one)."""
     cal: PinholeCalibration = frame.calibration
     feats, last_feats = frame.features, last.features
     p_cam = points.p_world @ T_predicted[:3, :3].T + T_predicted[:3, 3]
@@ -134,16 +161,22 @@ def _match(frame, last, points: LastFramePoints, T_predicted, radius_px, max_dis
     safe_z = np.where(z > 1e-9, z, 1e-9)
     u, v = cal.fx * p_cam[:, 0] / safe_z + cal.cx, cal.fy * p_cam[:, 1] / safe_z + cal.cy
     idx = np.flatnonzero((z > 0) & (u >= 0) & (u < cal.width) & (v >= 0) & (v < cal.height))
+    # Moving forward by more than a baseline, points get nearer and appear on the same or coarser
+    # levels; moving backward, on the same or finer ones (ORB-SLAM2).
+    T_last_cur = points.T_cam_world_last @ invert_T(T_predicted)
+    baseline = cal.baseline_m or 0.0
+    forward, backward = T_last_cur[2, 3] > baseline, -T_last_cur[2, 3] > baseline
+    min_off, max_off = (0, None) if forward else (None, 0) if backward else (-1, 1)
     levels = last_feats.level[points.keypoints[idx]].astype(np.int64)
     found = search_by_projection(
         np.column_stack([u, v])[idx], levels, points.descriptors[idx], feats.px, feats.level, feats.descriptors,
-        radius_px * feats.scale_factors[levels], max_distance=max_distance, ratio=None, min_level_offset=-1,
-        max_level_offset=1, kp_right_u=frame.right_u,
+        radius_px * feats.scale_factors[levels], max_distance=search.max_distance, ratio=None, min_level_offset=min_off,
+        max_level_offset=max_off, kp_right_u=frame.right_u,
         proj_right_u=(u - cal.bf / safe_z)[idx] if cal.baseline_m is not None else None,
     )  # fmt: skip
     hit = found >= 0
     matched_kps, source = found[hit].astype(np.int64), idx[hit]
-    if check_orientation and len(matched_kps):
+    if search.check_orientation and len(matched_kps):
         keep = rotation_consistent(last_feats.angle_deg[points.keypoints[source]] - feats.angle_deg[matched_kps])
         matched_kps, source = matched_kps[keep], source[keep]
     out = np.full(len(feats), -1, dtype=np.int64)
