@@ -83,14 +83,16 @@ class LaggingBackend:
     """The backend as pipelined and live runs see it, deterministically, in frame periods: either each
     keyframe's map update (and the corrections after it) arrives ``update_lag`` frames after the
     frame that made it, every keyframe fully mapped; or (``backend_frames`` > 0) one keyframe is
-    mapped at a time, each taking ``backend_frames`` frame periods (a quarter of that when keyframes
-    wait behind it and local mapping defers its fusion, BA and culling), from half a period after
-    the frame that made it; its updates arrive when it is done. Time t is the start of frame t."""
+    mapped at a time, each taking ``backend_frames`` frame periods (``deferred_frames`` when keyframes
+    wait behind it and local mapping defers its fusion, BA and culling; by default a quarter), from
+    half a period after the frame that made it; its updates arrive when it is done. Time t is the
+    start of frame t."""
 
-    def __init__(self, backend: BackendNode, update_lag: int = 0, backend_frames: float = 0.0) -> None:
+    def __init__(self, backend: BackendNode, update_lag: int = 0, backend_frames: float = 0.0, deferred_frames: float = 0.0) -> None:
         self.backend = backend
         self.update_lag = update_lag
         self.backend_frames = backend_frames
+        self.deferred_frames = deferred_frames or backend_frames / 4.0
         self.steps: list[dict[str, float]] = []
         self._queue: deque[tuple[float, object]] = deque()  # (time sent, keyframe message)
         self._arriving: deque[tuple[float, object]] = deque()  # (time it arrives, map update)
@@ -111,7 +113,7 @@ class LaggingBackend:
             deferred_before = self.backend.mapper.totals["deferred"]
             step = self._step(message, queued)
             deferred = self.backend.mapper.totals["deferred"] > deferred_before
-            self._free_at = start + self.backend_frames / (4.0 if deferred else 1.0)
+            self._free_at = start + (self.deferred_frames if deferred else self.backend_frames)
             self._arriving.extend((self._free_at, u) for u in step.updates)
         out = []
         while self._arriving and self._arriving[0][0] <= now:
@@ -130,13 +132,14 @@ class LaggingBackend:
 
 
 def run_once(frames, calibration, sensor, ground_truth: Trajectory, with_backend: bool, frontend_config: FrontendConfig,
-             backend_config: BackendConfig, update_lag: int = 0, backend_frames: float = 0.0) -> dict:  # fmt: skip
+             backend_config: BackendConfig, update_lag: int = 0, backend_frames: float = 0.0,
+             deferred_frames: float = 0.0) -> dict:  # fmt: skip
     """Track every frame (images loaded beforehand), optionally with the backend: in lockstep, or
     lagging as ``LaggingBackend`` models it, the frontend's keyframe decision seeing the keyframes in
     flight, as in pipelined and live runs."""
     pipeline = FrontendPipeline(frontend_config, calibration, sensor)
     backend = BackendNode.from_config(backend_config) if with_backend else None
-    lagging = LaggingBackend(backend, update_lag, backend_frames) if backend is not None else None
+    lagging = LaggingBackend(backend, update_lag, backend_frames, deferred_frames) if backend is not None else None
     stamps, poses, states, frontend_ms = [], [], [], []
     n_keyframes = 0
     start = time.perf_counter()
@@ -192,7 +195,7 @@ def backend_report(backend: BackendNode, steps: list[dict[str, float]], ground_t
 
 
 def run(name: str, source, backend_only: bool, max_frames: int | None = None, update_lag: int = 0,
-        backend_frames: float = 0.0) -> dict:
+        backend_frames: float = 0.0, deferred_frames: float = 0.0) -> dict:
     frames = list(itertools.islice(source, max_frames))
     ground_truth = source.ground_truth()
     frontend_config, backend_config = FrontendConfig(), BackendConfig()
@@ -200,10 +203,11 @@ def run(name: str, source, backend_only: bool, max_frames: int | None = None, up
     stamps = np.array([f.stamp_ns for f in frames], np.int64)
     real_s = float((stamps[-1] - stamps[0] + np.median(np.diff(stamps))) * 1e-9)
     result = {"name": name, "sensor": source.sensor, "real_time_s": real_s, "update_lag": update_lag,
-              "backend_frames": backend_frames, "load_before": os.getloadavg()}
+              "backend_frames": backend_frames,
+              "deferred_frames": deferred_frames, "load_before": os.getloadavg()}
     if not backend_only:
         result["frontend_only"] = run_once(*args, False, frontend_config, backend_config)
-    result["with_backend"] = run_once(*args, True, frontend_config, backend_config, update_lag, backend_frames)
+    result["with_backend"] = run_once(*args, True, frontend_config, backend_config, update_lag, backend_frames, deferred_frames)
     return result
 
 
@@ -255,10 +259,12 @@ def main() -> None:
     parser.add_argument("--update-lag", type=int, default=0, help="apply each map update this many frames late (0: lockstep)")
     parser.add_argument("--backend-frames", type=float, default=0.0,
                         help="a serial backend taking this many frame periods per keyframe (0: off; see LaggingBackend)")
+    parser.add_argument("--deferred-frames", type=float, default=0.0,
+                        help="with --backend-frames: frame periods of a keyframe whose BA is deferred (0: a quarter of --backend-frames)")
     args = parser.parse_args()
     runs = []
     for name, source in sources(args.data, args.synthetic, args.only):
-        runs.append(run(name, source, args.backend_only, args.max_frames, args.update_lag, args.backend_frames))
+        runs.append(run(name, source, args.backend_only, args.max_frames, args.update_lag, args.backend_frames, args.deferred_frames))
         print_run(runs[-1])
     report = {"machine": platform.platform(), "python": platform.python_version(), "cpu_count": os.cpu_count(),
               "config": "FrontendConfig(), BackendConfig() defaults", "runs": runs}  # fmt: skip

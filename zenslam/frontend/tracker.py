@@ -249,8 +249,7 @@ class Tracker:
         if first is None:
             return self._lost(frame, "too_few_matches_motion_model_and_reference", 0)
         start, pose_ms = time.perf_counter(), self._timers["pose_optimization"]
-        joint = first if self.config.visual_odometry.in_local_map_optimisation else None
-        T_cam_world, rows, n_inliers = self._track_local_map(frame, first.T_cam_world, first.rows, joint)
+        T_cam_world, rows, n_inliers = self._track_local_map(frame, first.T_cam_world, first.rows)
         self._add_time("local_map_tracking", start, pose_ms)
         min_inliers = self._min_local_map_inliers(frame)
         if n_inliers < min_inliers:
@@ -313,17 +312,6 @@ class Tracker:
         """Charge the time since ``start`` to ``key``, less the pose optimisation done meanwhile."""
         pose_ms = self._timers["pose_optimization"] - pose_ms_at_start
         self._timers[key] += (time.perf_counter() - start) * 1e3 - pose_ms
-
-    def _optimize_with_odometry(self, T_cam_world: np.ndarray, frame: Frame, rows: np.ndarray, odometry: OdometryPose):
-        """``_optimize`` with the odometry's VO matches on keypoints without a map row added; the
-        inlier mask (N,) covers the map matches only."""
-        start = time.perf_counter()
-        kps = np.flatnonzero(rows >= 0)
-        T_cam_world, kp_inliers = optimise_with_odometry(frame, T_cam_world, kps, self.map.p_world[rows[kps]], odometry, self.pose_config)
-        inliers = np.zeros(len(rows), dtype=bool)
-        inliers[kps] = kp_inliers
-        self._timers["pose_optimization"] += (time.perf_counter() - start) * 1e3
-        return T_cam_world, inliers
 
     def _optimize(self, T_cam_world: np.ndarray, frame: Frame, rows: np.ndarray):
         """Pose optimisation of ``frame`` matched to map rows (N,) -1 none; returns (T, inlier mask (N,))."""
@@ -452,8 +440,13 @@ class Tracker:
 
     def _with_odometry(self, frame: Frame, T_cam_world: np.ndarray, rows: np.ndarray, odometry: OdometryPose):
         """The local-map pose optimised again with the odometry's VO matches: (T, rows, map inliers)."""
-        T_cam_world, inliers = self._optimize_with_odometry(T_cam_world, frame, rows, odometry)
-        return T_cam_world, np.where(inliers, rows, -1), int(np.count_nonzero(inliers))
+        start = time.perf_counter()
+        kps = np.flatnonzero(rows >= 0)
+        T_cam_world, inliers = optimise_with_odometry(frame, T_cam_world, kps, self.map.p_world[rows[kps]], odometry, self.pose_config)
+        self._timers["pose_optimization"] += (time.perf_counter() - start) * 1e3
+        rows = rows.copy()
+        rows[kps[~inliers]] = -1
+        return T_cam_world, rows, int(np.count_nonzero(inliers))
 
     def _tracked_by_odometry(self, frame: Frame, odometry: OdometryPose) -> TrackResult:
         """A frame placed by visual odometry: the motion model goes on, the map is not touched."""
@@ -554,7 +547,8 @@ class Tracker:
     def _track_motion_model(self, frame: Frame, T_predicted: np.ndarray) -> OdometryPose | None:
         """ORB-SLAM2's TrackWithMotionModel: the last frame's points (with its VO points for a
         stereo/RGB-D camera) matched by projection with the predicted pose, the pose optimised; None
-        with fewer than ``min_pose_inliers`` map inliers."""
+        with fewer than ``min_pose_inliers`` map inliers. The VO matches end here: local-map tracking
+        starts from the map inliers and this pose."""
         odometry = self._match_last_frame(frame, T_predicted, self.config.visual_odometry.in_slam_mode)
         if odometry is None or odometry.n_map < self.config.min_pose_inliers:
             return None
@@ -608,9 +602,8 @@ class Tracker:
         return OdometryPose(T_cam_world, np.where(inliers, rows, -1), n_inliers, n_inliers)
 
     # ---- stage 2: local map -------------------------------------------------------------------------
-    def _track_local_map(self, frame: Frame, T_cam_world: np.ndarray, rows: np.ndarray, odometry: OdometryPose | None = None):
-        """ORB-SLAM2's TrackLocalMap: match local points by projection, optimise (with the VO matches
-        of ``odometry`` on keypoints left free, when given); (T, rows, map inliers)."""
+    def _track_local_map(self, frame: Frame, T_cam_world: np.ndarray, rows: np.ndarray):
+        """ORB-SLAM2's TrackLocalMap: match local points by projection, optimise; (T, rows, inliers)."""
         window = self.map.local_window(rows)
         if window.reference_slot >= 0:
             self._reference_slot = window.reference_slot
@@ -619,10 +612,7 @@ class Tracker:
         self.map.increase_visible(rows[matched])
         candidates = local_rows[~np.isin(local_rows, rows[matched])]
         self._search_local_points(frame, T_cam_world, rows, candidates)
-        if odometry is not None and len(odometry.vo_keypoints):
-            T_cam_world, inliers = self._optimize_with_odometry(T_cam_world, frame, rows, odometry)
-        else:
-            T_cam_world, inliers = self._optimize(T_cam_world, frame, rows)
+        T_cam_world, inliers = self._optimize(T_cam_world, frame, rows)
         self.map.increase_found(rows[inliers])
         rows = np.where(inliers, rows, -1)
         return T_cam_world, rows, int(np.count_nonzero(inliers))

@@ -1,16 +1,17 @@
 """The motion-model match against the last frame: its map points and its temporary visual-odometry points (ORB-SLAM2).
 
 ORB-SLAM2's ``UpdateLastFrame`` adds temporary points to a stereo or RGB-D last frame: its
-keypoints with a depth but no map point, nearest first, all those closer than the close-depth
+keypoints with a depth but no map point (or one culled since), nearest first, all those closer than the close-depth
 threshold and at least ``max_points``, back-projected from the last frame's pose. Its
 ``TrackWithMotionModel`` matches the map points and these visual-odometry (VO) points by projection
 with the predicted pose (``track_last_frame``) and optimises the pose; the VO points are then
 dropped: they never become map points, and no keyframe observes them.
 
-They keep the pose where the map is thin or late. In SLAM mode (``TrackingConfig.temporary_points``)
-that is a map whose newest points have not come back from the backend, or have been culled there:
-the last frame's near depths then still tie the frame to the one before. The VO matches also join
-the local-map pose optimisation, as in ORB-SLAM2, where they are counted apart from the map inliers.
+They keep the motion-model match going where the map is thin or late. In SLAM mode
+(``VisualOdometryConfig.in_slam_mode``) that is a last frame whose map points the backend has since
+removed or fused into others, or a map that has had no new keyframe for a while because local
+mapping is behind: the last frame's near depths still tie the frame to the one before, and the
+pose they give starts local-map tracking, which places the frame on the map's points alone.
 In localisation mode no keyframe, hence no point, is made: a frame with fewer than
 ``min_map_matches`` map inliers is *VO* and skips local-map tracking until a relocalisation finds
 the map again. Not ORB-SLAM's: a localisation frame that does track the local map, but on few map
@@ -38,13 +39,11 @@ from zenslam.geometry import invert_T
 class VisualOdometryConfig:
     """The last frame's VO points, and localisation mode's visual odometry (ORB-SLAM2's values)."""
 
-    # Stereo/RGB-D SLAM mode matches the last frame's VO points too (ORB-SLAM2 makes them in
-    # localisation mode only); with ``in_local_map_optimisation`` their matches also join the
-    # local-map pose optimisation, as ORB-SLAM2's localisation mode does. Off by default: the last
-    # frame's raw depths then weigh on every pose as much as the map's refined points, and their
-    # stereo depth bias shows as scale drift (benchmarks/README.md).
+    # Stereo/RGB-D SLAM mode matches the last frame's VO points in the motion-model step too
+    # (ORB-SLAM2 makes them in localisation mode only). Unlike ORB-SLAM2's localisation mode, their
+    # matches do not join the local-map pose optimisation: the last frame's raw depths would weigh
+    # on every pose as much as the map's bundle-adjusted points, and bring their stereo bias with them.
     in_slam_mode: bool = True
-    in_local_map_optimisation: bool = False
     min_map_matches: int = 10  # fewer inlier matches to map points: the frame is on visual odometry
     min_matches: int = 20  # inlier matches (map and VO points) a pose needs, else the frame is lost
     max_points: int = 100  # VO points made beyond the close-depth threshold, nearest first
