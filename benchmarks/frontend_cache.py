@@ -76,14 +76,14 @@ def run_once(scene: str, sensor: str, evict: bool, max_frames: int | None, every
             poses.append(out.T_world_cam)
         if out.keyframe is not None:
             message = codec.decode_keyframe(codec.encode_keyframe(keyframe_message(out.keyframe, calibration, sensor)))
-            update = backend.step(message)
-            pipeline.apply_map_update(codec.decode_map_update(codec.encode_map_update(update)))
+            for update in backend.step(message).updates:  # the answer, then any loop correction
+                pipeline.apply_map_update(codec.decode_map_update(codec.encode_map_update(update)))
         if frame.index % every == 0 or frame.index == last_index:
             lm = pipeline.tracker.map
             samples.append({"frame": frame.index, "keyframes_made": lm.n_keyframes, "keyframes": lm.n_cached_keyframes,
                             "points": lm.n_points, "valid_points": lm.n_valid_points, "bytes": lm.nbytes()})  # fmt: skip
     ground_truth = source.ground_truth()
-    kfs = list(backend.mapper.map.keyframes.values())
+    kfs = list(backend.map.keyframes.values())
     return {
         "evict": evict,
         "frames": len(states),
