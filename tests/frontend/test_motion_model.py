@@ -63,3 +63,18 @@ def test_a_gap_of_one_is_the_plain_product() -> None:
     model.update(A, B)
     assert np.array_equal(model.velocity, B @ invert_T(A))
     assert np.array_equal(model.predict(B), (B @ invert_T(A)) @ B)
+
+
+def test_gaps_hidden_from_the_indices_are_read_from_the_stamps() -> None:
+    """A bus source numbers only the frames it passes on: the stamps tell how many frames a gap spans."""
+    model = ConstantVelocityModel()
+    assert model.frames_between(1, 300_000_000) == 1  # no interval known yet: the indices decide
+    rng = np.random.default_rng(5)
+    for _ in range(9):  # a 10 Hz camera with +-5 ms of stamp jitter
+        model.update(np.eye(4), np.eye(4), 1, int(100_000_000 + rng.integers(-5_000_000, 5_000_000)))
+    assert model.frames_between(1, 104_000_000) == 1
+    assert model.frames_between(1, 312_000_000) == 3  # two frames dropped before numbering
+    assert model.frames_between(4, 312_000_000) == 4  # the indices never count fewer frames than they show
+    assert model.frames_between(1, 0) == 1  # stamps that do not advance say nothing
+    model.update(np.eye(4), np.eye(4), 3, 300_000_000)  # a velocity across a gap measures the interval per frame
+    assert model.frames_between(1, 205_000_000) == 2

@@ -270,7 +270,7 @@ class Tracker:
         if relocalised:
             self.motion.reset()
         else:
-            self.motion.update(self._last.T_cam_world, T_cam_world, self._frame_gap(frame))
+            self.motion.update(self._last.T_cam_world, T_cam_world, self._frame_gap(frame), self._elapsed_ns(frame))
         self._last = _LastFrame(frame, rows, T_cam_world)
         self._lost_streak = 0
         self._on_vo = False
@@ -452,7 +452,7 @@ class Tracker:
         """A frame placed by visual odometry: the motion model goes on, the map is not touched."""
         self._on_vo = True
         self.n_vo_frames += 1
-        self.motion.update(self._last.T_cam_world, odometry.T_cam_world, self._frame_gap(frame))
+        self.motion.update(self._last.T_cam_world, odometry.T_cam_world, self._frame_gap(frame), self._elapsed_ns(frame))
         self._last = _LastFrame(frame, odometry.rows, odometry.T_cam_world)
         self._lost_streak = 0
         logger.debug("frame %d on visual odometry: %d map, %d total matches", frame.index, odometry.n_map, odometry.n_total)
@@ -541,8 +541,13 @@ class Tracker:
         return found
 
     def _frame_gap(self, frame: Frame) -> int:
-        """Frame indices from the last tracked frame to ``frame`` (1 unless live mode skipped frames)."""
-        return max(frame.index - self._last.frame.index, 1)
+        """Frames from the last tracked frame to ``frame`` (1 unless live mode skipped frames), by index
+        or, when a source numbers only the frames it passes on, by stamp."""
+        return self.motion.frames_between(frame.index - self._last.frame.index, self._elapsed_ns(frame))
+
+    def _elapsed_ns(self, frame: Frame) -> int:
+        """Time from the last tracked frame to ``frame``."""
+        return frame.stamp_ns - self._last.frame.stamp_ns
 
     def _track_motion_model(self, frame: Frame, T_predicted: np.ndarray) -> OdometryPose | None:
         """ORB-SLAM2's TrackWithMotionModel: the last frame's points (with its VO points for a

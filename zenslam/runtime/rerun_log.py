@@ -224,6 +224,10 @@ class SourceLog:
 
     def __init__(self, recording: StageRecording) -> None:
         self.recording = recording
+        if recording.config.jpeg:
+            # The first compression imports rerun's image encoder (~0.3 s): done here, at start-up, it
+            # does not hold up the first frame (a live source would drop the frames arriving meanwhile).
+            rr.Image(np.zeros((8, 8), np.uint8), color_model="L").compress(jpeg_quality=recording.config.jpeg_quality)
 
     def log_frame(self, frame: SensorFrame) -> None:
         config = self.recording.config
