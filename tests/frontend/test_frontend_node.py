@@ -229,3 +229,14 @@ def test_a_backend_that_ends_its_stream_ends_the_lockstep_frontends_without_erro
         assert last.state == "finished" and last.detail == "stopped"
         for inbox in (keyframes, states, statuses):
             inbox.close()
+
+
+def test_serve_refuses_frames_of_another_camera_or_not_after_the_last():
+    node = FrontendNode(StubPipeline)
+    frames = _frames(3)
+    node.handle(_message(frames[1]))
+    other = PinholeCalibration(fx=101.0, fy=100.0, cx=16.0, cy=12.0, width=32, height=24, baseline_m=0.1)
+    assert "another camera" in node.refusal(_message(frames[2], other))
+    assert "is not after frame 1" in node.refusal(_message(frames[0]))
+    assert "is not after frame 1" in node.refusal(_message(frames[1]))
+    assert node.refusal(_message(frames[2])) is None

@@ -169,7 +169,7 @@ def _keyframe(rng: np.random.Generator, n: int = 1000, m: int = 300) -> codec.Ke
     T = make_T(so3_exp(np.array([0.1, -0.4, 0.25])), np.array([1.0, -2.0, 0.5]))
     return codec.KeyframeMessage(
         id=4, stamp_ns=123_456_789_012, frame_index=40, T_world_cam=T, calibration=CAL, sensor="stereo",
-        keypoints_px=rng.uniform(0, 32, (n, 2)).astype(np.float32),
+        keypoints_px=(rng.uniform(0, 1, (n, 2)) * (CAL.width, CAL.height)).astype(np.float32),
         levels=rng.integers(0, 8, n).astype(np.int16),
         angles_deg=rng.uniform(0, 360, n).astype(np.float32),
         right_u=np.where(rng.random(n) < 0.5, -1.0, rng.uniform(0, 32, n)).astype(np.float32),
@@ -376,3 +376,21 @@ def test_keyframe_trajectory_round_trips_its_culled_keyframes():
     np.testing.assert_array_equal(got.culled_T_world_cam, T[1:])
     plain = codec.decode_keyframe_trajectory(codec.encode_keyframe_trajectory(codec.KeyframeTrajectoryMessage(sent.keyframe_ids, sent.stamps_ns, T[:1])))
     assert plain.culled_keyframe_ids.shape == (0,) and plain.culled_T_world_cam.shape == (0, 4, 4)
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "problem"),
+    [
+        ("levels", lambda kf: np.full_like(kf.levels, 9), "keypoint levels span"),
+        ("keypoints_px", lambda kf: kf.keypoints_px + np.float32(100.0), "outside the 32x24 image"),
+        ("new_points_world", lambda kf: np.full_like(kf.new_points_world, np.nan), "new_points_world holds non-finite"),
+        ("new_point_ids", lambda kf: np.zeros_like(kf.new_point_ids), "new_point_ids repeats an id"),
+        ("map_point_ids", lambda kf: np.full_like(kf.map_point_ids, -5), "ids are >= -1"),
+        ("scale_factors", lambda kf: kf.scale_factors[::-1].copy(), "scale_factors must start at 1 and increase"),
+    ],
+)
+def test_keyframe_values_that_no_frontend_sends_are_refused_on_decoding(field, value, problem):
+    kf = _keyframe(np.random.default_rng(7), n=50, m=10)
+    data = codec.encode_keyframe(codec.KeyframeMessage(**{**kf.__dict__, field: value(kf)}))
+    with pytest.raises(codec.MessageError, match=problem):
+        codec.decode_keyframe(data)

@@ -102,6 +102,8 @@ class BackendNode:
         self.processed = 0  # keyframes processed
         self.finished = False  # the input's end of stream has been processed
         self.loaded: MapHeader | None = None  # the header of the saved map the node started from, if any
+        self.refused = 0  # keyframes refused (see ``refusal``)
+        self._camera: tuple | None = None  # calibration, sensor and pyramid scales of the first keyframe
 
     @classmethod
     def from_config(cls, config: BackendConfig, global_ba_in_background: bool = False) -> BackendNode:
@@ -138,6 +140,8 @@ class BackendNode:
         The answer says how many corrections follow it, so a lockstep frontend applies them before
         its next frame.
         """
+        if self._camera is None:
+            self._camera = (keyframe.calibration, keyframe.sensor, keyframe.scale_factors.tobytes())
         if self.loaded is not None and self.processed == 0:
             from zenslam.backend.map_file import check_compatible
 
@@ -161,6 +165,28 @@ class BackendNode:
             self.rerun.log_keyframe(keyframe, self.mapper)
         answer = dataclasses.replace(update, corrections_following=len(corrections))
         return StepOutput([answer, *corrections], loops)
+
+    def refusal(self, keyframe: codec.KeyframeMessage) -> str | None:
+        """Why ``keyframe`` cannot be mapped, or None: what the decoder could not know (its values are
+        checked there). A refused keyframe changes nothing; ``refuse`` counts and answers it."""
+        kf_id = int(keyframe.id)
+        if kf_id <= self._newest[0] or kf_id in self.map.keyframes:
+            return f"keyframe {kf_id} is not newer than keyframe {self._newest[0]}, the newest mapped; keyframe ids increase"
+        if self._camera is not None and self._camera != (keyframe.calibration, keyframe.sensor, keyframe.scale_factors.tobytes()):
+            return f"keyframe {kf_id} has another camera or pyramid than the run's first keyframe"
+        known = np.fromiter(self.map.points.keys(), dtype=np.int64, count=len(self.map.points))
+        if np.isin(keyframe.new_point_ids, known).any():
+            return f"keyframe {kf_id} brings new points whose ids are already in the map"
+        return None
+
+    def refuse(self, keyframe: codec.KeyframeMessage) -> StepOutput:
+        """Count a refused keyframe. A keyframe with a new id is answered with no change, so that a
+        lockstep frontend waiting for that answer goes on; a repeated id gets no second answer."""
+        self.refused += 1
+        kf_id = int(keyframe.id)
+        if kf_id <= self._newest[0] or kf_id in self.map.keyframes:
+            return StepOutput([])
+        return StepOutput([MapUpdate(keyframe_id=kf_id, stamp_ns=int(keyframe.stamp_ns))])
 
     def _close_loops(self, kf_id: int, update: MapUpdate) -> tuple[list[MapUpdate], list[codec.LoopMessage]]:
         T_before = self.map.keyframe(kf_id).T_world_cam.copy()
@@ -362,11 +388,17 @@ def _process(outputs: _Outputs, inbox: bus.Inbox, queryables: _Queryables, node:
             if message.count != node.processed:
                 logger.warning("the frontend sent %d keyframes but %d were processed", message.count, node.processed)
             logger.info("end of stream: %d keyframes processed", node.processed)
+            if inbox.rejected or node.refused:
+                logger.warning("dropped %d keyframe message(s) that did not decode and refused %d", inbox.rejected, node.refused)
             return True
         if node.processed == 0:
             log_cpu_times("at stream start")
         started = time.perf_counter()
         queued = inbox.count_waiting(_is_keyframe)  # the end of stream is no keyframe to wait for
+        if (problem := node.refusal(message)) is not None:
+            outputs.send_step(node.refuse(message))
+            logger.warning("refused a keyframe (%d so far): %s", node.refused, problem)
+            continue
         try:
             output = node.step(message, queued)
         except Exception as exc:

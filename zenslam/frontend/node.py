@@ -129,7 +129,9 @@ class FrontendNode:
         self.updates_applied = 0  # backend map updates applied to the pipeline's map
         self.tracks_backend = False  # set by ``serve`` when the backend's map updates are applied
         self.candidates: CandidateSource | None = None  # set by ``serve``: asks the backend where a lost frame is
+        self.refused = 0  # frames refused by ``refusal`` (never tracked)
         self._last_index: int | None = None
+        self._last_stamp_ns: int | None = None
         self._ahead: tuple[int, Future] | None = None  # (frame index, its frame being prepared)
         self._ahead_worker: ThreadPoolExecutor | None = None
 
@@ -161,6 +163,17 @@ class FrontendNode:
         self.built_ahead += 1
         return prepared
 
+    def refusal(self, message: codec.FrameMessage) -> str | None:
+        """Why the frame cannot be tracked in this run, or None: another camera than the run's, or an
+        index or stamp not after the last frame's (a repeated or stale message). ``serve`` drops such
+        frames, counted in ``refused``; ``handle`` raises for another camera."""
+        frame = message.frame
+        if self._camera is not None and (message.calibration, message.sensor) != self._camera:
+            return f"frame {frame.index} has another camera than the run's first frame; one run tracks one camera"
+        if self._last_index is not None and (frame.index <= self._last_index or frame.stamp_ns <= self._last_stamp_ns):
+            return f"frame {frame.index} (stamp {frame.stamp_ns} ns) is not after frame {self._last_index} (stamp {self._last_stamp_ns} ns)"
+        return None
+
     def handle(self, message: codec.FrameMessage) -> FrontendMessages:
         """Track one frame; the pipeline is built on the first one, from its calibration and sensor."""
         camera = (message.calibration, message.sensor)
@@ -176,7 +189,7 @@ class FrontendNode:
         frame = message.frame
         if self._last_index is not None and frame.index > self._last_index + 1:
             self.skipped += frame.index - self._last_index - 1
-        self._last_index = frame.index
+        self._last_index, self._last_stamp_ns = frame.index, frame.stamp_ns
         started = time.perf_counter()
         out = self._pipeline.step(
             frame.index, frame.stamp_ns, frame.left, right=frame.right, depth_m=frame.depth_m,
@@ -379,10 +392,16 @@ def serve(
                     continue
                 if isinstance(message, codec.EndOfStream):
                     logger.info("end of stream after %d frames from the source (%d tracked)", message.count, node.frames)
+                    if frames.rejected or node.refused:
+                        logger.warning("dropped %d frame message(s) that did not decode and refused %d", frames.rejected, node.refused)
                     if wait_for_updates:
                         logger.info("%d of %d frames built while waiting for the backend's map update", node.built_ahead, node.frames)
                     ended = True
                     break
+                if (problem := node.refusal(message)) is not None:
+                    node.refused += 1
+                    logger.warning("refused a frame (%d so far): %s", node.refused, problem)
+                    continue
                 try:
                     sent = node.handle(message)
                 except Exception as exc:

@@ -30,6 +30,8 @@ from zenslam.errors import BusError, ConfigError
 from zenslam.schemas import keys
 
 logger = logging.getLogger(__name__)
+# Undecodable messages: the first few are logged each, then one line per hundred.
+_REJECTIONS_LOGGED = 3
 
 T = TypeVar("T")
 Delivery = Literal["lossless", "live"]
@@ -129,15 +131,21 @@ class Inbox(Generic[T]):
     """Decoded messages of one subscription, taken by the stage's worker thread.
 
     zenoh's channel does the enqueueing on its own thread; the worker decodes as it takes
-    messages, so no stage work ever runs on zenoh's threads.
+    messages, so no stage work ever runs on zenoh's threads. A message that does not decode
+    (damaged bytes, a faulty sender: the decoder raises) is dropped with a warning and counted in
+    ``rejected``; the stage goes on with the next one.
     """
 
-    def __init__(self, subscriber: zenoh.Subscriber, decode: Callable[[bytes], T], capacity: int, drop_oldest: bool):
+    def __init__(
+        self, subscriber: zenoh.Subscriber, decode: Callable[[bytes], T], capacity: int, drop_oldest: bool, key: str = ""
+    ):
         self._subscriber = subscriber
         self._decode = decode
         self._capacity = capacity
         self._drop_oldest = drop_oldest
+        self._key = key
         self._pending: deque[zenoh.Sample] = deque()
+        self.rejected = 0  # messages dropped because they did not decode
 
     def _pull(self) -> None:
         while self._drop_oldest or len(self._pending) < self._capacity:
@@ -158,7 +166,22 @@ class Inbox(Generic[T]):
         """Waiting messages for which ``matches(decoded message)`` holds (a lower bound like ``depth``;
         each is decoded to check, and decoded again when taken)."""
         self._pull()
-        return sum(1 for sample in self._pending if matches(self._decode(sample.payload.to_bytes())))
+        return sum(1 for sample in self._pending if (message := self._try_decode(sample, False)) is not None and matches(message))
+
+    def _try_decode(self, sample: zenoh.Sample, count: bool) -> T | None:
+        """The sample decoded, or None when it does not decode (counted and logged when ``count``)."""
+        data = sample.payload.to_bytes()
+        try:
+            return self._decode(data)
+        except Exception as exc:  # any decoder failure on foreign bytes: the message is unusable, not the stage
+            if count:
+                self.rejected += 1
+                if self.rejected <= _REJECTIONS_LOGGED or self.rejected % 100 == 0:
+                    logger.warning(
+                        "dropped a message of %d bytes on %s that does not decode (%d so far): %s: %s",
+                        len(data), self._key or "the bus", self.rejected, type(exc).__name__, exc,
+                    )  # fmt: skip
+            return None
 
     def get(self, timeout_s: float | None = None) -> T | None:
         """The next decoded message, or None if none arrives within ``timeout_s`` seconds (None: wait forever)."""
@@ -166,8 +189,10 @@ class Inbox(Generic[T]):
         pause = 0.0002
         while True:
             self._pull()
-            if self._pending:
-                return self._decode(self._pending.popleft().payload.to_bytes())
+            while self._pending:
+                message = self._try_decode(self._pending.popleft(), True)
+                if message is not None:
+                    return message
             if deadline is not None and time.monotonic() >= deadline:
                 return None
             # zenoh's blocking recv cannot be interrupted by SIGINT; poll with a short, growing pause.
@@ -193,9 +218,9 @@ def subscribe(session: zenoh.Session, key: str, decode: Callable[[bytes], T], de
         raise ConfigError(f"an inbox capacity must be at least 1 message, got {capacity}")
     if delivery == "lossless":
         subscriber = session.declare_subscriber(key, zenoh.handlers.FifoChannel(capacity))
-        return Inbox(subscriber, decode, capacity, drop_oldest=False)
+        return Inbox(subscriber, decode, capacity, drop_oldest=False, key=key)
     subscriber = session.declare_subscriber(key, zenoh.handlers.RingChannel(capacity))
-    return Inbox(subscriber, decode, capacity, drop_oldest=True)
+    return Inbox(subscriber, decode, capacity, drop_oldest=True, key=key)
 
 
 def declare_alive(session: zenoh.Session, session_name: str, process: str) -> zenoh.LivelinessToken:

@@ -21,6 +21,7 @@ from zenslam.errors import CalibrationError, MessageError, ZenslamError
 from zenslam.geometry import R_to_quat_wxyz, quat_wxyz_to_R
 from zenslam.schemas import zenslam_pb2 as pb
 from zenslam.schemas.map_update import KeyframeCorrection, MapUpdate
+from zenslam.schemas.message_checks import check_frame_values, check_keyframe_values, check_map_update_values
 from zenslam.schemas.relocalisation import (
     MapKeyframe,
     MapPoints,
@@ -277,9 +278,12 @@ def _calibration_to_pb(calibration: PinholeCalibration, out: pb.Calibration) -> 
         out.baseline_m = calibration.baseline_m
 
 
-def _calibration_from_pb(msg: pb.Calibration) -> PinholeCalibration:
+def _calibration_from_pb(msg: pb.Calibration, where: str = "message") -> PinholeCalibration:
     baseline = msg.baseline_m if msg.HasField("baseline_m") else None
-    return PinholeCalibration(msg.fx, msg.fy, msg.cx, msg.cy, msg.width, msg.height, baseline)
+    try:
+        return PinholeCalibration(msg.fx, msg.fy, msg.cx, msg.cy, msg.width, msg.height, baseline)
+    except CalibrationError as exc:
+        raise MessageError(f"{where}: {exc}") from exc
 
 
 def _sensor_from_pb(value: int, where: str) -> SensorKind:
@@ -454,8 +458,9 @@ def decode_sensor_frame(data: bytes) -> FrameMessage | EndOfStream:
     elif msg.depth_encoding == pb.DEPTH_ENCODING_UINT16_MM:
         depth = _unpack(msg.depth, "<u2", shape, f"{where} depth").astype(np.float32) / np.float32(1000.0)
     frame = SensorFrame(index=msg.index, stamp_ns=msg.stamp_ns, left=left, right=right, depth_m=depth)
-    calibration = _calibration_from_pb(msg.calibration)
-    return FrameMessage(frame, calibration, _sensor_from_pb(msg.sensor, where), msg.source_name)
+    calibration, sensor = _calibration_from_pb(msg.calibration, where), _sensor_from_pb(msg.sensor, where)
+    check_frame_values(msg.index, msg.stamp_ns, shape, calibration.width, calibration.height, sensor, right is not None, depth is not None)
+    return FrameMessage(frame, calibration, sensor, msg.source_name)
 
 
 _STREAMS = (SENSOR_FRAME, TRACKING_STATE, KEYFRAME, MAP_UPDATE)
@@ -548,12 +553,12 @@ def decode_keyframe(data: bytes) -> KeyframeMessage | EndOfStream:
     if msg.end_of_stream:
         return EndOfStream(msg.count)
     n, m, where = msg.num_keypoints, msg.num_new_points, f"keyframe {msg.id}"
-    return KeyframeMessage(
+    keyframe = KeyframeMessage(
         id=msg.id,
         stamp_ns=msg.stamp_ns,
         frame_index=msg.frame_index,
         T_world_cam=_transform_from_pb(msg.T_world_cam),
-        calibration=_calibration_from_pb(msg.calibration),
+        calibration=_calibration_from_pb(msg.calibration, where),
         sensor=_sensor_from_pb(msg.sensor, where),
         keypoints_px=_unpack(msg.keypoints_px, "<f4", (n, 2), f"{where} keypoints_px"),
         levels=_unpack(msg.levels, "<i2", (n,), f"{where} levels"),
@@ -566,6 +571,12 @@ def decode_keyframe(data: bytes) -> KeyframeMessage | EndOfStream:
         new_point_ids=_unpack(msg.new_point_ids, "<i8", (m,), f"{where} new_point_ids"),
         new_points_world=_unpack(msg.new_points_world, "<f8", (m, 3), f"{where} new_points_world"),
     )
+    k = keyframe
+    check_keyframe_values(
+        k.id, k.T_world_cam, k.calibration.width, k.calibration.height, k.keypoints_px, k.levels, k.angles_deg,
+        k.right_u, k.depth_m, k.map_point_ids, k.scale_factors, k.new_point_ids, k.new_points_world,
+    )
+    return keyframe
 
 
 _MAP_UPDATE_KIND_TO_PB = {"keyframe": pb.MAP_UPDATE_KIND_KEYFRAME, "correction": pb.MAP_UPDATE_KIND_CORRECTION}
@@ -609,7 +620,9 @@ def decode_map_update(data: bytes) -> MapUpdate | EndOfStream:
         )
         for kf in msg.keyframes
     )
-    return MapUpdate(
+    if msg.kind not in _MAP_UPDATE_KIND_FROM_PB:
+        raise MessageError(f"{where}: update kind {msg.kind} is unknown; the sender's zenslam is newer than this one")
+    update = MapUpdate(
         kind=_MAP_UPDATE_KIND_FROM_PB[msg.kind],
         corrections_following=msg.corrections_following,
         keyframe_id=msg.keyframe_id,
@@ -626,6 +639,12 @@ def decode_map_update(data: bytes) -> MapUpdate | EndOfStream:
             msg.removed_keyframe_ids, "<i8", (len(msg.removed_keyframe_ids) // 8,), f"{where} removed_keyframe_ids"
         ),
     )
+    u = update
+    check_map_update_values(
+        u.keyframe_id, [(kf.id, kf.T_world_cam, kf.map_point_ids) for kf in u.keyframes], u.point_ids, u.p_world,
+        u.normals, u.min_distance_m, u.max_distance_m, u.removed_point_ids, u.removed_keyframe_ids,
+    )
+    return update
 
 
 def _unpack_float(msg: pb.MapUpdate, name: str, shape: tuple[int, ...], where: str) -> np.ndarray:
