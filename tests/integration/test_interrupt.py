@@ -219,3 +219,37 @@ def test_ctrl_c_on_the_kitti_clip(tmp_path, kitti_root, moment):
     _interrupt(run, "group")
     metrics = _check_what_was_left(run, run.finish())
     assert metrics["frames"] < 51
+
+
+def _stage_pid(run: _Run, module: str) -> int:
+    """The pid of the run's stage process started as ``python -m module``."""
+    for pid in run.children():
+        try:
+            if module in Path(f"/proc/{pid}/cmdline").read_bytes().decode(errors="replace"):
+                return pid
+        except OSError:
+            continue
+    raise AssertionError(f"no stage process runs {module}")
+
+
+@pytest.mark.parametrize(("stage", "module"), [("backend", "zenslam.backend.node"), ("frontend", "zenslam.frontend.node")])
+def test_a_stage_killed_mid_stream_fails_the_run_and_its_outputs_are_written(tmp_path, stage, module):
+    """SIGKILL of a stage (an out-of-memory kill, a segfault): exit 2, one line naming the stage and the
+    signal, and the run folder holds what reached the hub, as after an interrupt."""
+    run = _Run(tmp_path, "synthetic", "--max-frames", "200")
+    run.wait_for("5 frames tracked", lambda: run.frames_tracked() >= 5)
+    os.kill(_stage_pid(run, module), signal.SIGKILL)
+    code = run.finish()
+    stdout, stderr = run.stdout, run.stderr
+    context = f"stdout:\n{stdout[-2000:]}\nstderr:\n{stderr[-4000:]}"
+    assert code == 2, context
+    assert "Traceback" not in stdout + stderr, context
+    assert sum("the run failed at frame" in line and f"the {stage}: signal SIGKILL" in line for line in stderr.splitlines()) == 1, context
+    metrics = json.loads((run.run_dir / "metrics.json").read_text())
+    assert metrics["run"]["completed"] is False
+    failures = metrics["run"]["failures"]
+    assert [(f["stage"], f["signal"]) for f in failures] == [(stage, "SIGKILL")], failures
+    assert failures[0]["frame"] >= 5
+    assert mcap_io.has_summary(run.run_dir / "run.mcap"), "run.mcap was not finished (no summary)"
+    assert _pose_lines(run.run_dir / "trajectory.tum") == metrics["tracked_ok"] >= 5
+    assert (run.run_dir / "keyframes.tum").is_file()

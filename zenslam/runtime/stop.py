@@ -22,6 +22,8 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 # The exit status of a process stopped by Ctrl-C (128 + SIGINT, as shells report it).
 EXIT_INTERRUPTED = 130
+# The exit status of a run that failed (a bad input, a stage that died); its outputs are still written.
+EXIT_FAILED = 2
 
 # The detail of a stage's last "finished" status when it ended before its input's end of stream
 # (stopped by a signal, by losing its parent, or by the stage it depends on ending first).

@@ -157,6 +157,23 @@ class Supervisor:
                     f"process {name} exited with status {code}; the end of {child.log_path}:\n{self.log_tail(name)}"
                 )
 
+    def failures(self) -> list[dict[str, object]]:
+        """Each child that exited with a failure: its stage, and its exit code or the signal that ended it."""
+        failed = []
+        for name, child in self._children.items():
+            code = child.popen.poll()
+            if code is None or code == 0:
+                continue
+            if code < 0:
+                try:
+                    how: dict[str, object] = {"signal": signal.Signals(-code).name}
+                except ValueError:
+                    how = {"signal": str(-code)}
+            else:
+                how = {"exit_code": code}
+            failed.append({"stage": name, **how})
+        return failed
+
     def all_running(self) -> bool:
         return all(child.popen.poll() is None for child in self._children.values())
 

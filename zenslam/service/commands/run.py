@@ -15,7 +15,8 @@ Interrupted (Ctrl-C reaches only this process: the stages run in process groups 
 stops the stages in the order the data flows, so nothing already sent is lost: the source first
 (it ends its stream), the frontend tracks the frames in flight and ends its own, then the backend
 ends its stream after the keyframe in hand; the recorder ends once they are gone. The outputs are
-written as for a finished run, with ``run.completed: false``.
+written as for a finished run, with ``run.completed: false``. A stage that dies or fails ends the run
+the same way, with exit status 2 and the failed stages in ``run.failures``.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ from zenslam.errors import ConfigError, ProcessError
 from zenslam.runtime import bus
 from zenslam.runtime.session_file import SessionInfo, write_session_file
 from zenslam.runtime.stage import log_cpu_times
-from zenslam.runtime.stop import EXIT_INTERRUPTED, StopFlag
+from zenslam.runtime.stop import EXIT_FAILED, EXIT_INTERRUPTED, StopFlag
 from zenslam.runtime.supervisor import ProcessSpec, Supervisor
 from zenslam.schemas import codec, keys
 from zenslam.service import mcap_io
@@ -414,8 +415,10 @@ def track(
     config: RunConfig, run_id: str, run_dir: Path, config_path: Path, source: Source | None, progress: bool,
     stop: StopFlag | None = None, ground_truth: Trajectory | None = None, ros2: Ros2RunBridge | None = None,
     listen: str | None = None, wait_for: tuple[str, ...] = (),
-) -> tuple[RunLog, bool]:
-    """Start the stages, follow them to the end of stream, and see them exit; returns (log, completed).
+) -> tuple[RunLog, bool, RunFailure | None]:
+    """Start the stages, follow them to the end of stream, and see them exit; returns (log, completed,
+    failure): the failure (a stage that died or failed) when the run could not go on, with the log of
+    what reached the hub up to then.
 
     The hub listens on ``listen`` (a zenoh endpoint; default a free loopback port) and writes it with
     the session to ``run_dir/session.json``; the stages wait for the processes named in ``wait_for``
@@ -436,6 +439,8 @@ def track(
         total = config.source.max_frames if total is None else min(total, config.source.max_frames)
     owned = stop is None
     stop = StopFlag(quiet=True).install() if stop is None else stop
+    failure: RunFailure | None = None
+    completed = False
     try:
         with bus.open_session(hub_bus) as session:
             write_session_file(run_dir, SessionInfo(run_id, () if hub is None else (hub,)))
@@ -444,24 +449,52 @@ def track(
             try:
                 supervisor = Supervisor(run_dir, run_id, config_path, hub, env=_child_env(config))
                 with supervisor, bus.declare_alive(session, run_id, "run"):
-                    started = _start_stages(supervisor, session, config, run_dir, stop, ground_truth, wait_for)
-                    if started:
-                        log_cpu_times("at stream start")
-                        _follow(follower, supervisor, stop)
-                        _follow_backend(follower, supervisor, stop)
-                        _stop_backend(follower, supervisor, session, run_id)
-                        log_cpu_times("at stream end")
-                    statuses = supervisor.wait_exit(_EXIT_WAIT_S)
-                    follower.poll_backend()  # the stages' last statuses: the source's final skipped-frame counts
-                    _report_exits(supervisor, stop, statuses)
-                    log = follower.log
-                    completed = started and log.ended and log.backend_ended and not log.stopped_stages and not stop()
+                    try:
+                        started = _start_stages(supervisor, session, config, run_dir, stop, ground_truth, wait_for)
+                        if started:
+                            log_cpu_times("at stream start")
+                            _follow(follower, supervisor, stop)
+                            _follow_backend(follower, supervisor, stop)
+                            _stop_backend(follower, supervisor, session, run_id)
+                            log_cpu_times("at stream end")
+                        statuses = supervisor.wait_exit(_EXIT_WAIT_S)
+                        follower.poll_backend()  # the stages' last statuses: the source's final skipped-frame counts
+                        _report_exits(supervisor, stop, statuses)
+                        log = follower.log
+                        completed = started and log.ended and log.backend_ended and not log.stopped_stages and not stop()
+                    except ProcessError as exc:
+                        # A stage died or failed: what reached the hub is kept. Leaving this block stops
+                        # the other stages (the recorder finishes run.mcap); the caller writes the outputs.
+                        frame = follower.log.frame_counts()["frames"]
+                        follower.drain(time.monotonic() + _POSE_GRACE_S)
+                        failure = RunFailure(str(exc), frame, [{**f, "frame": frame} for f in supervisor.failures()])
             finally:
                 follower.close()
     finally:
         if owned:
             stop.uninstall()
-    return follower.log, completed
+    return follower.log, completed, failure
+
+
+@dataclasses.dataclass(frozen=True)
+class RunFailure:
+    """Why a run stopped before its end: the error, the frames the hub had by then, and each failed stage."""
+
+    error: str
+    frame: int
+    stages: list[dict[str, object]]  # {stage, exit_code or signal, frame}: metrics.json run.failures
+
+    def line(self, run_dir: Path) -> str:
+        """The one line a failed run ends with (the error itself is logged before it)."""
+        stages = ", ".join(f"the {f['stage']}: {_how_it_ended(f)}" for f in self.stages)
+        return (
+            f"the run failed at frame {self.frame}{f' ({stages})' if stages else ''}: wrote what it had to {run_dir} "
+            "(metrics.json run.completed: false)"
+        )
+
+
+def _how_it_ended(failure: dict[str, object]) -> str:
+    return f"signal {failure['signal']}" if "signal" in failure else f"exit status {failure.get('exit_code')}"
 
 
 def _summary(result: RunResult, log: RunLog) -> list[str]:
@@ -540,7 +573,7 @@ def _run(args: argparse.Namespace, stop: StopFlag) -> int:
     logger.info("run %s: %s (%s, %s) -> %s", run_id, given.name, given.sensor or "sensor of the input", count, run_dir)
     total, ground_truth = given.total, given.ground_truth
     with open_run_bridge(ros2_publish_config(args)) as ros2:
-        log, completed = track(
+        log, completed, failure = track(
             config, run_id, run_dir, config_path, given.source, not args.no_progress, stop, ground_truth, ros2,
             listen=getattr(args, "listen", None), wait_for=tuple(getattr(args, "wait_for", ())),
         )
@@ -551,12 +584,17 @@ def _run(args: argparse.Namespace, stop: StopFlag) -> int:
         mcap_io.RecordingWriter(recording).finish()  # stopped before the recorder started: nothing crossed the bus
     extra = {"run": {
         "run_id": run_id, "source": config.source.spec, "mode": config.mode, "completed": completed, **log.stream_timing(),
+        "failures": [] if failure is None else failure.stages,
     }}
     sensor = given.sensor or recorded_sensor(recording) or "stereo"  # a bus source's sensor: what was recorded
     evaluation_config = evaluation_config_for(config.evaluation, sensor)
     result = write_outputs(run_dir, log, ground_truth, evaluation_config, extra, plane=args.plane)
     for line in _summary(result, log):
         print(line)
+    if failure is not None:
+        logger.error("%s", failure.error)
+        logger.error("%s", failure.line(run_dir))
+        return EXIT_FAILED
     if completed:
         return 0
     logger.warning("%s", _interrupted_line(log, total, run_dir, here=stop()))
