@@ -50,8 +50,8 @@ def tracked_run(tmp_path_factory) -> TrackedRun:
     run_dir = prepare_run_dir(output, "it-tracked")
     config_path = write_config(run_dir, config)
     source = open_source(config.source.spec)
-    log, completed = track(config, "it-tracked", run_dir, config_path, source, progress=False)
-    assert completed
+    log, completed, failure = track(config, "it-tracked", run_dir, config_path, source, progress=False)
+    assert completed and failure is None
     result = write_outputs(run_dir, log, source.ground_truth(), config.evaluation)
     return TrackedRun(SYNTHETIC_FRAMES, run_dir, log, result)
 

@@ -40,6 +40,7 @@ frontend:
   keyframe:
     max_frames: 1
     ref_ratio_stereo: 1.0
+    max_queued_keyframes: 3
 backend:
   local_mapping:
     defer_when_queued: false

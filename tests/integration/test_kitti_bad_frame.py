@@ -81,4 +81,7 @@ def test_strict_fails_at_the_truncated_frame_naming_it(bad_clip: Path, tmp_path:
     result = _run(bad_clip, tmp_path, "strict", "--strict")
     assert result.returncode == 2
     assert f"frame {BAD_FRAME}: image {bad_clip / 'image_0' / '000010.png'} could not be decoded" in result.stderr
-    assert not (tmp_path / "strict" / "metrics.json").exists()
+    metrics = json.loads((tmp_path / "strict" / "metrics.json").read_text())  # what was tracked is still written
+    assert metrics["run"]["completed"] is False
+    assert [(f["stage"], f.get("exit_code")) for f in metrics["run"]["failures"]] == [("source", 2)]
+    assert metrics["tracked_ok"] == BAD_FRAME

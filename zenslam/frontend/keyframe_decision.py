@@ -24,8 +24,10 @@ class KeyframeDecisionConfig:
     untracked_close_min: int = 70  # ... and more untracked close points than this -> insert
     min_inliers: int = 15  # never make a keyframe from fewer inlier matches than this (exclusive)
     # keyframes; while local mapping is busy, stereo/RGB-D still insert a due keyframe only while
-    # fewer than this many wait in its queue (ORB-SLAM's KeyframesInQueue() < 3); mono never does
-    max_queued_keyframes: int = 3
+    # fewer than this many wait in its queue; mono never does. ORB-SLAM allows 3; this backend maps
+    # a keyframe slower, so with 3 queued it defers nearly every local BA, which is what removes the
+    # stereo depths' bias; 1 measured better live on KITTI (benchmarks/README, frames from the bus).
+    max_queued_keyframes: int = 1
 
 
 @dataclass(frozen=True)

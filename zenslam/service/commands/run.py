@@ -466,7 +466,7 @@ def track(
                         # A stage died or failed: what reached the hub is kept. Leaving this block stops
                         # the other stages (the recorder finishes run.mcap); the caller writes the outputs.
                         frame = follower.log.frame_counts()["frames"]
-                        follower.drain(time.monotonic() + _POSE_GRACE_S)
+                        follower.drain(time.monotonic() + _POSE_GRACE_S)  # also lets a stage that reported its failure exit
                         failure = RunFailure(str(exc), frame, [{**f, "frame": frame} for f in supervisor.failures()])
             finally:
                 follower.close()
