@@ -254,3 +254,32 @@ def test_a_stage_killed_mid_stream_fails_the_run_and_its_outputs_are_written(tmp
     assert mcap_io.has_summary(run.run_dir / "run.mcap"), "run.mcap was not finished (no summary)"
     assert _pose_lines(run.run_dir / "trajectory.tum") == metrics["tracked_ok"] >= 5
     assert (run.run_dir / "keyframes.tum").is_file()
+
+
+@pytest.mark.parametrize(("stage", "module"), [("backend", "zenslam.backend.node"), ("frontend", "zenslam.frontend.node")])
+def test_a_stopped_stage_is_caught_as_hung_and_fails_the_run_with_its_outputs(tmp_path, stage, module):
+    """SIGSTOP (a stage that hangs): after supervision.hang_timeout_s without a word from it while its
+    input waits, the run kills it and fails as for a crash, naming the stage as hung."""
+    config = tmp_path / "hang.yaml"
+    config.write_text("supervision:\n  hang_timeout_s: 4\n")
+    run = _Run(tmp_path, "synthetic", "--max-frames", "200", "--config", str(config))
+    run.wait_for("5 frames tracked", lambda: run.frames_tracked() >= 5)
+    pid = _stage_pid(run, module)
+    os.kill(pid, signal.SIGSTOP)
+    try:
+        code = run.finish()
+    finally:
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+    context = f"stdout:\n{run.stdout[-2000:]}\nstderr:\n{run.stderr[-4000:]}"
+    assert code == 2, context
+    assert "Traceback" not in run.stdout + run.stderr, context
+    assert any(f"the {stage}: no progress for" in line for line in run.stderr.splitlines()), context
+    metrics = json.loads((run.run_dir / "metrics.json").read_text())
+    assert metrics["run"]["completed"] is False
+    [failure] = metrics["run"]["failures"]
+    assert failure["stage"] == stage and failure["signal"] == "SIGKILL" and failure["hung_s"] >= 4, failure
+    assert mcap_io.has_summary(run.run_dir / "run.mcap")
+    assert _pose_lines(run.run_dir / "trajectory.tum") == metrics["tracked_ok"] >= 5

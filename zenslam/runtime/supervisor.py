@@ -25,11 +25,25 @@ from pathlib import Path
 
 import zenoh
 
-from zenslam.errors import ProcessError
+from zenslam.errors import ConfigError, ProcessError
 from zenslam.runtime import bus, cpu_kernels
 from zenslam.runtime.stop import STOP_SIGNALS
 
 logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class SupervisionConfig:
+    """How a run watches its stages (the ``supervision`` section)."""
+
+    # Seconds without any message from the stages, while one has input waiting, before that stage
+    # counts as hung (stopped, deadlocked) and is killed, which fails the run with its outputs
+    # written; 0 never. A global BA sends nothing while it runs: keep this above the longest one.
+    hang_timeout_s: float = 600.0
+
+    def __post_init__(self) -> None:
+        if not (self.hang_timeout_s >= 0 and self.hang_timeout_s != float("inf")):
+            raise ConfigError(f"supervision.hang_timeout_s={self.hang_timeout_s} must be >= 0 seconds (0: never)")
 
 
 @dataclass(frozen=True)
@@ -99,6 +113,7 @@ class Supervisor:
         self.hub_endpoint = hub_endpoint
         self.env = stage_environment(os.environ if env is None else env)
         self._children: dict[str, _Child] = {}
+        self._hung: dict[str, float] = {}  # stages killed as hung: seconds they made no progress
 
     def __enter__(self) -> Supervisor:
         return self
@@ -171,8 +186,23 @@ class Supervisor:
                     how = {"signal": str(-code)}
             else:
                 how = {"exit_code": code}
+            if name in self._hung:
+                how["hung_s"] = round(self._hung[name], 1)
             failed.append({"stage": name, **how})
         return failed
+
+    def kill_hung(self, name: str, silent_s: float) -> None:
+        """Kill a stage that made no progress for ``silent_s`` seconds (``failures`` says it hung)."""
+        child = self._children[name]
+        if child.popen.poll() is not None:
+            return
+        self._hung[name] = silent_s
+        logger.error("%s made no progress for %.0f s with input waiting: killing it; see %s", name, silent_s, child.log_path)
+        try:
+            os.killpg(child.popen.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        child.popen.wait()
 
     def all_running(self) -> bool:
         return all(child.popen.poll() is None for child in self._children.values())

@@ -29,6 +29,7 @@ from zenslam.frontend.config import FrontendConfig
 from zenslam.runtime.bus import BusConfig
 from zenslam.runtime.rerun_config import RerunConfig
 from zenslam.runtime.stage import RunMode
+from zenslam.runtime.supervisor import SupervisionConfig
 from zenslam.service.evaluation.metrics import EvaluationConfig
 from zenslam.service.recorder_config import RecorderConfig
 from zenslam.service.sources.config import SourceConfig
@@ -49,6 +50,7 @@ class RunConfig:
     # Monocular runs are compared after a Sim(3) alignment whatever ``alignment`` says (no metric scale).
     evaluation: EvaluationConfig = field(default_factory=EvaluationConfig)
     recorder: RecorderConfig = field(default_factory=RecorderConfig)
+    supervision: SupervisionConfig = field(default_factory=SupervisionConfig)
 
 
 def load_run_config(path: str | Path | None) -> RunConfig:

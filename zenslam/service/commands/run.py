@@ -243,6 +243,8 @@ class _Follower:
         self.loops = bus.subscribe(session, keys.backend_loop(run_id), codec.decode_loop, "lossless", capacity)
         self.log = RunLog(live=config.mode == "live")
         self.bar = tqdm(total=total, unit="frame", desc="tracking", disable=not progress)
+        self.heard: dict[str, float] = {}  # stage -> when a message from it last arrived
+        self.source_sent = 0  # frames the source says it sent
 
     def poll(self, timeout_s: float) -> None:
         """Take what has arrived (waiting up to ``timeout_s`` seconds for a state)."""
@@ -252,6 +254,8 @@ class _Follower:
                 self.ros2.publish_pose(pose)
         self.poll_backend()
         state = self.states.get(timeout_s)
+        if state is not None:
+            self.heard["frontend"] = time.monotonic()
         if isinstance(state, codec.EndOfStream):
             self.log.ended = True
         elif state is not None:
@@ -268,12 +272,21 @@ class _Follower:
             if not isinstance(update, codec.EndOfStream):
                 self.log.note_arrival(time.monotonic())
             updated = True
-        if updated and self.ros2 is not None:
-            self.ros2.publish_path(self.log.keyframe_trajectory())
+        if updated:
+            self.heard["backend"] = time.monotonic()
+            if self.ros2 is not None:
+                self.ros2.publish_path(self.log.keyframe_trajectory())
         while (status := self.statuses.get(0)) is not None:
             self.log.add_status(status)
+            self.heard[status.stage] = time.monotonic()
+            if status.stage == "source":
+                self.source_sent = max(self.source_sent, int(status.processed))
         while (loop := self.loops.get(0)) is not None:
             self.log.loops.append(loop)
+
+    def silent_s(self, stage: str, since: float) -> float:
+        """Seconds since ``stage`` was last heard, or since ``since`` when it has not been heard since then."""
+        return time.monotonic() - max(self.heard.get(stage, since), since)
 
     def drain(self, until: float) -> None:
         """Keep taking messages until the poses announced by the states have all arrived, or ``until``."""
@@ -284,6 +297,24 @@ class _Follower:
         self.bar.close()
         for inbox in (self.poses, self.states, self.updates, self.statuses):
             inbox.close()
+
+
+def _watch_for_hang(follower: _Follower, supervisor: Supervisor, hang_timeout_s: float, since: float, stop: StopFlag) -> None:
+    """Kill a stage whose input waits while it has said nothing for ``hang_timeout_s`` seconds (0:
+    never), counted from ``since`` at the latest (when following began): the backend while keyframes
+    wait for it; the frontend while frames the source sent wait for it, unless it waits for the
+    backend's answers itself. The next ``_check`` then fails the run as for a crash."""
+    if hang_timeout_s <= 0 or stop():
+        return
+    log = follower.log
+    counts = log.keyframe_counts()
+    keyframes_wait = not log.backend_ended and (counts["processed"] < counts["sent"] or (log.ended and counts["sent"] > 0))
+    if keyframes_wait and (silent := follower.silent_s("backend", since)) >= hang_timeout_s:
+        supervisor.kill_hung("backend", silent)
+        return
+    frames_wait = not log.ended and follower.source_sent > log.frame_counts()["frames"]
+    if frames_wait and not keyframes_wait and (silent := follower.silent_s("frontend", since)) >= hang_timeout_s:
+        supervisor.kill_hung("frontend", silent)
 
 
 def _check(supervisor: Supervisor, stop: StopFlag) -> None:
@@ -325,7 +356,7 @@ def _start_stages(
     return True
 
 
-def _follow(follower: _Follower, supervisor: Supervisor, stop: StopFlag) -> None:
+def _follow(follower: _Follower, supervisor: Supervisor, stop: StopFlag, hang_timeout_s: float = 0.0) -> None:
     """Follow the run until the frontend's end of stream, then take the poses still in flight.
 
     On an interrupt only the source is stopped: it ends its stream at once, and the frontend tracks
@@ -334,6 +365,7 @@ def _follow(follower: _Follower, supervisor: Supervisor, stop: StopFlag) -> None
     or at a second Ctrl-C.
     """
     source_told = frontend_told = None  # when each was told to stop
+    since = time.monotonic()
     while not follower.log.ended:
         now = time.monotonic()
         if stop() and source_told is None:
@@ -345,6 +377,7 @@ def _follow(follower: _Follower, supervisor: Supervisor, stop: StopFlag) -> None
         if frontend_told is not None and now - frontend_told > _STOP_GRACE_S:
             logger.warning("the frontend did not end its stream within %.0f s of being told to stop", _STOP_GRACE_S)
             break
+        _watch_for_hang(follower, supervisor, hang_timeout_s, since, stop)
         _check(supervisor, stop)
         if supervisor.returncode("frontend") is not None:
             follower.drain(time.monotonic() + 1.0)
@@ -357,7 +390,7 @@ def _follow(follower: _Follower, supervisor: Supervisor, stop: StopFlag) -> None
     _check_source(follower.log)
 
 
-def _follow_backend(follower: _Follower, supervisor: Supervisor, stop: StopFlag) -> None:
+def _follow_backend(follower: _Follower, supervisor: Supervisor, stop: StopFlag, hang_timeout_s: float = 0.0) -> None:
     """Wait until the backend has processed every keyframe (its map-update stream ended). Interrupted,
     wait only while it has caught up with the keyframes sent (its end of stream is on its way),
     for at most ``_CAUGHT_UP_WAIT_S`` seconds."""
@@ -365,12 +398,14 @@ def _follow_backend(follower: _Follower, supervisor: Supervisor, stop: StopFlag)
     if not follower.log.backend_ended and not stop():
         logger.info("waiting for the backend: %d of %d keyframes processed", counts["processed"], counts["sent"])
     stopped_at = None
+    since = time.monotonic()
     while not follower.log.backend_ended:
         if stop():
             stopped_at = time.monotonic() if stopped_at is None else stopped_at
             counts = follower.log.keyframe_counts()
             if counts["processed"] < counts["sent"] or time.monotonic() - stopped_at > _CAUGHT_UP_WAIT_S:
                 return
+        _watch_for_hang(follower, supervisor, hang_timeout_s, since, stop)
         _check(supervisor, stop)
         if supervisor.returncode("backend") is not None:
             follower.poll_backend()
@@ -453,8 +488,9 @@ def track(
                         started = _start_stages(supervisor, session, config, run_dir, stop, ground_truth, wait_for)
                         if started:
                             log_cpu_times("at stream start")
-                            _follow(follower, supervisor, stop)
-                            _follow_backend(follower, supervisor, stop)
+                            hang_timeout_s = config.supervision.hang_timeout_s
+                            _follow(follower, supervisor, stop, hang_timeout_s)
+                            _follow_backend(follower, supervisor, stop, hang_timeout_s)
                             _stop_backend(follower, supervisor, session, run_id)
                             log_cpu_times("at stream end")
                         statuses = supervisor.wait_exit(_EXIT_WAIT_S)
@@ -494,6 +530,8 @@ class RunFailure:
 
 
 def _how_it_ended(failure: dict[str, object]) -> str:
+    if "hung_s" in failure:
+        return f"no progress for {failure['hung_s']:.0f} s, killed"
     return f"signal {failure['signal']}" if "signal" in failure else f"exit status {failure.get('exit_code')}"
 
 
