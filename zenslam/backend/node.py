@@ -174,8 +174,8 @@ class BackendNode:
             return f"keyframe {kf_id} is not newer than keyframe {self._newest[0]}, the newest mapped; keyframe ids increase"
         if self._camera is not None and self._camera != (keyframe.calibration, keyframe.sensor, keyframe.scale_factors.tobytes()):
             return f"keyframe {kf_id} has another camera or pyramid than the run's first keyframe"
-        known = np.fromiter(self.map.points.keys(), dtype=np.int64, count=len(self.map.points))
-        if np.isin(keyframe.new_point_ids, known).any():
+        points = self.map.points
+        if any(point_id in points for point_id in keyframe.new_point_ids.tolist()):
             return f"keyframe {kf_id} brings new points whose ids are already in the map"
         return None
 
