@@ -60,6 +60,7 @@ from zenslam.service.run_output import (
     write_config,
     write_outputs,
 )
+from zenslam.service.run_failure import RunFailure
 from zenslam.service.run_input import recorded_sensor, run_input
 from zenslam.service.saved_map import check_map_fits, with_map_options
 from zenslam.service.sources import Source, is_bus_spec
@@ -510,29 +511,6 @@ def track(
         if owned:
             stop.uninstall()
     return follower.log, completed, failure
-
-
-@dataclasses.dataclass(frozen=True)
-class RunFailure:
-    """Why a run stopped before its end: the error, the frames the hub had by then, and each failed stage."""
-
-    error: str
-    frame: int
-    stages: list[dict[str, object]]  # {stage, exit_code or signal, frame}: metrics.json run.failures
-
-    def line(self, run_dir: Path) -> str:
-        """The one line a failed run ends with (the error itself is logged before it)."""
-        stages = ", ".join(f"the {f['stage']}: {_how_it_ended(f)}" for f in self.stages)
-        return (
-            f"the run failed at frame {self.frame}{f' ({stages})' if stages else ''}: wrote what it had to {run_dir} "
-            "(metrics.json run.completed: false)"
-        )
-
-
-def _how_it_ended(failure: dict[str, object]) -> str:
-    if "hung_s" in failure:
-        return f"no progress for {failure['hung_s']:.0f} s, killed"
-    return f"signal {failure['signal']}" if "signal" in failure else f"exit status {failure.get('exit_code')}"
 
 
 def _summary(result: RunResult, log: RunLog) -> list[str]:
