@@ -67,6 +67,14 @@ def _decoded(decode, data: bytes):
         return None
 
 
+def _decodable_mutants(decode, messages: list[bytes], count: int, seed: int):
+    """(mutant number, decoded message) for each of ``count`` mutants that still decodes to a message."""
+    for i, data in enumerate(_mutants(messages, count, seed)):
+        message = _decoded(decode, data)
+        if message is not None and not isinstance(message, codec.EndOfStream):
+            yield i, message
+
+
 @pytest.fixture(scope="module")
 def golden_messages() -> dict[str, list[bytes]]:
     topics = read_topics(GOLDEN, (KEYFRAMES, UPDATES))
@@ -79,10 +87,7 @@ def test_damaged_keyframes_are_refused_or_mapped_and_never_crash_the_backend(gol
     for data in keyframes[:6]:
         node.step(codec.decode_keyframe(data))
     decoded = refused = mapped = 0
-    for i, data in enumerate(_mutants(keyframes[6:], 1500, seed=1)):
-        message = _decoded(codec.decode_keyframe, data)
-        if message is None or isinstance(message, codec.EndOfStream):
-            continue
+    for i, message in _decodable_mutants(codec.decode_keyframe, keyframes[6:], 1500, seed=1):
         decoded += 1
         if i % 2:  # half as a keyframe the map has not seen: damaged content reaches local mapping
             message = _renumbered(message, 1000 + i, 10_000_000 * (i + 1))
@@ -94,23 +99,21 @@ def test_damaged_keyframes_are_refused_or_mapped_and_never_crash_the_backend(gol
         mapped += 1
     assert node.refused == refused
     assert refused > 0 and mapped > 0, f"the mutants should reach both outcomes: {decoded} decoded, {refused} refused, {mapped} mapped"
-    # The map still answers and maps the next real keyframe.
-    assert node.map.keyframes
+    # An undamaged keyframe after them is mapped.
+    intact = _renumbered(codec.decode_keyframe(keyframes[6]), 10_000, 10**12)
+    assert node.refusal(intact) is None
+    node.step(intact)
+    assert 10_000 in node.map.keyframes
 
 
 def test_damaged_map_updates_never_crash_the_frontends_map(golden_messages):
     updates = [d for d in golden_messages[UPDATES] if not isinstance(codec.decode_map_update(d), codec.EndOfStream)]
-    keyframes = [codec.decode_keyframe(d) for d in golden_messages[KEYFRAMES]]
-    first = next(k for k in keyframes if not isinstance(k, codec.EndOfStream))
     source = open_source(f"mcap:{GOLDEN}")
-    pipeline = FrontendPipeline(FrontendConfig(), first.calibration, first.sensor)
+    pipeline = FrontendPipeline(FrontendConfig(), source.calibration, source.sensor)
     for frame in list(source)[:12]:
         pipeline.step(frame.index, frame.stamp_ns, frame.left, right=frame.right, depth_m=frame.depth_m)
     applied = 0
-    for data in _mutants(updates, 1500, seed=2):
-        update = _decoded(codec.decode_map_update, data)
-        if update is None or isinstance(update, codec.EndOfStream):
-            continue
+    for _, update in _decodable_mutants(codec.decode_map_update, updates, 1500, seed=2):
         pipeline.apply_map_update(update)
         applied += 1
     assert applied > 0
@@ -123,10 +126,7 @@ def test_damaged_sensor_frames_are_refused_or_tracked_and_never_crash_the_fronte
     for data in frames[:4]:
         node.handle(codec.decode_sensor_frame(data))
     decoded = tracked = refused = 0
-    for i, data in enumerate(_mutants(frames[4:], 400, seed=3)):
-        message = _decoded(codec.decode_sensor_frame, data)
-        if message is None or isinstance(message, codec.EndOfStream):
-            continue
+    for i, message in _decodable_mutants(codec.decode_sensor_frame, frames[4:], 400, seed=3):
         decoded += 1
         if i % 2:  # half as the next frame of the stream: damaged images reach tracking
             message = dataclasses.replace(message, frame=dataclasses.replace(message.frame, index=100 + i, stamp_ns=10**10 + i))

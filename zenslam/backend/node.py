@@ -170,7 +170,7 @@ class BackendNode:
         """Why ``keyframe`` cannot be mapped, or None: what the decoder could not know (its values are
         checked there). A refused keyframe changes nothing; ``refuse`` counts and answers it."""
         kf_id = int(keyframe.id)
-        if kf_id <= self._newest[0] or kf_id in self.map.keyframes:
+        if not self._is_new(kf_id):
             return f"keyframe {kf_id} is not newer than keyframe {self._newest[0]}, the newest mapped; keyframe ids increase"
         if self._camera is not None and self._camera != (keyframe.calibration, keyframe.sensor, keyframe.scale_factors.tobytes()):
             return f"keyframe {kf_id} has another camera or pyramid than the run's first keyframe"
@@ -184,9 +184,13 @@ class BackendNode:
         lockstep frontend waiting for that answer goes on; a repeated id gets no second answer."""
         self.refused += 1
         kf_id = int(keyframe.id)
-        if kf_id <= self._newest[0] or kf_id in self.map.keyframes:
+        if not self._is_new(kf_id):
             return StepOutput([])
         return StepOutput([MapUpdate(keyframe_id=kf_id, stamp_ns=int(keyframe.stamp_ns))])
+
+    def _is_new(self, kf_id: int) -> bool:
+        """Whether keyframe ``kf_id`` comes after every keyframe mapped (the frontend's ids increase)."""
+        return kf_id > self._newest[0] and kf_id not in self.map.keyframes
 
     def _close_loops(self, kf_id: int, update: MapUpdate) -> tuple[list[MapUpdate], list[codec.LoopMessage]]:
         T_before = self.map.keyframe(kf_id).T_world_cam.copy()

@@ -307,15 +307,18 @@ def _watch_for_hang(follower: _Follower, supervisor: Supervisor, hang_timeout_s:
     backend's answers itself. The next ``_check`` then fails the run as for a crash."""
     if hang_timeout_s <= 0 or stop():
         return
+    backend_silent_s, frontend_silent_s = follower.silent_s("backend", since), follower.silent_s("frontend", since)
+    if max(backend_silent_s, frontend_silent_s) < hang_timeout_s:
+        return  # the usual case, decided before counting the log's frames and keyframes
     log = follower.log
     counts = log.keyframe_counts()
     keyframes_wait = not log.backend_ended and (counts["processed"] < counts["sent"] or (log.ended and counts["sent"] > 0))
-    if keyframes_wait and (silent := follower.silent_s("backend", since)) >= hang_timeout_s:
-        supervisor.kill_hung("backend", silent)
+    if keyframes_wait and backend_silent_s >= hang_timeout_s:
+        supervisor.kill_hung("backend", backend_silent_s)
         return
     frames_wait = not log.ended and follower.source_sent > log.frame_counts()["frames"]
-    if frames_wait and not keyframes_wait and (silent := follower.silent_s("frontend", since)) >= hang_timeout_s:
-        supervisor.kill_hung("frontend", silent)
+    if frames_wait and not keyframes_wait and frontend_silent_s >= hang_timeout_s:
+        supervisor.kill_hung("frontend", frontend_silent_s)
 
 
 def _check(supervisor: Supervisor, stop: StopFlag) -> None:
