@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from zenslam.backend.config import BackendConfig
+from zenslam.backend.journal import Answered, JournaledKeyframe, JournalWriter, read_journal
 from zenslam.backend.local_ba import BAProblem, BAResult
 from zenslam.backend.local_mapping import TIMING_STEPS, LocalMapper, LocalMappingConfig, new_backend_map
 from zenslam.backend.node import BackendNode, serve
@@ -264,3 +265,51 @@ def test_serve_stopped_early_still_ends_the_stream():
         assert result["ended"] is False
         assert updates.get(timeout_s=5.0) == codec.EndOfStream(0)
         updates.close()
+
+
+def test_a_restarted_backend_rebuilds_its_map_from_the_journal_and_answers_what_was_not_answered(tmp_path):
+    """The journal a backend leaves when it dies while mapping keyframe 5 (keyframes 0-4 answered):
+    a restarted backend rebuilds the same map, publishes keyframe 5's answer (the one the dead one
+    would have published), ignores keyframe 5 sent again by the frontend, and maps keyframe 6 as the
+    unharmed backend would."""
+    session_name = "backend-restart-test"
+    world = World()
+    messages = [codec.encode_keyframe(world.keyframe(k)) for k in range(7)]
+    unharmed = _node()
+    expected = [unharmed.step(codec.decode_keyframe(m)) for m in messages]
+    journal = tmp_path / "backend.journal"
+    with JournalWriter(journal) as writer:
+        for k, message in enumerate(messages[:6]):
+            writer.keyframe(message, 0)
+            if k < 5:
+                writer.answered(k)
+    hub_endpoint = bus.free_tcp_endpoint()
+    with bus.open_session(bus.BusConfig(listen=(hub_endpoint,))) as hub, bus.open_session(bus.BusConfig(connect=(hub_endpoint,))) as peer:
+        updates = bus.subscribe(hub, keys.backend_map_update(session_name), lambda b: b, "lossless", 64)
+        publisher = bus.declare_publisher(hub, keys.frontend_keyframe(session_name), codec.KEYFRAME, "lossless")
+        restarted, stop, result = _node(), threading.Event(), {}
+        worker = threading.Thread(
+            target=lambda: result.setdefault("ended", serve(peer, session_name, restarted, BackendConfig(linger_s=0.0), stop.is_set, journal, rebuild=True))
+        )
+        worker.start()
+        try:
+            assert bus.wait_for_alive(hub, session_name, ["backend"], timeout_s=10.0) == set()
+            assert bus.wait_for_subscribers(publisher, timeout_s=10.0)
+            for message in (messages[5], messages[6], codec.encode_end_of_stream(codec.KEYFRAME, 7)):
+                publisher.put(message)
+            received = [updates.get(timeout_s=20.0) for _ in range(3)]
+            worker.join(timeout=20.0)
+        finally:
+            stop.set()
+            worker.join(timeout=10.0)
+        updates.close()
+    assert result["ended"] is True
+    assert received[0] == codec.encode_map_update(expected[5].updates[0])
+    assert received[1] == codec.encode_map_update(expected[6].updates[0])
+    assert codec.decode_map_update(received[2]) == codec.EndOfStream(7)
+    assert restarted.processed == unharmed.processed == 7
+    unharmed.finished = True  # as serve marks it at the end of stream
+    assert codec.encode_map_snapshot(restarted.snapshot()) == codec.encode_map_snapshot(unharmed.snapshot())
+    entries = read_journal(journal)
+    assert [e.keyframe_id for e in entries if isinstance(e, Answered)] == [0, 1, 2, 3, 4, 5, 6]
+    assert sum(isinstance(e, JournaledKeyframe) for e in entries) == 7  # keyframe 5 is not journaled twice

@@ -36,6 +36,9 @@ class BackendConfig:
     # numerics, and lockstep outputs, are the same at any value. 0 by default: a mapping that
     # falls behind makes the keyframe throttle hold keyframes back until tracking runs out of points.
     nice: int = 0  # niceness increment
+    # Append every keyframe mapped to backend.journal in the run folder, so that a backend restarted
+    # after a crash rebuilds the same map (backend/journal.py); false: a restarted backend starts empty.
+    journal: bool = True
 
     def __post_init__(self) -> None:
         if not 0 <= self.nice <= 19:

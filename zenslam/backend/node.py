@@ -29,12 +29,14 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 import zenoh
 
 from zenslam.backend.config import BackendConfig
+from zenslam.backend.journal import JOURNAL_NAME, Answered, Entry, JournaledKeyframe, JournalWriter, read_journal
 from zenslam.backend.local_ba import LocalBundleAdjuster
 from zenslam.backend.local_mapping import LocalMapper, map_update_from_changes, new_backend_map
 from zenslam.backend.loop_messages import loop_messages
@@ -187,6 +189,11 @@ class BackendNode:
         if not self._is_new(kf_id):
             return StepOutput([])
         return StepOutput([MapUpdate(keyframe_id=kf_id, stamp_ns=int(keyframe.stamp_ns))])
+
+    @property
+    def newest_id(self) -> int:
+        """The id of the newest keyframe processed (-1: none)."""
+        return self._newest[0]
 
     def _is_new(self, kf_id: int) -> bool:
         """Whether keyframe ``kf_id`` comes after every keyframe mapped (the frontend's ids increase)."""
@@ -351,20 +358,32 @@ def serve(
     node: BackendNode,
     config: BackendConfig,
     should_stop: Callable[[], bool],
+    journal: Path | None = None,
+    rebuild: bool = False,
 ) -> bool:
     """Process keyframes until the end of stream (True) or ``should_stop()`` (False); the map-update
     stream is ended either way. After the end of stream, answer queries until ``config.linger_s``
-    seconds have passed or ``should_stop()``."""
+    seconds have passed or ``should_stop()``.
+
+    ``journal``: the file every accepted keyframe is appended to before it is mapped (``journal``
+    module); with ``rebuild`` (a restarted backend) the map is first rebuilt from it, and the answers
+    it lacks are published. Keyframes arriving meanwhile wait in the inbox, which is subscribed
+    before the liveliness token appears: a frontend that resends its unanswered keyframes when the
+    token comes back loses none (one already journaled is a repeated id, refused without an answer).
+    """
     outputs = _Outputs(session, session_name)
     # Lossless and bounded: a full inbox blocks the frontend's send; no keyframe is ever dropped.
-    inbox = bus.subscribe(session, keys.frontend_keyframe(session_name), codec.decode_keyframe, "lossless", config.keyframe_queue)
+    inbox = bus.subscribe(session, keys.frontend_keyframe(session_name), _decode_keeping_bytes, "lossless", config.keyframe_queue)
     queryables = _Queryables(session, session_name)
     outputs.send_status(codec.StageStatusMessage(STAGE, "starting"))
+    entries = _journal_entries(journal) if rebuild and journal is not None else []
+    writer = JournalWriter(journal) if journal is not None else None
     ended = False
     try:
         with bus.declare_alive(session, session_name, STAGE):
-            ended = _process(outputs, inbox, queryables, node, should_stop)
-            _save_map(outputs, node, config, finish_global_ba=ended)  # stopped: the map as far as it got
+            rebuilt_upto = _rebuild(outputs, node, entries, writer, should_stop) if rebuild else None
+            ended = _process(outputs, inbox, queryables, node, should_stop, writer, rebuilt_upto)
+            _save_map(outputs, node, config, finish_global_ba=ended, journal=writer)  # stopped: the map as far as it got
             if ended:
                 _end_stream(outputs, node)
                 _linger(queryables, node, config.linger_s, should_stop)
@@ -376,18 +395,75 @@ def serve(
             _end_stream(outputs, node, STOPPED)
         inbox.close()
         queryables.close()
+        if writer is not None:
+            writer.close()
     return ended
 
 
-def _process(outputs: _Outputs, inbox: bus.Inbox, queryables: _Queryables, node: BackendNode, should_stop) -> bool:
-    """The worker loop: answer queries, take a keyframe, map it, publish; True at the end of stream."""
+def _decode_keeping_bytes(payload: bytes) -> tuple[bytes, codec.KeyframeMessage | codec.EndOfStream]:
+    """A frontend/keyframe message decoded, with its bytes as received (what the journal keeps)."""
+    return payload, codec.decode_keyframe(payload)
+
+
+def _journal_entries(journal: Path) -> list[Entry]:
+    if not journal.exists():
+        logger.warning("restarted without a journal at %s: the map starts empty", journal)
+        return []
+    return read_journal(journal)
+
+
+def _rebuild(
+    outputs: _Outputs, node: BackendNode, entries: list[Entry], journal: JournalWriter | None, should_stop: Callable[[], bool]
+) -> int:
+    """Replay the journal's keyframes through ``node`` (rerun logging off: the predecessor logged
+    them), then publish the answers that were never published, in order, and journal them; returns
+    the newest keyframe id rebuilt (-1: none)."""
+    started = time.perf_counter()
+    unanswered: dict[int, StepOutput] = {}
+    rerun, node.rerun = node.rerun, None
+    try:
+        for entry in entries:
+            if should_stop():
+                return node.newest_id
+            if isinstance(entry, JournaledKeyframe):
+                keyframe = codec.decode_keyframe(entry.message)
+                unanswered[int(keyframe.id)] = node.step(keyframe, entry.queued)
+                # Heard while rebuilding: a supervisor watching for hung stages sees progress.
+                outputs.send_status(codec.StageStatusMessage(STAGE, "starting", node.processed, detail="rebuilding from the journal"))
+            elif isinstance(entry, Answered):
+                unanswered.pop(entry.keyframe_id, None)
+            else:
+                node.finish_global_ba()  # a background global BA was applied here: wait for the same one, apply it
+    finally:
+        node.rerun = rerun
+    logger.info(
+        "rebuilt the map from the journal: %d keyframes in %.1f s; %d answer(s) not published before, publishing them",
+        node.processed, time.perf_counter() - started, len(unanswered),
+    )  # fmt: skip
+    for keyframe_id, output in unanswered.items():
+        outputs.send_step(output)
+        if journal is not None:
+            journal.answered(keyframe_id)
+    return node.newest_id
+
+
+def _process(
+    outputs: _Outputs, inbox: bus.Inbox, queryables: _Queryables, node: BackendNode, should_stop,
+    journal: JournalWriter | None = None, rebuilt_upto: int | None = None,
+) -> bool:
+    """The worker loop: answer queries, take a keyframe, map it, publish; True at the end of stream.
+    ``rebuilt_upto``: a restarted backend's newest keyframe from the journal; the frontend sends its
+    unanswered keyframes again when it sees the restart, and those up to this one are already mapped."""
     while not should_stop():
         queryables.answer(node)
         if (correction := node.poll_global_ba()) is not None:
             outputs.update.put(codec.encode_map_update(correction))
-        message = inbox.get(timeout_s=_POLL_S)
-        if message is None:
+            if journal is not None:
+                journal.global_ba_applied()
+        received = inbox.get(timeout_s=_POLL_S)
+        if received is None:
             continue
+        payload, message = received
         if isinstance(message, codec.EndOfStream):
             if message.count != node.processed:
                 logger.warning("the frontend sent %d keyframes but %d were processed", message.count, node.processed)
@@ -399,16 +475,23 @@ def _process(outputs: _Outputs, inbox: bus.Inbox, queryables: _Queryables, node:
             log_cpu_times("at stream start")
         started = time.perf_counter()
         queued = inbox.count_waiting(_is_keyframe)  # the end of stream is no keyframe to wait for
+        if rebuilt_upto is not None and message.id <= rebuilt_upto:
+            logger.info("keyframe %d sent again after the restart: mapped from the journal already", message.id)
+            continue
         if (problem := node.refusal(message)) is not None:
             outputs.send_step(node.refuse(message))
             logger.warning("refused a keyframe (%d so far): %s", node.refused, problem)
             continue
+        if journal is not None:
+            journal.keyframe(payload, queued)
         try:
             output = node.step(message, queued)
         except Exception as exc:
             outputs.send_status(codec.StageStatusMessage(STAGE, "failed", node.processed, detail=f"{type(exc).__name__}: {exc}"))
             raise
         outputs.send_step(output)
+        if journal is not None:
+            journal.answered(int(message.id))
         step_ms = (time.perf_counter() - started) * 1e3
         depth = inbox.depth
         if node.rerun is not None:
@@ -419,11 +502,13 @@ def _process(outputs: _Outputs, inbox: bus.Inbox, queryables: _Queryables, node:
     return False
 
 
-def _is_keyframe(message: codec.KeyframeMessage | codec.EndOfStream) -> bool:
-    return not isinstance(message, codec.EndOfStream)
+def _is_keyframe(received: tuple[bytes, codec.KeyframeMessage | codec.EndOfStream]) -> bool:
+    return not isinstance(received[1], codec.EndOfStream)
 
 
-def _save_map(outputs: _Outputs, node: BackendNode, config: BackendConfig, finish_global_ba: bool) -> None:
+def _save_map(
+    outputs: _Outputs, node: BackendNode, config: BackendConfig, finish_global_ba: bool, journal: JournalWriter | None = None
+) -> None:
     """With ``backend.save_map``: the map (after a global BA still running, when ``finish_global_ba``;
     a stopped backend does not wait for one), written before the stream ends, so whoever waits for
     the end of stream finds the file complete. A map without keyframes is not written."""
@@ -434,6 +519,8 @@ def _save_map(outputs: _Outputs, node: BackendNode, config: BackendConfig, finis
         return
     if finish_global_ba and (correction := node.finish_global_ba()) is not None:
         outputs.update.put(codec.encode_map_update(correction))
+        if journal is not None:
+            journal.global_ba_applied()
     node.save_map(config.save_map)
 
 
@@ -476,13 +563,17 @@ def main(argv: list[str] | None = None) -> int:
             return 0
 
         with (
-            rerun_log.open_stage_recording(STAGE, args.session, args.config, rerun_config) as recording,
+            rerun_log.open_stage_recording(STAGE, args.session, args.config, rerun_config, args.restart) as recording,
             bus.open_session(bus_config_with(bus_config, args.connect, args.bus_config)) as session,
         ):
             node.rerun = rerun_log.BackendLog(recording) if recording is not None else None
             bus.require_alive(session, args.session, args.wait_for, bus_config.start_timeout_s, stop.keep_going)
+            # The journal lives in the run folder, beside the run's config.yaml; no folder, no journal.
+            journal = Path(args.config).parent / JOURNAL_NAME if config.journal and args.config is not None else None
+            if args.restart:
+                logger.info("restart %d: rebuilding the map from %s", args.restart, journal)
             try:
-                serve(session, args.session, node, config, stop)
+                serve(session, args.session, node, config, stop, journal=journal, rebuild=args.restart > 0)
             finally:
                 node.close()
             if node.rerun is not None:

@@ -89,6 +89,7 @@ class FrontendMessages:
     state: bytes  # frontend/state, always (sent last: it tells lockstep sources the frame is done)
     step_ms: float  # wall time of the tracking step, milliseconds
     keyframe_id: int = -1  # the keyframe made at this frame, -1 if none
+    keyframe_ids: tuple[int, ...] = ()  # the id of each of ``keyframes``
 
 
 def keyframe_message(keyframe: Any, calibration: PinholeCalibration, sensor: SensorKind) -> codec.KeyframeMessage:
@@ -220,7 +221,8 @@ class FrontendNode:
             T_reference_cam=out.T_reference_cam if pose_bytes is not None else None,
             relocalised=bool(out.relocalised),
         )
-        return FrontendMessages(keyframe_bytes, pose_bytes, codec.encode_tracking_state(state), step_ms, keyframe_id)
+        made_ids = tuple(int(kf.id) for kf in made)
+        return FrontendMessages(keyframe_bytes, pose_bytes, codec.encode_tracking_state(state), step_ms, keyframe_id, made_ids)
 
     @property
     def keyframes_in_flight(self) -> int:
@@ -304,16 +306,37 @@ class RelocalisationQueries:
 
 
 class _MapUpdates:
-    """The backend's map updates, applied to the node's pipeline as the run mode says."""
+    """The backend's map updates, applied to the node's pipeline as the run mode says, and the
+    keyframes still waiting for their answer, sent again to a backend that comes back after a crash
+    (it rebuilds its map from its journal; one it had taken already it refuses without an answer)."""
 
-    def __init__(self, session: zenoh.Session, session_name: str, config: FrontendConfig):
+    def __init__(self, session: zenoh.Session, session_name: str, config: FrontendConfig, resend: Callable[[bytes], None]):
         # Lossless: a missed update would leave the frontend's map behind the backend's for good.
         self.inbox = bus.subscribe(session, keys.backend_map_update(session_name), codec.decode_map_update, "lossless", config.map_update_queue)
         self.timeout_s = config.update_timeout_s
         self.ended = False
+        self.unanswered: dict[int, bytes] = {}  # keyframe id -> its message, sent and not answered yet
+        self.resent = 0  # keyframes sent again to a restarted backend
+        self._last_answered = -1  # the newest keyframe id answered
+        self._resend = resend
+        self._backend = bus.Comebacks(session, session_name, "backend")
+
+    def sent(self, messages: FrontendMessages) -> None:
+        """Note the keyframes just sent: each waits for its answer."""
+        self.unanswered.update(zip(messages.keyframe_ids, messages.keyframes, strict=True))
+
+    def resend_to_a_restarted_backend(self) -> None:
+        """When the backend came back since the last call, send it every unanswered keyframe again, oldest first."""
+        if not self._backend.returned():
+            return
+        logger.warning("the backend restarted: sending its %d unanswered keyframe(s) again", len(self.unanswered))
+        for keyframe_id in sorted(self.unanswered):
+            self._resend(self.unanswered[keyframe_id])
+            self.resent += 1
 
     def apply_pending(self, node: FrontendNode) -> None:
         """Live: apply every update that has arrived."""
+        self.resend_to_a_restarted_backend()
         while not self.ended and (update := self.inbox.get(timeout_s=0)) is not None:
             self._apply(node, update)
 
@@ -323,6 +346,7 @@ class _MapUpdates:
         deadline = time.monotonic() + self.timeout_s
         corrections_due = -1  # unknown until the answer arrives
         while not should_stop() and not self.ended:
+            self.resend_to_a_restarted_backend()
             update = self.inbox.get(timeout_s=0.1)
             if update is not None:
                 self._apply(node, update)
@@ -343,7 +367,19 @@ class _MapUpdates:
         if isinstance(update, codec.EndOfStream):
             self.ended = True
             return
+        if update.answers_keyframe:
+            if update.keyframe_id <= self._last_answered:
+                # Answers come in keyframe order; a second one is a restarted backend's, for a
+                # keyframe whose answer its predecessor published just before dying.
+                logger.warning("a second answer to keyframe %d (the backend restarted): ignored", update.keyframe_id)
+                return
+            self._last_answered = int(update.keyframe_id)
+            self.unanswered.pop(int(update.keyframe_id), None)
         node.apply_map_update(update)
+
+    def close(self) -> None:
+        self.inbox.close()
+        self._backend.close()
 
 
 def serve(
@@ -361,7 +397,7 @@ def serve(
     (see the module doc); without it the frontend tracks on its own map.
     """
     outputs = _Outputs(session, session_name)
-    updates = _MapUpdates(session, session_name, map_updates) if map_updates is not None else None
+    updates = _MapUpdates(session, session_name, map_updates, outputs.keyframe.put) if map_updates is not None else None
     node.tracks_backend = updates is not None
     if map_updates is not None:
         node.candidates = RelocalisationQueries(session, session_name, map_updates.relocalisation_timeout_s)
@@ -408,6 +444,8 @@ def serve(
                     outputs.send_status(codec.StageStatusMessage(STAGE, "failed", node.frames, detail=f"{type(exc).__name__}: {exc}"))
                     raise
                 outputs.send(sent)
+                if updates is not None:
+                    updates.sent(sent)
                 node.log_last_frame()
                 if wait_for_updates and sent.keyframe_id >= 0:
                     held = frames.get(timeout_s=0)
@@ -425,7 +463,7 @@ def serve(
         )
         frames.close()
         if updates is not None:
-            updates.inbox.close()
+            updates.close()
     return ended
 
 

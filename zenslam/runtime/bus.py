@@ -238,6 +238,30 @@ def alive_processes(session: zenoh.Session, session_name: str, timeout_s: float 
     return names
 
 
+class Comebacks:
+    """Notices a process of the session coming back: its liveliness token vanishing (the process died
+    or left) and then present again (a restart). Poll ``returned``; ``close`` when done."""
+
+    def __init__(self, session: zenoh.Session, session_name: str, process: str) -> None:
+        self._subscriber = session.liveliness().declare_subscriber(
+            keys.alive(session_name, process), zenoh.handlers.FifoChannel(64), history=True
+        )
+        self._gone = False
+
+    def returned(self) -> bool:
+        """True when the process came back since the last call."""
+        back = False
+        while (sample := self._subscriber.try_recv()) is not None:
+            if sample.kind == zenoh.SampleKind.DELETE:
+                self._gone = True
+            elif self._gone:
+                self._gone, back = False, True
+        return back
+
+    def close(self) -> None:
+        self._subscriber.undeclare()
+
+
 def wait_for_alive(
     session: zenoh.Session,
     session_name: str,

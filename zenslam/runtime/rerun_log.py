@@ -196,12 +196,14 @@ class StageRecording:
 
 @contextmanager
 def open_stage_recording(
-    stage: str, run_id: str, config_path: str | Path | None, config: RerunConfig
+    stage: str, run_id: str, config_path: str | Path | None, config: RerunConfig, restart: int = 0
 ) -> Iterator[StageRecording | None]:
     """The stage's recording next to the run's config file, or None when disabled or there is no run folder.
 
     Stage processes get the run's resolved ``config.yaml`` (``--config``), which lives in the run
-    folder: the ``.rrd`` goes beside it.
+    folder: the ``.rrd`` goes beside it. A restarted stage (``restart`` > 0) writes
+    ``<stage>.restart<N>.rrd``, leaving what the process before it wrote; the viewer opens both as
+    one recording.
     """
     if not config.enabled:
         yield None
@@ -210,7 +212,8 @@ def open_stage_recording(
         logger.info("no --config, hence no run folder: %s writes no rerun recording", stage)
         yield None
         return
-    with StageRecording(Path(config_path).parent, run_id, stage, config) as recording:
+    name = f"{stage}.restart{restart}" if restart else stage
+    with StageRecording(Path(config_path).parent, run_id, name, config) as recording:
         yield recording
 
 

@@ -53,6 +53,11 @@ def add_process_arguments(parser: argparse.ArgumentParser) -> None:
         "another machine than the run's other stages",
     )
     parser.add_argument("--parent-pid", type=int, default=None, help="stop when this process is no longer our parent")
+    parser.add_argument(
+        "--restart", type=int, default=0, metavar="N",
+        help="this is the stage's N-th restart in its run (0: its first start); the supervisor passes it, and the "
+        "stage recovers what its predecessor left (the backend rebuilds its map from its journal)",
+    )
     parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
 
 

@@ -40,10 +40,19 @@ class SupervisionConfig:
     # counts as hung (stopped, deadlocked) and is killed, which fails the run with its outputs
     # written; 0 never. A global BA sends nothing while it runs: keep this above the longest one.
     hang_timeout_s: float = 600.0
+    # A stage that can recover what it held (the backend, from its journal) and crashed or hung is
+    # started again, at most this many times within restart_window_s seconds; one more failure in
+    # that window fails the run with its outputs written. 0: no restarts, any failure fails the run.
+    max_restarts: int = 3  # per stage
+    restart_window_s: float = 600.0  # seconds
 
     def __post_init__(self) -> None:
         if not (self.hang_timeout_s >= 0 and self.hang_timeout_s != float("inf")):
             raise ConfigError(f"supervision.hang_timeout_s={self.hang_timeout_s} must be >= 0 seconds (0: never)")
+        if self.max_restarts < 0:
+            raise ConfigError(f"supervision.max_restarts={self.max_restarts} must be >= 0 (0: no restarts)")
+        if not self.restart_window_s > 0:
+            raise ConfigError(f"supervision.restart_window_s={self.restart_window_s} must be a positive number of seconds")
 
 
 @dataclass(frozen=True)
@@ -53,6 +62,9 @@ class ProcessSpec:
     name: str  # the stage name; also the name of its liveliness token
     module: str  # the module run with ``python -m``
     args: tuple[str, ...] = ()
+    # Whether the stage recovers its state when started again (``--restart N``), so that the
+    # supervisor may restart it after a crash; a stage that cannot would rejoin the run empty.
+    restartable: bool = False
 
 
 # glibc malloc settings for the stage processes (bytes): no mmap below 32 MiB, return freed heap
@@ -96,6 +108,12 @@ def stop_signals_blocked() -> Iterator[None]:
         signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
+def _how(failure: dict[str, object]) -> str:
+    """"signal SIGKILL" or "exit status 3", and how long it hung when it was killed as hung."""
+    how = f"signal {failure['signal']}" if "signal" in failure else f"exit status {failure['exit_code']}"
+    return how + (f" after {failure['hung_s']} s without progress" if "hung_s" in failure else "")
+
+
 @dataclass
 class _Child:
     spec: ProcessSpec
@@ -114,6 +132,8 @@ class Supervisor:
         self.env = stage_environment(os.environ if env is None else env)
         self._children: dict[str, _Child] = {}
         self._hung: dict[str, float] = {}  # stages killed as hung: seconds they made no progress
+        self._restarted_at: dict[str, list[float]] = {}  # stage -> monotonic times of its recent restarts
+        self._restart_counts: dict[str, int] = {}  # stage -> restarts so far in this run
 
     def __enter__(self) -> Supervisor:
         return self
@@ -125,19 +145,27 @@ class Supervisor:
         """Start ``spec`` in its own process group, its output going to ``logs/<name>.log``."""
         if spec.name in self._children:
             raise ProcessError(f"a process named {spec.name!r} is already running in this run")
+        self._children[spec.name] = self._launch(spec, restart=0)
+
+    def _launch(self, spec: ProcessSpec, restart: int) -> _Child:
+        """The process of ``spec``; a restart appends to the log of the processes before it."""
         log_dir = self.run_dir / "logs"
         log_dir.mkdir(parents=True, exist_ok=True)
         log_path = log_dir / f"{spec.name}.log"
-        command = stage_command(spec.module, [*self.common_args(), *spec.args])
+        restart_args = ["--restart", str(restart)] if restart else []
+        command = stage_command(spec.module, [*self.common_args(), *spec.args, *restart_args])
         logger.debug("starting %s: %s", spec.name, " ".join(command))
-        with open(log_path, "wb") as log, stop_signals_blocked():
+        with open(log_path, "ab" if restart else "wb") as log, stop_signals_blocked():
+            if restart:
+                log.write(f"---- restart {restart} of {spec.name} ----\n".encode())
+                log.flush()
             try:
                 popen = subprocess.Popen(
                     command, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=self.env, process_group=0
                 )
             except OSError as exc:
                 raise ProcessError(f"cannot start {spec.name} ({' '.join(command)}): {exc}") from exc
-        self._children[spec.name] = _Child(spec, popen, log_path)
+        return _Child(spec, popen, log_path)
 
     def common_args(self) -> list[str]:
         """The arguments every stage gets (see ``add_process_arguments``)."""
@@ -174,22 +202,48 @@ class Supervisor:
 
     def failures(self) -> list[dict[str, object]]:
         """Each child that exited with a failure: its stage, and its exit code or the signal that ended it."""
-        failed = []
-        for name, child in self._children.items():
+        return [self._failure(name, code) for name, child in self._children.items() if (code := child.popen.poll()) not in (None, 0)]
+
+    def _failure(self, name: str, code: int) -> dict[str, object]:
+        if code < 0:
+            try:
+                how: dict[str, object] = {"signal": signal.Signals(-code).name}
+            except ValueError:
+                how = {"signal": str(-code)}
+        else:
+            how = {"exit_code": code}
+        if name in self._hung:
+            how["hung_s"] = round(self._hung[name], 1)
+        return {"stage": name, **how}
+
+    def restart_failed(self, config: SupervisionConfig) -> list[dict[str, object]]:
+        """Start again each child that exited with a failure, when its spec is restartable and it has
+        been restarted fewer than ``config.max_restarts`` times in the last ``config.restart_window_s``
+        seconds; returns those failures (as ``failures`` describes them, with the restart's number).
+        Raises ProcessError, as ``check`` does, for the first failed child that may not be restarted."""
+        restarted = []
+        for name, child in list(self._children.items()):
             code = child.popen.poll()
-            if code is None or code == 0:
+            if code in (None, 0):
                 continue
-            if code < 0:
-                try:
-                    how: dict[str, object] = {"signal": signal.Signals(-code).name}
-                except ValueError:
-                    how = {"signal": str(-code)}
-            else:
-                how = {"exit_code": code}
-            if name in self._hung:
-                how["hung_s"] = round(self._hung[name], 1)
-            failed.append({"stage": name, **how})
-        return failed
+            now = time.monotonic()
+            recent = [t for t in self._restarted_at.get(name, []) if now - t <= config.restart_window_s]
+            if not child.spec.restartable or len(recent) >= config.max_restarts:
+                why = ""
+                if child.spec.restartable and config.max_restarts:
+                    why = f" after {len(recent)} restart(s) within {config.restart_window_s:.0f} s (supervision.max_restarts)"
+                raise ProcessError(
+                    f"process {name} exited with status {code}{why}; the end of {child.log_path}:\n{self.log_tail(name)}"
+                )
+            failure = self._failure(name, code)
+            self._hung.pop(name, None)
+            self._restarted_at[name] = [*recent, now]
+            restart = self._restart_counts.get(name, 0) + 1
+            self._restart_counts[name] = restart
+            self._children[name] = self._launch(child.spec, restart)
+            logger.warning("%s failed (%s): restart %d; see %s", name, _how(failure), restart, child.log_path)
+            restarted.append({**failure, "restart": restart})
+        return restarted
 
     def kill_hung(self, name: str, silent_s: float) -> None:
         """Kill a stage that made no progress for ``silent_s`` seconds (``failures`` says it hung)."""

@@ -112,6 +112,8 @@ class RunLog:
         self.dropped: dict[str, int] = {}  # stage -> frames it passed over for a newer one (its latest status)
         self.stopped_stages: list[str] = []  # stages whose last status says they stopped before their input's end
         self.loops: list[codec.LoopMessage] = []  # backend/loop: every verified loop candidate, in order
+        # Stages the supervisor restarted after a crash or hang: {stage, signal | exit_code, [hung_s], restart, frame}.
+        self.restarts: list[dict[str, object]] = []
         # The frontend's first keyframe id: 0, or past a saved map's ids when the run started from one
         # (its keyframes, with smaller ids, are the saved map's, not this run's).
         self.first_keyframe_id = 0
@@ -197,7 +199,8 @@ class RunLog:
         its keyframes 0, 1, 2, ... as it makes them, and a state names the keyframe its frame made, so
         the newest id counts the ones made from earlier frames too (a monocular map's first keyframe)."""
         newest = max((s.keyframe_id for s in self.states.values()), default=-1)
-        return {"sent": max(newest + 1 - self.first_keyframe_id, 0), "processed": len(self.updated_keyframes)}
+        # A restarted backend may answer the keyframe in hand when its predecessor died a second time.
+        return {"sent": max(newest + 1 - self.first_keyframe_id, 0), "processed": len(set(self.updated_keyframes))}
 
     def backend_timing(self) -> dict[str, dict[str, float]]:
         """Per local-mapping step: mean, median and max milliseconds over the keyframes processed."""

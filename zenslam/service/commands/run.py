@@ -37,7 +37,7 @@ from zenslam.runtime import bus
 from zenslam.runtime.session_file import SessionInfo, write_session_file
 from zenslam.runtime.stage import log_cpu_times
 from zenslam.runtime.stop import EXIT_FAILED, EXIT_INTERRUPTED, StopFlag
-from zenslam.runtime.supervisor import ProcessSpec, Supervisor
+from zenslam.runtime.supervisor import ProcessSpec, SupervisionConfig, Supervisor
 from zenslam.schemas import codec, keys
 from zenslam.service import mcap_io
 from zenslam.service.evaluation.plot import PLANES
@@ -321,10 +321,18 @@ def _watch_for_hang(follower: _Follower, supervisor: Supervisor, hang_timeout_s:
         supervisor.kill_hung("frontend", frontend_silent_s)
 
 
-def _check(supervisor: Supervisor, stop: StopFlag) -> None:
-    """Raise for a failed stage, unless interrupted: then the run winds down and ``_report_exits`` says."""
-    if not stop():
+def _check(supervisor: Supervisor, stop: StopFlag, follower: _Follower | None = None, supervision: SupervisionConfig | None = None) -> None:
+    """Restart a failed stage that can recover (``supervision.max_restarts``), noting it in the log;
+    raise for any other failed stage. Interrupted, neither: the run winds down and ``_report_exits`` says."""
+    if stop():
+        return
+    if follower is None or supervision is None:
         supervisor.check()
+        return
+    frame = follower.log.frame_counts()["frames"]
+    for restarted in supervisor.restart_failed(supervision):
+        follower.log.restarts.append({**restarted, "frame": frame})
+        follower.heard[str(restarted["stage"])] = time.monotonic()  # its silence counts from its new start
 
 
 def _check_source(log: RunLog) -> None:
@@ -349,7 +357,13 @@ def _start_stages(
         if ground_truth is not None:
             publish_ground_truth(session, supervisor.session_name, ground_truth)
     recorder = config.recorder.enabled
-    stages = [ProcessSpec(name, STAGE_MODULES[name], stage_args(name, recorder, wait_for)) for name in ("backend", "frontend", "source")]
+    # A restarted backend rebuilds its map from its journal; the other stages cannot yet recover
+    # what they held, so their failure fails the run.
+    restartable = {"backend"} if config.backend.journal else set()
+    stages = [
+        ProcessSpec(name, STAGE_MODULES[name], stage_args(name, recorder, wait_for), restartable=name in restartable)
+        for name in ("backend", "frontend", "source")
+    ]
     for spec in stages:
         if stop():
             supervisor.request_stop()
@@ -360,7 +374,7 @@ def _start_stages(
     return True
 
 
-def _follow(follower: _Follower, supervisor: Supervisor, stop: StopFlag, hang_timeout_s: float = 0.0) -> None:
+def _follow(follower: _Follower, supervisor: Supervisor, stop: StopFlag, supervision: SupervisionConfig) -> None:
     """Follow the run until the frontend's end of stream, then take the poses still in flight.
 
     On an interrupt only the source is stopped: it ends its stream at once, and the frontend tracks
@@ -381,9 +395,9 @@ def _follow(follower: _Follower, supervisor: Supervisor, stop: StopFlag, hang_ti
         if frontend_told is not None and now - frontend_told > _STOP_GRACE_S:
             logger.warning("the frontend did not end its stream within %.0f s of being told to stop", _STOP_GRACE_S)
             break
-        _watch_for_hang(follower, supervisor, hang_timeout_s, since, stop)
-        _check(supervisor, stop)
-        if supervisor.returncode("frontend") is not None:
+        _watch_for_hang(follower, supervisor, supervision.hang_timeout_s, since, stop)
+        _check(supervisor, stop, follower, supervision)
+        if supervisor.returncode("frontend") == 0 or (stop() and supervisor.returncode("frontend") is not None):
             follower.drain(time.monotonic() + 1.0)
             if not follower.log.ended and not stop():
                 raise ProcessError(f"the frontend exited before the end of stream:\n{supervisor.log_tail('frontend')}")
@@ -394,7 +408,7 @@ def _follow(follower: _Follower, supervisor: Supervisor, stop: StopFlag, hang_ti
     _check_source(follower.log)
 
 
-def _follow_backend(follower: _Follower, supervisor: Supervisor, stop: StopFlag, hang_timeout_s: float = 0.0) -> None:
+def _follow_backend(follower: _Follower, supervisor: Supervisor, stop: StopFlag, supervision: SupervisionConfig) -> None:
     """Wait until the backend has processed every keyframe (its map-update stream ended). Interrupted,
     wait only while it has caught up with the keyframes sent (its end of stream is on its way),
     for at most ``_CAUGHT_UP_WAIT_S`` seconds."""
@@ -409,9 +423,9 @@ def _follow_backend(follower: _Follower, supervisor: Supervisor, stop: StopFlag,
             counts = follower.log.keyframe_counts()
             if counts["processed"] < counts["sent"] or time.monotonic() - stopped_at > _CAUGHT_UP_WAIT_S:
                 return
-        _watch_for_hang(follower, supervisor, hang_timeout_s, since, stop)
-        _check(supervisor, stop)
-        if supervisor.returncode("backend") is not None:
+        _watch_for_hang(follower, supervisor, supervision.hang_timeout_s, since, stop)
+        _check(supervisor, stop, follower, supervision)
+        if supervisor.returncode("backend") == 0 or (stop() and supervisor.returncode("backend") is not None):
             follower.poll_backend()
             if not follower.log.backend_ended and not stop():
                 raise ProcessError(f"the backend exited before the end of its stream:\n{supervisor.log_tail('backend')}")
@@ -492,9 +506,8 @@ def track(
                         started = _start_stages(supervisor, session, config, run_dir, stop, ground_truth, wait_for)
                         if started:
                             log_cpu_times("at stream start")
-                            hang_timeout_s = config.supervision.hang_timeout_s
-                            _follow(follower, supervisor, stop, hang_timeout_s)
-                            _follow_backend(follower, supervisor, stop, hang_timeout_s)
+                            _follow(follower, supervisor, stop, config.supervision)
+                            _follow_backend(follower, supervisor, stop, config.supervision)
                             _stop_backend(follower, supervisor, session, run_id)
                             log_cpu_times("at stream end")
                         statuses = supervisor.wait_exit(_EXIT_WAIT_S)
@@ -604,6 +617,7 @@ def _run(args: argparse.Namespace, stop: StopFlag) -> int:
     extra = {"run": {
         "run_id": run_id, "source": config.source.spec, "mode": config.mode, "completed": completed, **log.stream_timing(),
         "failures": [] if failure is None else failure.stages,
+        "restarts": len(log.restarts), "restart_events": log.restarts,
     }}
     sensor = given.sensor or recorded_sensor(recording) or "stereo"  # a bus source's sensor: what was recorded
     evaluation_config = evaluation_config_for(config.evaluation, sensor)
