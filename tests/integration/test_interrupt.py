@@ -55,10 +55,10 @@ backend:
 class _Run:
     """A ``zenslam run`` in its own session, with its output collected as it comes."""
 
-    def __init__(self, tmp_path: Path, source: str, *options: str):
-        self.run_dir = tmp_path / "it-interrupt"
+    def __init__(self, tmp_path: Path, source: str, *options: str, run_id: str = "it-interrupt"):
+        self.run_dir = tmp_path / run_id
         command = [sys.executable, "-m", "zenslam.service.cli", "run", source, "--output", str(tmp_path),
-                   "--run-id", "it-interrupt", *options]  # fmt: skip
+                   "--run-id", run_id, *options]  # fmt: skip
         self.popen = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
         self._out: list[bytes] = []
         self._err: list[bytes] = []
@@ -233,11 +233,17 @@ def _stage_pid(run: _Run, module: str) -> int:
     raise AssertionError(f"no stage process runs {module}")
 
 
+NO_RESTARTS_YAML = "supervision:\n  max_restarts: 0\n"
+
+
 @pytest.mark.parametrize(("stage", "module"), [("backend", "zenslam.backend.node"), ("frontend", "zenslam.frontend.node")])
 def test_a_stage_killed_mid_stream_fails_the_run_and_its_outputs_are_written(tmp_path, stage, module):
-    """SIGKILL of a stage (an out-of-memory kill, a segfault): exit 2, one line naming the stage and the
-    signal, and the run folder holds what reached the hub, as after an interrupt."""
-    run = _Run(tmp_path, "synthetic", "--max-frames", "200")
+    """SIGKILL of a stage (an out-of-memory kill, a segfault) with restarts disabled (the frontend
+    is never restarted yet): exit 2, one line naming the stage and the signal, and the run folder
+    holds what reached the hub, as after an interrupt."""
+    config = tmp_path / "no-restarts.yaml"
+    config.write_text(NO_RESTARTS_YAML)
+    run = _Run(tmp_path, "synthetic", "--max-frames", "200", "--config", str(config))
     run.wait_for("5 frames tracked", lambda: run.frames_tracked() >= 5)
     os.kill(_stage_pid(run, module), signal.SIGKILL)
     code = run.finish()
@@ -248,6 +254,7 @@ def test_a_stage_killed_mid_stream_fails_the_run_and_its_outputs_are_written(tmp
     assert sum("the run failed at frame" in line and f"the {stage}: signal SIGKILL" in line for line in stderr.splitlines()) == 1, context
     metrics = json.loads((run.run_dir / "metrics.json").read_text())
     assert metrics["run"]["completed"] is False
+    assert metrics["run"]["restarts"] == 0
     failures = metrics["run"]["failures"]
     assert [(f["stage"], f["signal"]) for f in failures] == [(stage, "SIGKILL")], failures
     assert failures[0]["frame"] >= 5
@@ -258,10 +265,10 @@ def test_a_stage_killed_mid_stream_fails_the_run_and_its_outputs_are_written(tmp
 
 @pytest.mark.parametrize(("stage", "module"), [("backend", "zenslam.backend.node"), ("frontend", "zenslam.frontend.node")])
 def test_a_stopped_stage_is_caught_as_hung_and_fails_the_run_with_its_outputs(tmp_path, stage, module):
-    """SIGSTOP (a stage that hangs): after supervision.hang_timeout_s without a word from it while its
-    input waits, the run kills it and fails as for a crash, naming the stage as hung."""
+    """SIGSTOP (a stage that hangs) with restarts disabled: after supervision.hang_timeout_s without a
+    word from it while its input waits, the run kills it and fails as for a crash, naming the stage as hung."""
     config = tmp_path / "hang.yaml"
-    config.write_text("supervision:\n  hang_timeout_s: 4\n")
+    config.write_text("supervision:\n  hang_timeout_s: 4\n  max_restarts: 0\n")
     run = _Run(tmp_path, "synthetic", "--max-frames", "200", "--config", str(config))
     run.wait_for("5 frames tracked", lambda: run.frames_tracked() >= 5)
     pid = _stage_pid(run, module)
@@ -283,3 +290,62 @@ def test_a_stopped_stage_is_caught_as_hung_and_fails_the_run_with_its_outputs(tm
     assert failure["stage"] == stage and failure["signal"] == "SIGKILL" and failure["hung_s"] >= 4, failure
     assert mcap_io.has_summary(run.run_dir / "run.mcap")
     assert _pose_lines(run.run_dir / "trajectory.tum") == metrics["tracked_ok"] >= 5
+
+
+def _completed_with_one_backend_restart(run: _Run, code: int) -> dict:
+    """What a run whose backend was restarted once leaves: exit 0, completed, the restart counted
+    and logged, every output; returns the restart event."""
+    context = f"stdout:\n{run.stdout[-2000:]}\nstderr:\n{run.stderr[-4000:]}"
+    assert code == 0, context
+    assert "Traceback" not in run.stdout + run.stderr, context
+    metrics = json.loads((run.run_dir / "metrics.json").read_text())
+    assert metrics["run"]["completed"] is True and metrics["run"]["failures"] == []
+    assert metrics["run"]["restarts"] == 1
+    [event] = metrics["run"]["restart_events"]
+    assert event["stage"] == "backend" and event["signal"] == "SIGKILL" and event["restart"] == 1, event
+    assert "rebuilt the map from the journal" in (run.run_dir / "logs" / "backend.log").read_text()
+    assert (run.run_dir / "backend.restart1.rrd").is_file() and (run.run_dir / "backend.rrd").is_file()
+    assert mcap_io.has_summary(run.run_dir / "run.mcap")
+    return event
+
+
+def test_a_backend_killed_mid_stream_is_restarted_and_the_lockstep_outputs_are_those_of_an_unharmed_run(tmp_path):
+    """SIGKILL of the backend half-way through a lockstep run: the supervisor restarts it, it
+    rebuilds its map from its journal, and the run ends as an unharmed run of the same input does,
+    byte for byte (the two runs go side by side)."""
+    options = ("--max-frames", "120")
+    unharmed = _Run(tmp_path, "synthetic", *options, run_id="it-unharmed")  # its own session
+    run = _Run(tmp_path, "synthetic", *options)
+    run.wait_for("40 frames tracked", lambda: run.frames_tracked() >= 40)
+    os.kill(_stage_pid(run, "zenslam.backend.node"), signal.SIGKILL)
+    event = _completed_with_one_backend_restart(run, run.finish())
+    assert event["frame"] >= 40
+    assert unharmed.finish() == 0, unharmed.stderr[-3000:]
+    for name in ("trajectory.tum", "keyframes.tum"):
+        assert (run.run_dir / name).read_bytes() == (unharmed.run_dir / name).read_bytes(), name
+
+
+def test_a_stopped_backend_is_caught_as_hung_and_restarted(tmp_path):
+    """SIGSTOP of the backend: after supervision.hang_timeout_s of silence while keyframes wait, it is
+    killed and restarted like a crashed one, and the run completes."""
+    config = tmp_path / "hang.yaml"
+    config.write_text("supervision:\n  hang_timeout_s: 4\n")
+    run = _Run(tmp_path, "synthetic", "--max-frames", "80", "--config", str(config))
+    run.wait_for("20 frames tracked", lambda: run.frames_tracked() >= 20)
+    pid = _stage_pid(run, "zenslam.backend.node")
+    stopped_at = time.monotonic()
+    os.kill(pid, signal.SIGSTOP)
+    run.wait_for("the backend killed as hung", lambda: not Path(f"/proc/{pid}").exists() or _zombie(pid))
+    caught_s = time.monotonic() - stopped_at
+    event = _completed_with_one_backend_restart(run, run.finish())
+    assert event["hung_s"] >= 4, event
+    assert caught_s < 4 + 30, f"the hung backend was killed {caught_s:.0f} s after it stopped"
+    metrics = json.loads((run.run_dir / "metrics.json").read_text())
+    assert metrics["tracked_ok"] == 80
+
+
+def _zombie(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"
+    except OSError:
+        return True

@@ -297,7 +297,9 @@ def test_recording_ends_by_itself_once_the_followed_stages_have_come_and_gone(tm
         token = bus.declare_alive(peer, SESSION, "source")
         publisher = bus.declare_publisher(peer, keys.status(SESSION, "source"), codec.STAGE_STATUS, "lossless")
         assert bus.wait_for_subscribers(publisher, timeout_s=5.0)
+        frames = bus.declare_publisher(peer, keys.sensor_frame(SESSION), codec.SENSOR_FRAME, "lossless")
         publisher.put(codec.encode_stage_status(codec.StageStatusMessage("source", "finished", 3)))
+        frames.put(codec.encode_end_of_stream(codec.SENSOR_FRAME, 3))
         # Nothing to wait for: the recorder must not end. A pause lets a wrong recorder end (on a busy
         # machine it may hide that, never fail a right one).
         time.sleep(0.2)
@@ -305,5 +307,45 @@ def test_recording_ends_by_itself_once_the_followed_stages_have_come_and_gone(tm
         token.undeclare()
         thread.join(timeout=10)
         assert not thread.is_alive()
-    assert result == {"/source/status": 1}
+    assert result == {"/source/status": 1, "/sensor/frame": 1}
+    assert mcap_io.has_summary(path)
+
+
+def test_a_followed_stage_gone_without_ending_its_stream_is_waited_for_while_it_may_be_restarted(tmp_path):
+    """A crashed backend (its token gone, its map-update stream not ended) is not the end of the
+    recording: its restarted successor's messages are recorded too; gone for good once it ended its
+    stream. One that never comes back is given up after the restart grace."""
+    hub_endpoint = bus.free_tcp_endpoint()
+    path = tmp_path / "restart.mcap"
+    with bus.open_session(bus.BusConfig(listen=(hub_endpoint,))) as hub, bus.open_session(bus.BusConfig(connect=(hub_endpoint,))) as peer:
+        result: dict = {}
+        config = RecorderConfig(quiet_s=0.1)
+        thread = threading.Thread(
+            target=lambda: result.update(record(hub, SESSION, path, config, lambda: False, ["backend"], restart_grace_s=60.0))
+        )
+        thread.start()
+        assert not bus.wait_for_alive(peer, SESSION, ["recorder"], timeout_s=10.0)
+        status = bus.declare_publisher(peer, keys.status(SESSION, "backend"), codec.STAGE_STATUS, "lossless")
+        bus.declare_alive(peer, SESSION, "backend").undeclare()  # the first backend dies
+        time.sleep(0.3)
+        assert thread.is_alive()  # it may come back
+        token = bus.declare_alive(peer, SESSION, "backend")  # restarted
+        assert bus.wait_for_subscribers(status, timeout_s=5.0)
+        status.put(codec.encode_stage_status(codec.StageStatusMessage("backend", "finished", 3)))
+        updates = bus.declare_publisher(peer, keys.backend_map_update(SESSION), codec.MAP_UPDATE, "lossless")
+        updates.put(codec.encode_end_of_stream(codec.MAP_UPDATE, 3))
+        token.undeclare()
+        thread.join(timeout=10)
+        assert not thread.is_alive()
+    assert result == {"/backend/status": 1, "/backend/map_update": 1}
+
+    path = tmp_path / "gone.mcap"
+    with bus.open_session(bus.BusConfig(listen=(hub_endpoint,))) as hub, bus.open_session(bus.BusConfig(connect=(hub_endpoint,))) as peer:
+        started = time.monotonic()
+        thread = threading.Thread(target=lambda: record(hub, SESSION, path, config, lambda: False, ["backend"], restart_grace_s=1.0))
+        thread.start()
+        assert not bus.wait_for_alive(peer, SESSION, ["recorder"], timeout_s=10.0)
+        bus.declare_alive(peer, SESSION, "backend").undeclare()
+        thread.join(timeout=10)
+        assert not thread.is_alive() and time.monotonic() - started >= 1.0
     assert mcap_io.has_summary(path)

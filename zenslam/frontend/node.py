@@ -129,6 +129,7 @@ class FrontendNode:
         self.built_ahead = 0  # frames whose ORB/stereo was built while waiting for the backend (lockstep)
         self.updates_applied = 0  # backend map updates applied to the pipeline's map
         self.tracks_backend = False  # set by ``serve`` when the backend's map updates are applied
+        self.backend_gone = False  # set by ``serve``: the backend crashed and is not back yet
         self.candidates: CandidateSource | None = None  # set by ``serve``: asks the backend where a lost frame is
         self.refused = 0  # frames refused by ``refusal`` (never tracked)
         self._last_index: int | None = None
@@ -227,8 +228,11 @@ class FrontendNode:
     @property
     def keyframes_in_flight(self) -> int:
         """Keyframes sent whose map update has not been applied (each keyframe gets one update);
-        without a backend's updates (``serve`` without ``backend``) this is 0: nothing to wait for."""
-        return self.keyframes - self.updates_applied if self.tracks_backend else 0
+        without a backend's updates (``serve`` without ``backend``) this is 0: nothing to wait for.
+        While the backend is gone (crashed, not restarted yet) it is 0 too: tracking makes keyframes
+        as it needs them, on its own stereo or depth points, and they go to the restarted backend;
+        held back they would leave tracking without points to track as the camera moves on."""
+        return self.keyframes - self.updates_applied if self.tracks_backend and not self.backend_gone else 0
 
     def log_last_frame(self) -> None:
         """Log the last handled frame to rerun: called after its messages are sent, so the ~1 ms of
@@ -263,8 +267,9 @@ class _Outputs:
         self.keyframe = bus.declare_publisher(session, keys.frontend_keyframe(session_name), codec.KEYFRAME, "lossless")
         self.status = bus.declare_publisher(session, keys.status(session_name, STAGE), codec.STAGE_STATUS, "lossless")
 
-    def send(self, messages: FrontendMessages) -> None:
-        for keyframe in messages.keyframes:
+    def send(self, messages: FrontendMessages, keyframes: bool = True) -> None:
+        """The frame's messages; its keyframes only when ``keyframes`` (held while the backend is gone)."""
+        for keyframe in messages.keyframes if keyframes else ():
             self.keyframe.put(keyframe)
         if messages.pose is not None:
             self.pose.put(messages.pose)
@@ -326,13 +331,29 @@ class _MapUpdates:
         self.unanswered.update(zip(messages.keyframe_ids, messages.keyframes, strict=True))
 
     def resend_to_a_restarted_backend(self) -> None:
-        """When the backend came back since the last call, send it every unanswered keyframe again, oldest first."""
+        """When the backend came back since the last call, send it every unanswered keyframe again,
+        oldest first: those sent to its predecessor and those held while it was gone."""
         if not self._backend.returned():
             return
         logger.warning("the backend restarted: sending its %d unanswered keyframe(s) again", len(self.unanswered))
         for keyframe_id in sorted(self.unanswered):
             self._resend(self.unanswered[keyframe_id])
             self.resent += 1
+
+    def wait_for_a_restarted_backend(self, timeout_s: float, should_stop: Callable[[], bool]) -> None:
+        """At the end of the frames: a backend that is gone gets up to ``timeout_s`` seconds to come
+        back and receive the unanswered keyframes, before the end of stream is sent after them."""
+        deadline = time.monotonic() + timeout_s
+        if self.backend_gone():
+            logger.warning("the backend is gone: waiting up to %.0f s for it to restart before ending the stream", timeout_s)
+        while self.backend_gone() and not should_stop() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        self.resend_to_a_restarted_backend()
+
+    def backend_gone(self) -> bool:
+        """Whether the backend's process is gone (it crashed, and may be restarted)."""
+        self._backend.poll()
+        return self._backend.gone
 
     def apply_pending(self, node: FrontendNode) -> None:
         """Live: apply every update that has arrived."""
@@ -417,6 +438,8 @@ def serve(
             while not should_stop():
                 message = held if held is not None else frames.get(timeout_s=0.1)
                 held = None
+                if updates is not None:
+                    node.backend_gone = updates.backend_gone()
                 if updates is not None and not wait_for_updates:
                     updates.apply_pending(node)
                 if updates is not None and updates.ended:
@@ -432,6 +455,8 @@ def serve(
                         logger.warning("dropped %d frame message(s) that did not decode and refused %d", frames.rejected, node.refused)
                     if wait_for_updates:
                         logger.info("%d of %d frames built while waiting for the backend's map update", node.built_ahead, node.frames)
+                    if updates is not None:
+                        updates.wait_for_a_restarted_backend(bus_config.start_timeout_s, should_stop)
                     ended = True
                     break
                 if (problem := node.refusal(message)) is not None:
@@ -443,7 +468,8 @@ def serve(
                 except Exception as exc:
                     outputs.send_status(codec.StageStatusMessage(STAGE, "failed", node.frames, detail=f"{type(exc).__name__}: {exc}"))
                     raise
-                outputs.send(sent)
+                # Keyframes made while the backend is gone wait, in order, for its restart.
+                outputs.send(sent, keyframes=not node.backend_gone)
                 if updates is not None:
                     updates.sent(sent)
                 node.log_last_frame()

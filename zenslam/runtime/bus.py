@@ -239,23 +239,32 @@ def alive_processes(session: zenoh.Session, session_name: str, timeout_s: float 
 
 
 class Comebacks:
-    """Notices a process of the session coming back: its liveliness token vanishing (the process died
-    or left) and then present again (a restart). Poll ``returned``; ``close`` when done."""
+    """Follows one process of the session through its liveliness token: ``gone`` while the token is
+    absent after having been seen (the process died or left), and ``returned`` once it is back (a
+    restart). Poll; ``close`` when done."""
 
     def __init__(self, session: zenoh.Session, session_name: str, process: str) -> None:
         self._subscriber = session.liveliness().declare_subscriber(
             keys.alive(session_name, process), zenoh.handlers.FifoChannel(64), history=True
         )
-        self._gone = False
+        self.gone = False
+        self._returns = 0  # times the token came back after vanishing
+        self._returns_seen = 0
+
+    def poll(self) -> None:
+        """Take the token's changes so far."""
+        while (sample := self._subscriber.try_recv()) is not None:
+            if sample.kind == zenoh.SampleKind.DELETE:
+                self.gone = True
+            elif self.gone:
+                self.gone = False
+                self._returns += 1
 
     def returned(self) -> bool:
         """True when the process came back since the last call."""
-        back = False
-        while (sample := self._subscriber.try_recv()) is not None:
-            if sample.kind == zenoh.SampleKind.DELETE:
-                self._gone = True
-            elif self._gone:
-                self._gone, back = False, True
+        self.poll()
+        back = self._returns > self._returns_seen
+        self._returns_seen = self._returns
         return back
 
     def close(self) -> None:

@@ -233,14 +233,25 @@ class Recorder:
         self._map_written_ns, self._map_changed_ns = log_time, None
 
 
-class _Followed:
-    """Liveliness of the stages the recorder follows: done once each has appeared and gone."""
+# The stream each followed stage ends when its input is done: a stage gone without ending it crashed,
+# and its supervisor may restart it.
+_STREAM_OF = {"source": keys.sensor_frame, "frontend": keys.frontend_state, "backend": keys.backend_map_update}
 
-    def __init__(self, session: zenoh.Session, session_name: str, stages: Iterable[str]):
+
+class _Followed:
+    """Liveliness of the stages the recorder follows: done once each has appeared and gone.
+
+    A stage gone without ending its stream crashed; it counts as gone for good only after
+    ``restart_grace_s`` seconds without coming back (a supervisor restarts a crashed backend, and the
+    new one's messages belong in the recording too)."""
+
+    def __init__(self, session: zenoh.Session, session_name: str, stages: Iterable[str], restart_grace_s: float = 60.0):
         self.stages = set(stages)
         self.seen: set[str] = set()
-        self.gone: set[str] = set()
+        self.gone: dict[str, float] = {}  # stage -> when its token vanished (monotonic seconds)
+        self.restart_grace_s = restart_grace_s
         self._prefix = keys.alive(session_name, "x")[:-1]
+        self._streams = {stage: mcap_io.topic_for_key(_STREAM_OF[stage](session_name), session_name) for stage in self.stages if stage in _STREAM_OF}
         self._subscriber = None
         if self.stages:
             self._subscriber = session.liveliness().declare_subscriber(
@@ -252,18 +263,26 @@ class _Followed:
             name = str(sample.key_expr).removeprefix(self._prefix)
             if sample.kind == zenoh.SampleKind.PUT:
                 self.seen.add(name)
+                self.gone.pop(name, None)  # back: a restart
             elif name in self.seen:
-                self.gone.add(name)
+                self.gone[name] = time.monotonic()
 
-    def done(self, ignored: frozenset[str] = frozenset()) -> bool:
-        """Every followed stage but the ``ignored`` has appeared and gone (False when following none)."""
+    def _gone_for_good(self, stage: str, ended_topics: set[str]) -> bool:
+        if stage not in self.gone:
+            return False
+        ended = stage not in self._streams or self._streams[stage] in ended_topics
+        return ended or time.monotonic() - self.gone[stage] >= self.restart_grace_s
+
+    def done(self, ignored: frozenset[str] = frozenset(), ended_topics: set[str] | frozenset[str] = frozenset()) -> bool:
+        """Every followed stage but the ``ignored`` has appeared and gone for good, having ended its
+        stream (a topic in ``ended_topics``) or not come back within the grace (False when following none)."""
         self._take()
-        return self._subscriber is not None and self.stages - ignored <= self.gone
+        return self._subscriber is not None and all(self._gone_for_good(stage, set(ended_topics)) for stage in self.stages - ignored)
 
     def none_running(self, ignored: frozenset[str] = frozenset()) -> bool:
         """No followed stage but the ``ignored`` is up now (those never seen are not waited for)."""
         self._take()
-        return (self.stages & self.seen) - ignored <= self.gone
+        return (self.stages & self.seen) - ignored <= set(self.gone)
 
     def close(self) -> None:
         if self._subscriber is not None:
@@ -332,13 +351,15 @@ def record(
     max_drain_s: float = 5.0,
     stop_grace_s: float = 5.0,
     at_backend_end: Callable[[], None] | None = None,
+    restart_grace_s: float = 60.0,
 ) -> dict[str, int]:
     """Record the session's messages to the MCAP file ``path`` until every stage in ``follow`` has come
     and gone, or ``should_stop()``; returns the messages written per topic.
 
     ``at_backend_end`` is called once, on this thread, when the backend's map-update stream has
     ended (a backend then lingers, answering queries: the moment to ask it for its final map); the
-    recording then ends without waiting for the backend to exit.
+    recording then ends without waiting for the backend to exit. A followed stage gone without
+    ending its stream (a crash) is waited for ``restart_grace_s`` seconds: a supervisor may restart it.
 
     Stopped, it still records for up to ``stop_grace_s`` seconds while a followed stage is up: a
     stop reaches the stages too, and what they send as they stop (their last results, their ends
@@ -349,7 +370,7 @@ def record(
     writer = mcap_io.RecordingWriter(path, chunk_size=config.chunk_size, compression=config.chunk_compression)
     recorder = Recorder(writer, config, session_name)
     worker = _Worker(recorder, config.queue)
-    followed = _Followed(session, session_name, follow)
+    followed = _Followed(session, session_name, follow, restart_grace_s)
     try:
         # Declared before the liveliness token: whoever waits for the recorder to be alive knows it listens.
         subscriber = session.declare_subscriber(keys.everything(session_name), worker.on_sample)
@@ -358,7 +379,7 @@ def record(
                 logger.info("recording %s to %s", keys.everything(session_name), path)
                 log_cpu_times("at stream start")
                 ended = _BackendEnd(recorder, at_backend_end)
-                while not should_stop() and not followed.done(ended.left_alone()) and worker.error is None:
+                while not should_stop() and not followed.done(ended.left_alone(), recorder.ended_topics) and worker.error is None:
                     ended.check()
                     time.sleep(0.02)
                 ended.check()
@@ -426,9 +447,9 @@ def main(argv: list[str] | None = None) -> int:
         bus_config = load_section(args.config, "bus", bus.BusConfig)
         with bus.open_session(bus_config_with(bus_config, args.connect, args.bus_config)) as session:
             if args.run_dir is None:
-                record(session, args.session, args.output, config, stop, args.follow)
+                record(session, args.session, args.output, config, stop, args.follow, restart_grace_s=bus_config.start_timeout_s)
             else:
-                _record_run(session, args, config, stop)
+                _record_run(session, args, config, stop, bus_config.start_timeout_s)
     except ZenslamError as exc:
         logger.error("%s", exc)
         return 2
@@ -438,7 +459,9 @@ def main(argv: list[str] | None = None) -> int:
 _QUERY_TIMEOUT_S = 10.0  # seconds to wait for the backend's answer to the final trajectory query
 
 
-def _record_run(session: zenoh.Session, args: argparse.Namespace, config: RecorderConfig, stop: StopFlag) -> None:
+def _record_run(
+    session: zenoh.Session, args: argparse.Namespace, config: RecorderConfig, stop: StopFlag, restart_grace_s: float
+) -> None:
     """Record to ``args.run_dir``/run.mcap, ask the backend for its final keyframe poses when its stream
     ends, then write the run's outputs from the recording."""
     from zenslam.backend.queries import query_trajectory
@@ -460,7 +483,7 @@ def _record_run(session: zenoh.Session, args: argparse.Namespace, config: Record
         if answers[-1] is None:
             logger.warning("the backend did not answer the trajectory query; keyframes.tum has the frontend's keyframes")
 
-    record(session, args.session, path, config, stop, args.follow, at_backend_end=ask_backend)
+    record(session, args.session, path, config, stop, args.follow, at_backend_end=ask_backend, restart_grace_s=restart_grace_s)
     result = write_recorded_outputs(path.parent, path, run_config, args.session, answers[0] if answers else None, stop())
     logger.info("wrote %s", ", ".join(p.name for p in result.files))
 

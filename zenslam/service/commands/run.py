@@ -245,6 +245,7 @@ class _Follower:
         self.log = RunLog(live=config.mode == "live")
         self.bar = tqdm(total=total, unit="frame", desc="tracking", disable=not progress)
         self.heard: dict[str, float] = {}  # stage -> when a message from it last arrived
+        self.start_timeout_s = config.bus.start_timeout_s
         self.source_sent = 0  # frames the source says it sent
 
     def poll(self, timeout_s: float) -> None:
@@ -332,7 +333,9 @@ def _check(supervisor: Supervisor, stop: StopFlag, follower: _Follower | None = 
     frame = follower.log.frame_counts()["frames"]
     for restarted in supervisor.restart_failed(supervision):
         follower.log.restarts.append({**restarted, "frame": frame})
-        follower.heard[str(restarted["stage"])] = time.monotonic()  # its silence counts from its new start
+        # A restarted stage says nothing while it starts (imports, its vocabulary): its silence
+        # counts once it has had bus.start_timeout_s to come up.
+        follower.heard[str(restarted["stage"])] = time.monotonic() + follower.start_timeout_s
 
 
 def _check_source(log: RunLog) -> None:
@@ -343,7 +346,7 @@ def _check_source(log: RunLog) -> None:
 
 def _start_stages(
     supervisor: Supervisor, session, config: RunConfig, run_dir: Path, stop: StopFlag, ground_truth: Trajectory | None,
-    wait_for: tuple[str, ...] = (),
+    follower: _Follower, wait_for: tuple[str, ...] = (),
 ) -> bool:
     """Start the recorder, backend, frontend and source, each once the one it needs is up; False when
     interrupted first (those started are then told to stop, and no other is started). ``ground_truth``
@@ -369,8 +372,14 @@ def _start_stages(
             supervisor.request_stop()
             return False
         supervisor.start(spec)
-        if spec.name != "source":  # the source is followed through the frontend's states
-            supervisor.wait_until_alive(session, [spec.name], timeout_s, stop.keep_going)
+        while spec.name != "source":  # the source is followed through the frontend's states
+            try:
+                supervisor.wait_until_alive(session, [spec.name], timeout_s, stop.keep_going)
+                break
+            except ProcessError:
+                if stop() or not supervisor.failures():  # interrupted, or up too slowly: not a crash
+                    raise
+                _check(supervisor, stop, follower, config.supervision)  # a stage that died starting: restarted, or raised
     return True
 
 
@@ -503,7 +512,7 @@ def track(
                 supervisor = Supervisor(run_dir, run_id, config_path, hub, env=_child_env(config))
                 with supervisor, bus.declare_alive(session, run_id, "run"):
                     try:
-                        started = _start_stages(supervisor, session, config, run_dir, stop, ground_truth, wait_for)
+                        started = _start_stages(supervisor, session, config, run_dir, stop, ground_truth, follower, wait_for)
                         if started:
                             log_cpu_times("at stream start")
                             _follow(follower, supervisor, stop, config.supervision)
