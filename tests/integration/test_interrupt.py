@@ -349,3 +349,29 @@ def _zombie(pid: int) -> bool:
         return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"
     except OSError:
         return True
+
+
+def test_a_killed_recorder_is_restarted_and_the_recording_stays_one_readable_file(tmp_path):
+    """SIGKILL of the recorder: the run goes on and completes, the restarted recorder carries its
+    predecessor's finished chunks over into run.mcap, which is finished, replays and exports."""
+    from zenslam.service.commands.export import export_recording
+
+    run = _Run(tmp_path, "synthetic", "--max-frames", "120")
+    run.wait_for("40 frames tracked", lambda: run.frames_tracked() >= 40)
+    os.kill(_stage_pid(run, "zenslam.service.recorder"), signal.SIGKILL)
+    code = run.finish()
+    context = f"stdout:\n{run.stdout[-2000:]}\nstderr:\n{run.stderr[-4000:]}"
+    assert code == 0, context
+    metrics = json.loads((run.run_dir / "metrics.json").read_text())
+    assert metrics["run"]["completed"] is True and metrics["run"]["restarts"] == 1
+    [event] = metrics["run"]["restart_events"]
+    assert event["stage"] == "recorder" and event["signal"] == "SIGKILL", event
+    recording = run.run_dir / "run.mcap"
+    assert mcap_io.has_summary(recording) and not list(run.run_dir.glob("run.crashed*"))
+    assert "carried" in (run.run_dir / "logs" / "recorder.log").read_text()
+    states = [decoded for _, decoded in mcap_io.iter_decoded(recording, ["/frontend/state"])]
+    assert isinstance(states[-1], codec.EndOfStream)
+    # Lost: the crashed recorder's open chunk (4 MiB: a few frames here) and what was sent while it restarted.
+    assert len(states) - 1 >= 100, len(states)
+    exported = export_recording(recording, tmp_path / "export")
+    assert exported.poses == len(states) - 1 and exported.keyframes > 0

@@ -349,3 +349,40 @@ def test_a_followed_stage_gone_without_ending_its_stream_is_waited_for_while_it_
         thread.join(timeout=10)
         assert not thread.is_alive() and time.monotonic() - started >= 1.0
     assert mcap_io.has_summary(path)
+
+
+def test_a_restarted_recorder_carries_its_crashed_predecessors_messages_over(tmp_path):
+    """A recorder killed mid-run leaves its finished chunks on disk: the one restarted in its place
+    writes them first, as stored (frames without a second copy of their images), knows which streams
+    had ended and which keyframes and points the map held, and goes on recording."""
+    point = np.array([[1.0, 2.0, 3.0]])
+    messages = [
+        (keys.sensor_frame(SESSION), codec.SENSOR_FRAME, _frame(0)),
+        (keys.frontend_keyframe(SESSION), codec.KEYFRAME, codec.encode_keyframe(_keyframe(0, 1_000_000, [7], point))),
+        (keys.sensor_frame(SESSION), codec.SENSOR_FRAME, codec.encode_end_of_stream(codec.SENSOR_FRAME, 1)),
+    ]
+    crashed = tmp_path / "run.crashed1.mcap"
+    writer = mcap_io.RecordingWriter(crashed, chunk_size=1)  # every message closes its chunk: all reach the file
+    recorder = Recorder(writer, RecorderConfig(), SESSION)
+    for key, schema, data in messages:
+        recorder.record(key, ENCODING.format(schema), data)
+    size = crashed.stat().st_size
+    recorder.record(keys.frontend_keyframe(SESSION), ENCODING.format(codec.KEYFRAME), codec.encode_keyframe(_keyframe(1, 2_000_000, [8], point)))
+    writer._stream.close()  # killed: no summary, no footer; and its last chunk cut short
+    crashed.write_bytes(crashed.read_bytes()[: size + 40])
+    (tmp_path / "unharmed").mkdir()
+    expected = _by_topic(_record_all(tmp_path / "unharmed", messages)[0])
+
+    path = tmp_path / "run.mcap"
+    with mcap_io.RecordingWriter(path) as new_writer:
+        restarted = Recorder(new_writer, RecorderConfig(), SESSION)
+        report = restarted.carry_over(crashed)
+        restarted.record(keys.frontend_state(SESSION), ENCODING.format(codec.TRACKING_STATE), codec.encode_end_of_stream(codec.TRACKING_STATE, 1))
+        restarted.finish()
+    assert not report.complete and report.stop_reason
+    got = _by_topic(path)
+    for topic in ("/sensor/frame", "/camera/left", "/camera/right", "/frontend/keyframe"):
+        assert [m.data for m in got[topic]] == [m.data for m in expected[topic]], topic
+    assert restarted.ended_topics == {"/sensor/frame", "/frontend/state"}
+    assert set(restarted.map.points) == {7} and set(restarted.map.keyframe_poses) == {0}
+    assert got["/map/points"], "the final map cloud is written from the carried-over keyframe"

@@ -290,11 +290,14 @@ def _joined_frame(path: Path, message: RecordedMessage, images: dict[str, Record
     return RecordedMessage(message.topic, message.schema, message.log_time_ns, message.publish_time_ns, message.sequence, data)
 
 
-def stream_messages(path: Path, topics: set[str] | None = None) -> Iterator[tuple[Schema | None, Channel, McapMessage]]:
-    """Every complete message record of ``path`` in file order, stopping quietly at a truncated tail."""
+def stream_messages(
+    path: Path, topics: set[str] | None = None, end: StreamEnd | None = None
+) -> Iterator[tuple[Schema | None, Channel, McapMessage]]:
+    """Every complete message record of ``path`` in file order, stopping quietly at a truncated tail
+    (``end``, if given, says how the pass ended)."""
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
-    for record in stream_records(path):
+    for record in stream_records(path, end):
         if isinstance(record, Schema):
             schemas[record.id] = record
         elif isinstance(record, Channel):

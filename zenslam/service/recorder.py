@@ -109,8 +109,13 @@ class MapAccumulator:
         return ids, p_world
 
     def keyframe_trajectory(self) -> tuple[np.ndarray, np.ndarray]:
-        """(stamps_ns (K,) int64, T_world_cam (K, 4, 4)) of the keyframes still in the map, oldest first."""
-        ids = sorted((self.keyframe_stamps_ns.get(i, 0), i) for i in self.keyframe_poses)
+        """(stamps_ns (K,) int64, T_world_cam (K, 4, 4)) of the keyframes still in the map, oldest first.
+        A keyframe known only from map updates (its own message lost with a crashed recorder's open
+        chunk) has no stamp and is left out."""
+        unstamped = [i for i in self.keyframe_poses if i not in self.keyframe_stamps_ns]
+        if unstamped:
+            logger.warning("%d keyframe(s) without their keyframe message (e.g. %d) are left out of the keyframe trajectory", len(unstamped), unstamped[0])
+        ids = sorted((self.keyframe_stamps_ns[i], i) for i in self.keyframe_poses if i in self.keyframe_stamps_ns)
         stamps = np.array([stamp for stamp, _ in ids], dtype=np.int64)
         poses = np.array([self.keyframe_poses[i] for _, i in ids], dtype=float).reshape(-1, 4, 4)
         return stamps, poses
@@ -155,6 +160,10 @@ def point_cloud(p_world: np.ndarray, stamp_ns: int) -> bytes:
         msg.fields.add(name=name, offset=4 * offset, type=PackedElementField.FLOAT32)
     msg.data = np.ascontiguousarray(p_world, dtype="<f4").tobytes()
     return msg.SerializeToString()
+
+
+# Schemas whose messages carry what a recording derives (the map, the ends of the stages' streams).
+_CARRIED_STATE = {codec.KEYFRAME, codec.MAP_UPDATE, codec.SENSOR_FRAME, codec.TRACKING_STATE}
 
 
 class Recorder:
@@ -214,6 +223,32 @@ class Recorder:
             self.map.apply(decoded)
             self._map_changed(log_time)
 
+    def carry_over(self, crashed: Path) -> mcap_io.RecoveryReport:
+        """Copy the messages of a crashed recorder's file into this recording, as they were stored
+        (its open chunk is lost), and take from them what the recording derives later: the map of
+        the final point cloud, the ended streams, the latest stamp."""
+        report = mcap_io.RecoveryReport(messages={})
+        end = mcap_io.StreamEnd()
+        for schema, channel, message in mcap_io.stream_messages(crashed, end=end):
+            schema_name = schema.name if schema is not None else None
+            self.writer.write(channel.topic, schema_name, message.data, message.log_time, message.publish_time)
+            report.messages[channel.topic] = report.messages.get(channel.topic, 0) + 1
+            self.last_stamp_ns = max(self.last_stamp_ns, int(message.log_time))
+            if schema_name not in _CARRIED_STATE:
+                continue
+            try:
+                decoded = mcap_io.DECODERS[schema_name](message.data)
+            except codec.MessageError:
+                continue  # a sensor frame stored without its images: only its end of stream matters here
+            if isinstance(decoded, codec.EndOfStream):
+                self.ended_topics.add(channel.topic)
+            elif isinstance(decoded, codec.KeyframeMessage):
+                self.map.add_keyframe(decoded)
+            elif isinstance(decoded, MapUpdate):
+                self.map.apply(decoded)
+        report.complete, report.stop_reason = end.complete, end.reason
+        return report
+
     def finish(self) -> None:
         """Write what is still due: the latest map, if its last change came too soon after the previous cloud."""
         if self._map_changed_ns is not None:
@@ -268,9 +303,10 @@ class _Followed:
                 self.gone[name] = time.monotonic()
 
     def _gone_for_good(self, stage: str, ended_topics: set[str]) -> bool:
-        if stage not in self.gone:
-            return False
         ended = stage not in self._streams or self._streams[stage] in ended_topics
+        if stage not in self.gone:
+            # Never seen: done only if it ended its stream before this recorder came (a restarted recorder).
+            return stage not in self.seen and stage in self._streams and ended
         return ended or time.monotonic() - self.gone[stage] >= self.restart_grace_s
 
     def done(self, ignored: frozenset[str] = frozenset(), ended_topics: set[str] | frozenset[str] = frozenset()) -> bool:
@@ -309,14 +345,16 @@ class _BackendEnd:
 
 
 class _Worker:
-    """The writer thread: takes (key, encoding, bytes) from the queue and records them."""
+    """The writer thread: runs ``first`` (a crashed predecessor's messages carried over), then takes
+    (key, encoding, bytes) from the queue and records them."""
 
-    def __init__(self, recorder: Recorder, capacity: int):
+    def __init__(self, recorder: Recorder, capacity: int, first: Callable[[], None] | None = None):
         self.queue: queue.Queue[tuple[str, str, bytes] | None] = queue.Queue(maxsize=capacity)
         self.recorder = recorder
         self.error: BaseException | None = None
         self.received = 0
         self.last_arrival = time.monotonic()
+        self._first = first
         self.thread = threading.Thread(target=self._run, name="recorder-writer", daemon=True)
         self.thread.start()
 
@@ -327,6 +365,12 @@ class _Worker:
         self.last_arrival = time.monotonic()
 
     def _run(self) -> None:
+        if self._first is not None:
+            try:
+                self._first()
+            except Exception as exc:
+                logger.exception("carrying the crashed recording over failed")
+                self.error = exc
         while (item := self.queue.get()) is not None:
             if self.error is not None:
                 continue  # keep draining so publishers are not blocked by a failed writer
@@ -352,6 +396,7 @@ def record(
     stop_grace_s: float = 5.0,
     at_backend_end: Callable[[], None] | None = None,
     restart_grace_s: float = 60.0,
+    carry_over: Path | None = None,
 ) -> dict[str, int]:
     """Record the session's messages to the MCAP file ``path`` until every stage in ``follow`` has come
     and gone, or ``should_stop()``; returns the messages written per topic.
@@ -361,6 +406,10 @@ def record(
     recording then ends without waiting for the backend to exit. A followed stage gone without
     ending its stream (a crash) is waited for ``restart_grace_s`` seconds: a supervisor may restart it.
 
+    ``carry_over``: the file of a crashed recorder this one replaces; its messages (all but its open
+    chunk) are written first, while the messages arriving meanwhile wait in the queue (a full queue
+    holds the publishers back: nothing is lost), and the file is deleted once the recording is finished.
+
     Stopped, it still records for up to ``stop_grace_s`` seconds while a followed stage is up: a
     stop reaches the stages too, and what they send as they stop (their last results, their ends
     of stream) belongs in the recording. At the end it keeps taking messages until none has
@@ -369,7 +418,7 @@ def record(
     """
     writer = mcap_io.RecordingWriter(path, chunk_size=config.chunk_size, compression=config.chunk_compression)
     recorder = Recorder(writer, config, session_name)
-    worker = _Worker(recorder, config.queue)
+    worker = _Worker(recorder, config.queue, None if carry_over is None else lambda: _carry_over(recorder, carry_over))
     followed = _Followed(session, session_name, follow, restart_grace_s)
     try:
         # Declared before the liveliness token: whoever waits for the recorder to be alive knows it listens.
@@ -402,7 +451,29 @@ def record(
     if worker.error is not None:
         raise mcap_io.RecordingError(f"recording to {path} failed: {worker.error}") from worker.error
     logger.info("wrote %d messages on %d topics to %s", sum(writer.counts.values()), len(writer.counts), path)
+    if carry_over is not None:
+        carry_over.unlink()  # its messages are in the finished recording
     return dict(writer.counts)
+
+
+def _carry_over(recorder: Recorder, crashed: Path) -> None:
+    started = time.perf_counter()
+    report = recorder.carry_over(crashed)
+    logger.info(
+        "carried %d messages over from the crashed recording %s in %.1f s (%s)", report.total, crashed,
+        time.perf_counter() - started, "complete" if report.complete else f"its open chunk lost: {report.stop_reason}",
+    )  # fmt: skip
+
+
+def set_aside(path: Path, restart: int) -> Path | None:
+    """A restarted recorder's predecessor's file, moved to ``<stem>.crashed<N>.mcap`` beside it so that
+    the recording can be written at ``path`` again; None when there is none."""
+    if not path.exists():
+        return None
+    aside = path.with_name(f"{path.stem}.crashed{restart}{path.suffix}")
+    path.replace(aside)
+    logger.warning("restart %d: %s was left unfinished by the recorder before; carrying it over from %s", restart, path, aside)
+    return aside
 
 
 def start_recorder(
@@ -418,7 +489,8 @@ def start_recorder(
         return None
     path = Path(run_dir) / RECORDING_NAME
     args = ("--output", str(path), *stage_args(STAGE, recorder=True))
-    supervisor.start(ProcessSpec(STAGE, STAGE_MODULES[STAGE], args))
+    # Restartable: a restarted recorder carries its predecessor's file over (``set_aside``).
+    supervisor.start(ProcessSpec(STAGE, STAGE_MODULES[STAGE], args, restartable=True))
     supervisor.wait_until_alive(session, [STAGE], config.bus.start_timeout_s, keep_waiting)
     return path
 
@@ -447,7 +519,11 @@ def main(argv: list[str] | None = None) -> int:
         bus_config = load_section(args.config, "bus", bus.BusConfig)
         with bus.open_session(bus_config_with(bus_config, args.connect, args.bus_config)) as session:
             if args.run_dir is None:
-                record(session, args.session, args.output, config, stop, args.follow, restart_grace_s=bus_config.start_timeout_s)
+                crashed = set_aside(args.output, args.restart) if args.restart else None
+                record(
+                    session, args.session, args.output, config, stop, args.follow,
+                    restart_grace_s=bus_config.start_timeout_s, carry_over=crashed,
+                )  # fmt: skip
             else:
                 _record_run(session, args, config, stop, bus_config.start_timeout_s)
     except ZenslamError as exc:
@@ -471,6 +547,7 @@ def _record_run(
 
     run_config = load_run_config(args.config)
     path = Path(args.run_dir) / RECORDING_NAME
+    crashed = set_aside(path, args.restart) if args.restart else None
     if path.exists():
         raise mcap_io.RecordingError(f"{path} exists already; runs never overwrite: give another --run-dir")
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -483,7 +560,10 @@ def _record_run(
         if answers[-1] is None:
             logger.warning("the backend did not answer the trajectory query; keyframes.tum has the frontend's keyframes")
 
-    record(session, args.session, path, config, stop, args.follow, at_backend_end=ask_backend, restart_grace_s=restart_grace_s)
+    record(
+        session, args.session, path, config, stop, args.follow, at_backend_end=ask_backend,
+        restart_grace_s=restart_grace_s, carry_over=crashed,
+    )  # fmt: skip
     result = write_recorded_outputs(path.parent, path, run_config, args.session, answers[0] if answers else None, stop())
     logger.info("wrote %s", ", ".join(p.name for p in result.files))
 
