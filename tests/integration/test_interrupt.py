@@ -258,6 +258,7 @@ def test_a_stage_killed_mid_stream_fails_the_run_and_its_outputs_are_written(tmp
     failures = metrics["run"]["failures"]
     assert [(f["stage"], f["signal"]) for f in failures] == [(stage, "SIGKILL")], failures
     assert failures[0]["frame"] >= 5
+    assert (run.run_dir / "backend.journal").is_file(), "a failed run keeps the backend's journal"
     assert mcap_io.has_summary(run.run_dir / "run.mcap"), "run.mcap was not finished (no summary)"
     assert _pose_lines(run.run_dir / "trajectory.tum") == metrics["tracked_ok"] >= 5
     assert (run.run_dir / "keyframes.tum").is_file()
@@ -305,6 +306,7 @@ def _completed_with_one_backend_restart(run: _Run, code: int) -> dict:
     assert event["stage"] == "backend" and event["signal"] == "SIGKILL" and event["restart"] == 1, event
     assert "rebuilt the map from the journal" in (run.run_dir / "logs" / "backend.log").read_text()
     assert (run.run_dir / "backend.restart1.rrd").is_file() and (run.run_dir / "backend.rrd").is_file()
+    assert not (run.run_dir / "backend.journal").exists(), "a finished run keeps no journal"
     assert mcap_io.has_summary(run.run_dir / "run.mcap")
     return event
 

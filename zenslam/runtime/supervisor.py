@@ -36,9 +36,10 @@ logger = logging.getLogger(__name__)
 class SupervisionConfig:
     """How a run watches its stages (the ``supervision`` section)."""
 
-    # Seconds without any message from the stages, while one has input waiting, before that stage
-    # counts as hung (stopped, deadlocked) and is killed, which fails the run with its outputs
-    # written; 0 never. A global BA sends nothing while it runs: keep this above the longest one.
+    # Seconds without any message from a stage, while it has input waiting, before it counts as hung
+    # (stopped, deadlocked) and is killed, then restarted or the run failed as for a crash; 0 never.
+    # A stage that has not made progress yet since it (re)started gets bus.start_timeout_s at least.
+    # A global BA sends nothing while it runs: keep this above the longest one.
     hang_timeout_s: float = 600.0
     # A stage that can recover what it held (the backend, from its journal) and crashed or hung is
     # started again, at most this many times within restart_window_s seconds; one more failure in

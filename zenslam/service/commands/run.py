@@ -30,6 +30,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from zenslam.backend.journal import JOURNAL_NAME
 from zenslam.backend.queries import query_trajectory
 from zenslam.config import load_yaml
 from zenslam.errors import ConfigError, ProcessError
@@ -245,6 +246,9 @@ class _Follower:
         self.log = RunLog(live=config.mode == "live")
         self.bar = tqdm(total=total, unit="frame", desc="tracking", disable=not progress)
         self.heard: dict[str, float] = {}  # stage -> when a message from it last arrived
+        # Stages that have made progress (the frontend a tracking state, the backend a map update)
+        # since they (re)started; until then they may be silent for bus.start_timeout_s.
+        self.progressed: set[str] = set()
         self.start_timeout_s = config.bus.start_timeout_s
         self.source_sent = 0  # frames the source says it sent
 
@@ -258,6 +262,7 @@ class _Follower:
         state = self.states.get(timeout_s)
         if state is not None:
             self.heard["frontend"] = time.monotonic()
+            self.progressed.add("frontend")
         if isinstance(state, codec.EndOfStream):
             self.log.ended = True
         elif state is not None:
@@ -276,6 +281,7 @@ class _Follower:
             updated = True
         if updated:
             self.heard["backend"] = time.monotonic()
+            self.progressed.add("backend")
             if self.ros2 is not None:
                 self.ros2.publish_path(self.log.keyframe_trajectory())
         while (status := self.statuses.get(0)) is not None:
@@ -290,6 +296,12 @@ class _Follower:
         """Seconds since ``stage`` was last heard, or since ``since`` when it has not been heard since then."""
         return time.monotonic() - max(self.heard.get(stage, since), since)
 
+    def hang_limit_s(self, stage: str, hang_timeout_s: float) -> float:
+        """The silence after which ``stage`` counts as hung: ``hang_timeout_s`` once it has made
+        progress, at least ``bus.start_timeout_s`` while it starts (its first frame builds the tracker
+        and its first keyframe the map, slow on a busy machine)."""
+        return hang_timeout_s if stage in self.progressed else max(hang_timeout_s, self.start_timeout_s)
+
     def drain(self, until: float) -> None:
         """Keep taking messages until the poses announced by the states have all arrived, or ``until``."""
         while time.monotonic() < until and (not self.log.ended or self.log.missing_poses() > 0):
@@ -303,22 +315,25 @@ class _Follower:
 
 def _watch_for_hang(follower: _Follower, supervisor: Supervisor, hang_timeout_s: float, since: float, stop: StopFlag) -> None:
     """Kill a stage whose input waits while it has said nothing for ``hang_timeout_s`` seconds (0:
-    never), counted from ``since`` at the latest (when following began): the backend while keyframes
-    wait for it; the frontend while frames the source sent wait for it, unless it waits for the
-    backend's answers itself. The next ``_check`` then fails the run as for a crash."""
+    never; a stage still starting gets ``bus.start_timeout_s``), counted from ``since`` at the latest
+    (when following began): the backend while keyframes wait for it; the frontend while frames the
+    source sent wait for it, unless it waits for the backend's answers itself. The next ``_check``
+    then restarts it or fails the run, as for a crash."""
     if hang_timeout_s <= 0 or stop():
         return
     backend_silent_s, frontend_silent_s = follower.silent_s("backend", since), follower.silent_s("frontend", since)
-    if max(backend_silent_s, frontend_silent_s) < hang_timeout_s:
+    backend_limit_s = follower.hang_limit_s("backend", hang_timeout_s)
+    frontend_limit_s = follower.hang_limit_s("frontend", hang_timeout_s)
+    if backend_silent_s < backend_limit_s and frontend_silent_s < frontend_limit_s:
         return  # the usual case, decided before counting the log's frames and keyframes
     log = follower.log
     counts = log.keyframe_counts()
     keyframes_wait = not log.backend_ended and (counts["processed"] < counts["sent"] or (log.ended and counts["sent"] > 0))
-    if keyframes_wait and backend_silent_s >= hang_timeout_s:
+    if keyframes_wait and backend_silent_s >= backend_limit_s:
         supervisor.kill_hung("backend", backend_silent_s)
         return
     frames_wait = not log.ended and follower.source_sent > log.frame_counts()["frames"]
-    if frames_wait and not keyframes_wait and frontend_silent_s >= hang_timeout_s:
+    if frames_wait and not keyframes_wait and frontend_silent_s >= frontend_limit_s:
         supervisor.kill_hung("frontend", frontend_silent_s)
 
 
@@ -333,9 +348,9 @@ def _check(supervisor: Supervisor, stop: StopFlag, follower: _Follower | None = 
     frame = follower.log.frame_counts()["frames"]
     for restarted in supervisor.restart_failed(supervision):
         follower.log.restarts.append({**restarted, "frame": frame})
-        # A restarted stage says nothing while it starts (imports, its vocabulary): its silence
-        # counts once it has had bus.start_timeout_s to come up.
-        follower.heard[str(restarted["stage"])] = time.monotonic() + follower.start_timeout_s
+        stage = str(restarted["stage"])
+        follower.heard[stage] = time.monotonic()
+        follower.progressed.discard(stage)  # starting again: watched as a stage that starts
 
 
 def _check_source(log: RunLog) -> None:
@@ -631,6 +646,10 @@ def _run(args: argparse.Namespace, stop: StopFlag) -> int:
     sensor = given.sensor or recorded_sensor(recording) or "stereo"  # a bus source's sensor: what was recorded
     evaluation_config = evaluation_config_for(config.evaluation, sensor)
     result = write_outputs(run_dir, log, ground_truth, evaluation_config, extra, plane=args.plane)
+    if completed:
+        # The backend's journal serves only to rebuild a crashed backend: a finished run's map is in
+        # the outputs. An interrupted or failed run keeps it (what the backend was given, in order).
+        (run_dir / JOURNAL_NAME).unlink(missing_ok=True)
     for line in _summary(result, log):
         print(line)
     if failure is not None:
