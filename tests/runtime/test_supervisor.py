@@ -10,10 +10,10 @@ from pathlib import Path
 
 import pytest
 
-from zenslam.errors import ProcessError
+from zenslam.errors import ConfigError, ProcessError
 from zenslam.runtime import bus
 from zenslam.runtime.stage import StopFlag
-from zenslam.runtime.supervisor import MALLOC_TUNABLES, ProcessSpec, Supervisor
+from zenslam.runtime.supervisor import MALLOC_TUNABLES, ProcessSpec, SupervisionConfig, Supervisor
 
 # A stage-like child: parses the common arguments, joins the bus, announces itself, waits for a stop.
 STAGE_CHILD = """
@@ -202,3 +202,28 @@ def test_children_get_the_malloc_tunables_unless_the_caller_set_their_own(tmp_pa
         supervisor.wait_exit(timeout_s=30.0)
         # On x86-64 the pinned math kernels add glibc.cpu.hwcaps after them (tests/runtime/test_cpu_kernels.py).
         assert f"GLIBC_TUNABLES={given or MALLOC_TUNABLES}" in supervisor.log_tail("env")
+
+
+def test_a_restartable_stage_is_restarted_a_bounded_number_of_times_within_the_window(tmp_path, modules):
+    """Each failure of a restartable stage starts it again with ``--restart N``, its log kept and
+    appended to; one failure more than ``max_restarts`` within the window raises as ``check`` does.
+    A stage that is not restartable raises at its first failure."""
+    config = SupervisionConfig(max_restarts=2, restart_window_s=600.0)
+    with _supervisor(tmp_path, modules) as supervisor:
+        supervisor.start(ProcessSpec("backend", "crashing_child", restartable=True))
+        for restart in (1, 2):
+            supervisor.wait_exit(timeout_s=30.0)
+            assert supervisor.restart_failed(config) == [{"stage": "backend", "exit_code": 3, "restart": restart}]
+        supervisor.wait_exit(timeout_s=30.0)
+        with pytest.raises(ProcessError, match=r"backend exited with status 3 after 2 restart\(s\) within 600 s"):
+            supervisor.restart_failed(config)
+        log = (tmp_path / "run" / "logs" / "backend.log").read_text()
+        assert log.count("calibration is nonsense") == 3 and "---- restart 2 of backend ----" in log
+    with _supervisor(tmp_path / "second", modules) as supervisor:
+        supervisor.start(ProcessSpec("frontend", "crashing_child"))
+        supervisor.wait_exit(timeout_s=30.0)
+        with pytest.raises(ProcessError, match=r"frontend exited with status 3; the end"):
+            supervisor.restart_failed(config)
+    assert SupervisionConfig(max_restarts=0)  # 0 is allowed: no restarts
+    with pytest.raises(ConfigError, match="max_restarts"):
+        SupervisionConfig(max_restarts=-1)
