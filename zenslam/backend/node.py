@@ -474,7 +474,7 @@ def _process(
         if node.processed == 0:
             log_cpu_times("at stream start")
         started = time.perf_counter()
-        queued = inbox.count_waiting(_is_keyframe)  # the end of stream is no keyframe to wait for
+        queued = _newer_keyframes_waiting(inbox, int(message.id))
         if rebuilt_upto is not None and message.id <= rebuilt_upto:
             logger.info("keyframe %d sent again after the restart: mapped from the journal already", message.id)
             continue
@@ -500,6 +500,22 @@ def _process(
         outputs.send_status(codec.StageStatusMessage(STAGE, "running", node.processed, step_ms, depth, timings_ms=timings))
         logger.debug("keyframe %d: %.1f ms (local BA %.1f ms), queue %d", message.id, step_ms, timings.get("local_ba", 0.0), depth)
     return False
+
+
+def _newer_keyframes_waiting(inbox: bus.Inbox, keyframe_id: int) -> int:
+    """Distinct keyframes after ``keyframe_id`` waiting in the inbox: the end of stream is none, nor
+    is a keyframe a frontend sent again to this restarted backend (its copies would defer local
+    mapping as a backlog does, and the map would no longer be the unharmed run's)."""
+    newer: set[int] = set()
+
+    def is_newer(received: tuple[bytes, codec.KeyframeMessage | codec.EndOfStream]) -> bool:
+        message = received[1]
+        if isinstance(message, codec.EndOfStream) or message.id <= keyframe_id or message.id in newer:
+            return False
+        newer.add(int(message.id))
+        return True
+
+    return inbox.count_waiting(is_newer)
 
 
 def _is_keyframe(received: tuple[bytes, codec.KeyframeMessage | codec.EndOfStream]) -> bool:
@@ -572,6 +588,10 @@ def main(argv: list[str] | None = None) -> int:
             journal = Path(args.config).parent / JOURNAL_NAME if config.journal and args.config is not None else None
             if args.restart:
                 logger.info("restart %d: rebuilding the map from %s", args.restart, journal)
+                # What this backend publishes must reach the frontend, which waits for the answers
+                # the journal lacks: its token seen here means its subscriptions have reached us too.
+                if bus.wait_for_alive(session, args.session, ["frontend"], bus_config.start_timeout_s, stop.keep_going):
+                    logger.warning("restart %d: no frontend within %.0f s; mapping on without it", args.restart, bus_config.start_timeout_s)
             try:
                 serve(session, args.session, node, config, stop, journal=journal, rebuild=args.restart > 0)
             finally:

@@ -310,6 +310,9 @@ class RelocalisationQueries:
         return None
 
 
+_RESEND_S = 5.0  # seconds between sends of the unanswered keyframes to a restarted backend, until it answers
+
+
 class _MapUpdates:
     """The backend's map updates, applied to the node's pipeline as the run mode says, and the
     keyframes still waiting for their answer, sent again to a backend that comes back after a crash
@@ -323,6 +326,7 @@ class _MapUpdates:
         self.unanswered: dict[int, bytes] = {}  # keyframe id -> its message, sent and not answered yet
         self.resent = 0  # keyframes sent again to a restarted backend
         self._last_answered = -1  # the newest keyframe id answered
+        self._resend_due: float | None = None  # after a backend restart: when to send the unanswered again
         self._resend = resend
         self._backend = bus.Comebacks(session, session_name, "backend")
 
@@ -332,13 +336,18 @@ class _MapUpdates:
 
     def resend_to_a_restarted_backend(self) -> None:
         """When the backend came back since the last call, send it every unanswered keyframe again,
-        oldest first: those sent to its predecessor and those held while it was gone."""
-        if not self._backend.returned():
+        oldest first: those sent to its predecessor and those held while it was gone. Until an
+        answer comes, again every ``_RESEND_S`` seconds: a keyframe sent as the new backend's token
+        arrived may not reach it (measured under load), and one it has already is skipped there."""
+        now = time.monotonic()
+        if self._backend.returned():
+            logger.warning("the backend restarted: sending its %d unanswered keyframe(s) again", len(self.unanswered))
+        elif self._resend_due is None or now < self._resend_due or self._backend.gone or not self.unanswered:
             return
-        logger.warning("the backend restarted: sending its %d unanswered keyframe(s) again", len(self.unanswered))
         for keyframe_id in sorted(self.unanswered):
             self._resend(self.unanswered[keyframe_id])
             self.resent += 1
+        self._resend_due = now + _RESEND_S if self.unanswered else None
 
     def wait_for_a_restarted_backend(self, timeout_s: float, should_stop: Callable[[], bool]) -> None:
         """At the end of the frames: a backend that is gone gets up to ``timeout_s`` seconds to come
@@ -396,6 +405,7 @@ class _MapUpdates:
                 return
             self._last_answered = int(update.keyframe_id)
             self.unanswered.pop(int(update.keyframe_id), None)
+            self._resend_due = None  # the restarted backend has its keyframes
         node.apply_map_update(update)
 
     def close(self) -> None:

@@ -278,6 +278,13 @@ class Supervisor:
                 f"process(es) {sorted(missing)} did not come up within {timeout_s:.0f} s; see {self.run_dir / 'logs'}"
             )
 
+    def wait_for_exit(self, name: str, timeout_s: float) -> int | None:
+        """Wait up to ``timeout_s`` seconds for the child ``name`` to exit; its status, None if it runs on."""
+        try:
+            return self._children[name].popen.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            return None
+
     def wait_exit(self, timeout_s: float) -> dict[str, int | None]:
         """Wait up to ``timeout_s`` seconds for every child to exit by itself; returns their statuses."""
         deadline = time.monotonic() + timeout_s

@@ -544,6 +544,8 @@ def track(
                         # the other stages (the recorder finishes run.mcap); the caller writes the outputs.
                         frame = follower.log.frame_counts()["frames"]
                         follower.drain(time.monotonic() + _POSE_GRACE_S)  # also lets a stage that reported its failure exit
+                        if follower.log.source_failure is not None:  # it said so before exiting: let it exit
+                            supervisor.wait_for_exit("source", _POSE_GRACE_S)
                         failure = RunFailure(str(exc), frame, [{**f, "frame": frame} for f in supervisor.failures()])
             finally:
                 follower.close()
