@@ -311,6 +311,7 @@ def _completed_with_one_backend_restart(run: _Run, code: int) -> dict:
     return event
 
 
+@pytest.mark.extended  # two runs side by side: CI runs it after the README's command
 def test_a_backend_killed_mid_stream_is_restarted_and_the_lockstep_outputs_are_those_of_an_unharmed_run(tmp_path):
     """SIGKILL of the backend half-way through a lockstep run: the supervisor restarts it, it
     rebuilds its map from its journal, and the run ends as an unharmed run of the same input does,
@@ -354,6 +355,7 @@ def _zombie(pid: int) -> bool:
         return True
 
 
+@pytest.mark.extended  # CI runs it after the README's command
 def test_a_killed_recorder_is_restarted_and_the_recording_stays_one_readable_file(tmp_path):
     """SIGKILL of the recorder: the run goes on and completes, the restarted recorder carries its
     predecessor's finished chunks over into run.mcap, which is finished, replays and exports."""
