@@ -313,7 +313,8 @@ class _Followed:
         """Every followed stage but the ``ignored`` has appeared and gone for good, having ended its
         stream (a topic in ``ended_topics``) or not come back within the grace (False when following none)."""
         self._take()
-        return self._subscriber is not None and all(self._gone_for_good(stage, set(ended_topics)) for stage in self.stages - ignored)
+        ended = set(ended_topics)  # a copy: the writer thread adds to it
+        return self._subscriber is not None and all(self._gone_for_good(stage, ended) for stage in self.stages - ignored)
 
     def none_running(self, ignored: frozenset[str] = frozenset()) -> bool:
         """No followed stage but the ``ignored`` is up now (those never seen are not waited for)."""

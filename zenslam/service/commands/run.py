@@ -337,13 +337,10 @@ def _watch_for_hang(follower: _Follower, supervisor: Supervisor, hang_timeout_s:
         supervisor.kill_hung("frontend", frontend_silent_s)
 
 
-def _check(supervisor: Supervisor, stop: StopFlag, follower: _Follower | None = None, supervision: SupervisionConfig | None = None) -> None:
+def _check(supervisor: Supervisor, stop: StopFlag, follower: _Follower, supervision: SupervisionConfig) -> None:
     """Restart a failed stage that can recover (``supervision.max_restarts``), noting it in the log;
     raise for any other failed stage. Interrupted, neither: the run winds down and ``_report_exits`` says."""
     if stop():
-        return
-    if follower is None or supervision is None:
-        supervisor.check()
         return
     frame = follower.log.frame_counts()["frames"]
     for restarted in supervisor.restart_failed(supervision):
@@ -479,7 +476,8 @@ def _stop_backend(follower: _Follower, supervisor: Supervisor, session, run_id: 
 
 def _report_exits(supervisor: Supervisor, stop: StopFlag, statuses: dict[str, int | None]) -> None:
     """Raise for a failed stage; interrupted, warn instead (what was tracked is still written)."""
-    _check(supervisor, stop)
+    if not stop():
+        supervisor.check()  # the stream is over: a stage that failed now is not restarted
     for name, code in statuses.items():
         if code not in (None, 0):
             logger.warning("%s exited with status %s while the run stopped; see %s", name, code, supervisor.run_dir / "logs")
