@@ -99,6 +99,20 @@ def test_trajectory_and_snapshot_are_the_map_now():
         np.testing.assert_array_equal(p, bmap.points[point_id].p_world)
 
 
+def test_the_trajectory_names_the_ids_a_restarted_frontend_may_use_past_the_map_and_the_inbox():
+    world, node = World(), _node()
+    for k in range(4):
+        node.step(world.keyframe(k))
+    trajectory = codec.decode_keyframe_trajectory(codec.encode_keyframe_trajectory(node.trajectory()))
+    assert trajectory.next_keyframe_id == 4
+    assert trajectory.next_frontend_point_id == max(node.map.points) + 1
+    waiting = [world.keyframe(4), world.keyframe(5)]  # sent, still in the inbox: their ids are taken too
+    ahead = node.trajectory(waiting)
+    assert ahead.next_keyframe_id == 6
+    new_ids = np.concatenate([kf.new_point_ids for kf in waiting])
+    assert ahead.next_frontend_point_id == max(int(new_ids.max()), max(node.map.points)) + 1
+
+
 def test_replies_round_trip_exactly():
     world, node = World(), _node()
     for k in range(3):

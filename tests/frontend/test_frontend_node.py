@@ -240,3 +240,27 @@ def test_serve_refuses_frames_of_another_camera_or_not_after_the_last():
     assert "is not after frame 1" in node.refusal(_message(frames[0]))
     assert "is not after frame 1" in node.refusal(_message(frames[1]))
     assert node.refusal(_message(frames[2])) is None
+
+
+def test_a_restarted_frontend_applies_no_answer_to_its_predecessors_keyframes():
+    """Keyframe ids below the frontend's first (``entering_map``: past the backend's map) were its
+    predecessor's: their answers are not applied, corrections and answers to its own keyframes are."""
+    from zenslam.frontend.config import FrontendConfig, entering_map
+    from zenslam.frontend.node import _MapUpdates
+    from zenslam.schemas.map_update import MapUpdate
+
+    applied: list[MapUpdate] = []
+    node = SimpleNamespace(apply_map_update=applied.append)
+    config = entering_map(FrontendConfig(), next_keyframe_id=40, next_point_id=9000)
+    assert config.tracking.start_in_map and config.tracking.local_map.point_id_start == 9000
+    with bus.open_session(bus.BusConfig()) as session:
+        updates = _MapUpdates(session, "restarted-frontend", config, resend=lambda message: None)
+        try:
+            predecessors = MapUpdate(keyframe_id=39, stamp_ns=0)
+            correction = MapUpdate(keyframe_id=39, stamp_ns=0, kind="correction")
+            own = MapUpdate(keyframe_id=40, stamp_ns=1)
+            for update in (predecessors, correction, own):
+                updates._apply(node, update)
+        finally:
+            updates.close()
+    assert applied == [correction, own]

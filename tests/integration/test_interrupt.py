@@ -238,9 +238,9 @@ NO_RESTARTS_YAML = "supervision:\n  max_restarts: 0\n"
 
 @pytest.mark.parametrize(("stage", "module"), [("backend", "zenslam.backend.node"), ("frontend", "zenslam.frontend.node")])
 def test_a_stage_killed_mid_stream_fails_the_run_and_its_outputs_are_written(tmp_path, stage, module):
-    """SIGKILL of a stage (an out-of-memory kill, a segfault) with restarts disabled (the frontend
-    is never restarted yet): exit 2, one line naming the stage and the signal, and the run folder
-    holds what reached the hub, as after an interrupt."""
+    """SIGKILL of a stage (an out-of-memory kill, a segfault) with restarts disabled: exit 2, one
+    line naming the stage and the signal, and the run folder holds what reached the hub, as after
+    an interrupt."""
     config = tmp_path / "no-restarts.yaml"
     config.write_text(NO_RESTARTS_YAML)
     run = _Run(tmp_path, "synthetic", "--max-frames", "200", "--config", str(config))
@@ -346,6 +346,34 @@ def test_a_stopped_backend_is_caught_as_hung_and_restarted(tmp_path):
     assert caught_s < 10 + 30, f"the hung backend was killed {caught_s:.0f} s after it stopped"
     metrics = json.loads((run.run_dir / "metrics.json").read_text())
     assert metrics["tracked_ok"] == 80
+
+
+@pytest.mark.extended  # CI runs it after the README's command
+def test_a_killed_frontend_is_restarted_and_relocalises_into_the_backends_map(tmp_path):
+    """SIGKILL of the frontend mid-stream: the supervisor restarts it, the source sends it the frames
+    in flight again, it relocalises into the backend's map, and tracking goes on with its keyframe
+    and point ids past the map's; the frames between the last pose before the crash and the first
+    after it are counted in the restart event."""
+    run = _Run(tmp_path, "synthetic", "--max-frames", "120")
+    run.wait_for("40 frames tracked", lambda: run.frames_tracked() >= 40)
+    os.kill(_stage_pid(run, "zenslam.frontend.node"), signal.SIGKILL)
+    code = run.finish()
+    context = f"stdout:\n{run.stdout[-2000:]}\nstderr:\n{run.stderr[-4000:]}"
+    assert code == 0, context
+    assert "Traceback" not in run.stdout + run.stderr, context
+    metrics = json.loads((run.run_dir / "metrics.json").read_text())
+    assert metrics["run"]["completed"] is True and metrics["run"]["restarts"] == 1
+    [event] = metrics["run"]["restart_events"]
+    assert event["stage"] == "frontend" and event["signal"] == "SIGKILL", event
+    assert event["relocalised_at"] is not None and 0 <= event["frames_lost"] <= 10, event
+    assert metrics["relocalisation"]["count"] >= 1
+    assert metrics["tracked_ok"] >= 120 - 10
+    assert metrics["keyframes"]["processed"] == metrics["keyframes"]["sent"], metrics["keyframes"]
+    assert metrics["ate"]["rmse_m"] < 0.02, metrics["ate"]  # an unharmed run: 4 mm
+    log = (run.run_dir / "logs" / "frontend.log").read_text()
+    assert "---- restart 1 of frontend ----" in log and "entering the backend's map" in log
+    assert (run.run_dir / "frontend.restart1.rrd").is_file()
+    assert mcap_io.has_summary(run.run_dir / "run.mcap")
 
 
 def _zombie(pid: int) -> bool:

@@ -258,3 +258,17 @@ def test_stream_timing_spans_the_first_frame_sent_to_the_last_update_and_gives_t
     assert timing["stream_s"] == pytest.approx(2.1)
     assert timing["data_duration_s"] == pytest.approx(1.0)
     assert timing["realtime_factor"] == pytest.approx(1.0 / 2.1)
+
+
+def test_a_frontend_restart_counts_the_frames_between_the_last_pose_and_the_first_after_it():
+    log = RunLog()
+    for i in range(12):
+        posed = i < 5 or i >= 9  # frames 5..8: lost or never tracked; 9 relocalised
+        log.add_state(codec.TrackingStateMessage(i, 10 * (i + 1), "ok" if posed else "lost", has_pose=posed))
+    log.restarts.append({"stage": "frontend", "signal": "SIGKILL", "restart": 1, "frame": 6, "last_frame_index": 5})
+    log.restarts.append({"stage": "backend", "signal": "SIGKILL", "restart": 1, "frame": 11, "last_frame_index": 10})
+    frontend, backend = log.restart_events()
+    assert (frontend["frames_lost"], frontend["relocalised_at"]) == (4, 9)
+    assert "frames_lost" not in backend
+    log.restarts.append({"stage": "frontend", "signal": "SIGKILL", "restart": 2, "frame": 12, "last_frame_index": 11})
+    assert log.restart_events()[-1]["frames_lost"] is None  # never relocalised

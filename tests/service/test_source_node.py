@@ -291,12 +291,55 @@ class _SlowStates:
         return codec.TrackingStateMessage(index=self._index, stamp_ns=0, state="ok")
 
 
+class _Frontend:
+    """A frontend's liveliness as bus.Comebacks reports it: ``gone`` until ``back_after_s``, when it
+    returns (a restart); never back when ``back_after_s`` is None."""
+
+    def __init__(self, gone: bool = False, back_after_s: float | None = None):
+        self.gone = gone
+        self._back_at = None if back_after_s is None else time.monotonic() + back_after_s
+        self._returned = False
+
+    def returned(self) -> bool:
+        if self.gone and self._back_at is not None and time.monotonic() >= self._back_at:
+            self.gone, self._returned = False, True
+        back, self._returned = self._returned, False
+        return back
+
+
+def _window(states, frontend, resent: list[bytes], timeout_s: float = 0.1, restart_wait_s: float = 0.3):
+    window = source_node._AnswerWindow(states, frontend, resent.append, timeout_s, restart_wait_s, lambda: False)
+    window.sent(4, b"frame 4")
+    window.sent(5, b"frame 5")
+    return window
+
+
 def test_lockstep_waits_past_the_timeout_while_the_frontend_runs(caplog):
+    window = _window(_SlowStates(4, 0.5), _Frontend(), [])
     with caplog.at_level("WARNING", logger="zenslam.service.source_node"):
-        assert source_node._wait_for_answer(_SlowStates(4, 0.5), 4, 0.1, lambda: False, lambda: True)
+        assert window.wait_for_oldest()
+    assert len(window) == 1
     assert any("no answer to frame 4" in r.getMessage() and "frontend is running" in r.getMessage() for r in caplog.records)
 
 
-def test_lockstep_fails_when_the_frontend_is_gone():
-    with pytest.raises(bus.BusError, match="did not report frame 4 within 0 s .* and is no longer running"):
-        source_node._wait_for_answer(_SlowStates(4, 60.0), 4, 0.1, lambda: False, lambda: False)
+def test_lockstep_fails_when_the_frontend_is_gone_and_does_not_come_back():
+    window = _window(_SlowStates(4, 60.0), _Frontend(gone=True), [])
+    with pytest.raises(bus.BusError, match="frontend is gone with frame 4 unanswered and did not come back within 0 s"):
+        window.wait_for_oldest()
+
+
+def test_a_restarted_frontend_gets_the_frames_in_flight_again_oldest_first(caplog):
+    resent: list[bytes] = []
+    window = _window(_SlowStates(4, 0.4), _Frontend(gone=True, back_after_s=0.2), resent, restart_wait_s=5.0)
+    with caplog.at_level("WARNING", logger="zenslam.service.source_node"):
+        assert window.wait_for_oldest()
+    assert resent == [b"frame 4", b"frame 5"] and window.resent == 2
+    assert len(window) == 1
+    assert any("frontend restarted: sending its 2 frame(s) in flight again" in r.getMessage() for r in caplog.records)
+
+
+def test_a_later_frames_answer_settles_the_frames_before_it():
+    """A frame the crashed frontend held that never reached its successor is not waited for forever."""
+    window = _window(_SlowStates(5, 0.0), _Frontend(), [])
+    assert window.wait_for_oldest()
+    assert len(window) == 0

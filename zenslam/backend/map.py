@@ -105,6 +105,20 @@ class BackendMap:
         """Fused point id -> the id that replaced it (a copy; ``resolve`` follows the chains)."""
         return dict(self._replaced)
 
+    def next_ids(self) -> dict[str, int]:
+        """First ids a frontend or a run continuing this map may use, past every id the map knows
+        (fused ids and culled keyframes too): ``keyframe``, ``frontend_point``, ``backend_point``."""
+        fused = self._replaced
+        point_ids = np.array([*self.points, *fused, *fused.values()], dtype=np.int64)
+        frontend = point_ids[point_ids < BACKEND_POINT_ID_BASE]
+        backend = point_ids[point_ids >= BACKEND_POINT_ID_BASE]
+        keyframes = [*self.keyframes, *(k for k, _ in self.culled.entries())]
+        return {
+            "keyframe": 1 + max(keyframes, default=-1),
+            "frontend_point": int(frontend.max()) + 1 if len(frontend) else 0,
+            "backend_point": max(self.point_id_allocator.upcoming, int(backend.max()) + 1 if len(backend) else 0),
+        }
+
     def restore_bookkeeping(self, next_serial: int, fused: dict[int, int], next_point_id: int) -> None:
         """Set the serial and id counters and the fused ids of a map rebuilt from a saved one."""
         self._next_serial = int(next_serial)

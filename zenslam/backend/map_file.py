@@ -89,7 +89,6 @@ from zenslam.backend.map_arrays import KEYPOINT_COLUMNS, map_from_arrays, map_to
 from zenslam.backend.place_recognition import PlaceRecognition
 from zenslam.camera import PinholeCalibration, SensorKind
 from zenslam.errors import ZenslamError
-from zenslam.schemas.map_update import BACKEND_POINT_ID_BASE
 
 logger = logging.getLogger(__name__)
 
@@ -129,20 +128,6 @@ def _camera_json(calibration: PinholeCalibration, sensor: SensorKind) -> dict[st
     return {"sensor": sensor, **{name: getattr(calibration, name) for name in _CALIBRATION_FIELDS}}
 
 
-def _next_ids(bmap: BackendMap) -> dict[str, int]:
-    """First ids a run continuing the map may use: past every id the map knows (fused ids too)."""
-    fused = bmap.fused_ids()
-    point_ids = np.array([*bmap.points, *fused, *fused.values()], dtype=np.int64)
-    frontend = point_ids[point_ids < BACKEND_POINT_ID_BASE]
-    backend = point_ids[point_ids >= BACKEND_POINT_ID_BASE]
-    keyframes = [*bmap.keyframes, *(k for k, _ in bmap.culled.entries())]
-    return {
-        "keyframe": 1 + max(keyframes, default=-1),
-        "frontend_point": int(frontend.max()) + 1 if len(frontend) else 0,
-        "backend_point": max(bmap.point_id_allocator.upcoming, int(backend.max()) + 1 if len(backend) else 0),
-    }
-
-
 def _member(name: str) -> zipfile.ZipInfo:
     """A member stamped 1980-01-01 (ZIP's epoch), so that the same map gives the same file bytes."""
     return zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0))
@@ -168,7 +153,7 @@ def save_map(path: str | Path, bmap: BackendMap, places: PlaceRecognition, zensl
             "loop_edges": len(arrays["loop_edges"]),
         },  # fmt: skip
         "map": {"first_keyframe_id": bmap.first_keyframe_id, "next_serial": bmap.next_serial},
-        "next_ids": _next_ids(bmap),
+        "next_ids": bmap.next_ids(),
         "arrays": {name: {"dtype": a.dtype.str, "shape": list(a.shape)} for name, a in arrays.items()},
     }
     target = Path(path).expanduser()

@@ -27,7 +27,7 @@ import logging
 import os
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -247,11 +247,15 @@ class BackendNode:
         """Milliseconds per local-mapping step of the last keyframe ("total" is the whole step)."""
         return dict(self.mapper.last_timings_ms)
 
-    def trajectory(self) -> codec.KeyframeTrajectoryMessage:
+    def trajectory(self, waiting: Sequence[codec.KeyframeMessage] = ()) -> codec.KeyframeTrajectoryMessage:
         """The poses (T_world_cam) of the keyframes in the map now, in insertion order, and of the
-        culled ones, each where its parent is now."""
+        culled ones, each where its parent is now; and the first ids a restarted frontend may use,
+        past the map's and those of the keyframes ``waiting`` in the inbox."""
         kfs = list(self.map.keyframes.values())
         culled_ids, culled_stamps, culled_T = self.map.culled.poses({kf.id: kf.T_world_cam for kf in kfs})
+        next_ids = self.map.next_ids()
+        next_keyframe_id = max([next_ids["keyframe"], self.newest_id + 1, *(int(kf.id) + 1 for kf in waiting)])
+        next_point_id = max([next_ids["frontend_point"], *(int(kf.new_point_ids.max()) + 1 for kf in waiting if len(kf.new_point_ids))])
         return codec.KeyframeTrajectoryMessage(
             keyframe_ids=np.array([kf.id for kf in kfs], dtype=np.int64),
             stamps_ns=np.array([kf.stamp_ns for kf in kfs], dtype=np.int64),
@@ -261,6 +265,8 @@ class BackendNode:
             culled_keyframe_ids=culled_ids,
             culled_stamps_ns=culled_stamps,
             culled_T_world_cam=culled_T,
+            next_keyframe_id=next_keyframe_id,
+            next_frontend_point_id=next_point_id,
         )
 
     def relocalisation_candidates(self, query: RelocalisationQuery) -> RelocalisationCandidates:
@@ -293,12 +299,18 @@ class _Queryables:
         self._trajectory = session.declare_queryable(self._trajectory_key, zenoh.handlers.FifoChannel(16))
         self._relocalisation = session.declare_queryable(self._relocalisation_key, zenoh.handlers.FifoChannel(16))
 
-    def answer(self, node: BackendNode) -> int:
-        """Reply to every waiting query with the map as it is now; returns how many were answered."""
+    def answer(self, node: BackendNode, inbox: bus.Inbox | None = None) -> int:
+        """Reply to every waiting query with the map as it is now; returns how many were answered.
+        ``inbox``: the keyframes waiting there count for the next ids of the trajectory's reply."""
         answered = 0
+
+        def trajectory() -> bytes:
+            waiting = [m for _, m in inbox.waiting() if not isinstance(m, codec.EndOfStream)] if inbox is not None else []
+            return codec.encode_keyframe_trajectory(node.trajectory(waiting))
+
         for queryable, key, schema, make in (
             (self._map, self._map_key, codec.MAP_SNAPSHOT, lambda: codec.encode_map_snapshot(node.snapshot())),
-            (self._trajectory, self._trajectory_key, codec.KEYFRAME_TRAJECTORY, lambda: codec.encode_keyframe_trajectory(node.trajectory())),
+            (self._trajectory, self._trajectory_key, codec.KEYFRAME_TRAJECTORY, trajectory),
         ):
             payload = None
             while (query := queryable.try_recv()) is not None:
@@ -455,7 +467,7 @@ def _process(
     ``rebuilt_upto``: a restarted backend's newest keyframe from the journal; the frontend sends its
     unanswered keyframes again when it sees the restart, and those up to this one are already mapped."""
     while not should_stop():
-        queryables.answer(node)
+        queryables.answer(node, inbox)
         if (correction := node.poll_global_ba()) is not None:
             outputs.update.put(codec.encode_map_update(correction))
             if journal is not None:

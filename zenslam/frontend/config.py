@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 from zenslam.errors import ConfigError
@@ -40,3 +41,16 @@ class FrontendConfig:
             raise ConfigError(f"frontend.update_timeout_s={self.update_timeout_s} must be a positive number of seconds")
         if not self.relocalisation_timeout_s > 0:
             raise ConfigError(f"frontend.relocalisation_timeout_s={self.relocalisation_timeout_s} must be a positive number of seconds")
+
+
+def entering_map(config: FrontendConfig, next_keyframe_id: int, next_point_id: int) -> FrontendConfig:
+    """``config`` for a frontend that starts in a map it did not make (a saved map, or the backend's
+    after the frontend restarted): frames stay lost until one relocalises into the map, and the
+    keyframe and point ids it makes start past the map's (``next_*``), so none collides with one there."""
+    tracking = config.tracking
+    local_map = dataclasses.replace(
+        tracking.local_map,
+        keyframe_id_start=max(tracking.local_map.keyframe_id_start, int(next_keyframe_id)),
+        point_id_start=max(tracking.local_map.point_id_start, int(next_point_id)),
+    )
+    return dataclasses.replace(config, tracking=dataclasses.replace(tracking, start_in_map=True, local_map=local_map))

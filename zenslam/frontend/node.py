@@ -33,7 +33,7 @@ import zenoh
 
 from zenslam.camera import PinholeCalibration, SensorKind
 from zenslam.errors import CalibrationError, ZenslamError
-from zenslam.frontend.config import FrontendConfig
+from zenslam.frontend.config import FrontendConfig, entering_map
 from zenslam.runtime import bus
 from zenslam.runtime.stage import (
     STOPPED,
@@ -132,6 +132,7 @@ class FrontendNode:
         self.backend_gone = False  # set by ``serve``: the backend crashed and is not back yet
         self.candidates: CandidateSource | None = None  # set by ``serve``: asks the backend where a lost frame is
         self.refused = 0  # frames refused by ``refusal`` (never tracked)
+        self.keyframes_before = 0  # a restarted frontend: keyframes the backend had from its predecessors
         self._last_index: int | None = None
         self._last_stamp_ns: int | None = None
         self._ahead: tuple[int, Future] | None = None  # (frame index, its frame being prepared)
@@ -319,6 +320,9 @@ class _MapUpdates:
     (it rebuilds its map from its journal; one it had taken already it refuses without an answer)."""
 
     def __init__(self, session: zenoh.Session, session_name: str, config: FrontendConfig, resend: Callable[[bytes], None]):
+        # Answers to keyframes below this id are to keyframes of a frontend before this one (it
+        # crashed): this one entered the map by relocalising and fetches what it needs of it.
+        self.first_keyframe_id = config.tracking.local_map.keyframe_id_start
         # Lossless: a missed update would leave the frontend's map behind the backend's for good.
         self.inbox = bus.subscribe(session, keys.backend_map_update(session_name), codec.decode_map_update, "lossless", config.map_update_queue)
         self.timeout_s = config.update_timeout_s
@@ -398,6 +402,9 @@ class _MapUpdates:
             self.ended = True
             return
         if update.answers_keyframe:
+            if update.keyframe_id < self.first_keyframe_id:
+                logger.info("an answer to keyframe %d, made before this frontend restarted: not applied", update.keyframe_id)
+                return
             if update.keyframe_id <= self._last_answered:
                 # Answers come in keyframe order; a second one is a restarted backend's, for a
                 # keyframe whose answer its predecessor published just before dying.
@@ -493,7 +500,7 @@ def serve(
                 logger.debug("frame %d: %.1f ms, queue %d", message.frame.index, sent.step_ms, status.queue_depth)
     finally:
         node.close()
-        outputs.end_streams(node.frames, node.keyframes)
+        outputs.end_streams(node.frames, node.keyframes_before + node.keyframes)
         outputs.send_status(
             codec.StageStatusMessage(STAGE, "finished", node.frames, dropped=node.skipped, detail="" if ended else STOPPED)
         )
@@ -511,6 +518,19 @@ def default_pipeline_factory(frontend_config: Any, vocabulary: Any = None) -> Pi
         return FrontendPipeline(frontend_config, calibration, sensor, vocabulary)
 
     return make
+
+
+def continuing_config(session: zenoh.Session, session_name: str, config: FrontendConfig, timeout_s: float) -> tuple[FrontendConfig, int]:
+    """A restarted frontend's configuration, and the keyframes the backend has processed: it enters
+    the backend's map by relocalising, as a run from a saved map does, with keyframe and point ids
+    past every id the backend knows (its backend/trajectory reply names them)."""
+    from zenslam.backend.queries import query_trajectory
+
+    trajectory = query_trajectory(session, session_name, timeout_s)
+    if trajectory is None:
+        raise bus.BusError(f"restarted: no answer from the backend to backend/trajectory within {timeout_s:.0f} s; the map cannot be entered")
+    entering = entering_map(config, trajectory.next_keyframe_id, trajectory.next_frontend_point_id)
+    return entering, int(trajectory.keyframes_processed)
 
 
 def load_relocalisation_vocabulary(config: FrontendConfig) -> Any:
@@ -552,16 +572,30 @@ def main(argv: list[str] | None = None) -> int:
         cv2.setNumThreads(1)
         # Relocalisation asks the backend: without its map updates there is no backend to ask.
         vocabulary = load_relocalisation_vocabulary(config) if args.map_updates else None
-        node = FrontendNode(default_pipeline_factory(config, vocabulary))
+        if args.restart and vocabulary is None:
+            raise ZenslamError(
+                "a restarted frontend enters the backend's map by relocalising: it needs the backend (--map-updates) "
+                "and frontend.tracking.relocalisation.enabled"
+            )
         if stopped_before_joining(stop):
             return 0
 
         with (
-            rerun_log.open_stage_recording(STAGE, args.session, args.config, rerun_config) as recording,
+            rerun_log.open_stage_recording(STAGE, args.session, args.config, rerun_config, args.restart) as recording,
             bus.open_session(bus_config_with(bus_config, args.connect, args.bus_config)) as session,
         ):
-            node.rerun = rerun_log.FrontendLog(recording) if recording is not None else None
             bus.require_alive(session, args.session, args.wait_for, bus_config.start_timeout_s, stop.keep_going)
+            keyframes_before = 0
+            if args.restart:
+                config, keyframes_before = continuing_config(session, args.session, config, bus_config.start_timeout_s)
+                logger.info(
+                    "restart %d: entering the backend's map (%d keyframes processed) by relocalising; keyframe ids from "
+                    "%d, point ids from %d", args.restart, keyframes_before, config.tracking.local_map.keyframe_id_start,
+                    config.tracking.local_map.point_id_start,
+                )  # fmt: skip
+            node = FrontendNode(default_pipeline_factory(config, vocabulary))
+            node.keyframes_before = keyframes_before
+            node.rerun = rerun_log.FrontendLog(recording) if recording is not None else None
             map_updates = config if args.map_updates else None
             serve(session, args.session, node, load_mode(args.config), bus_config, stop, map_updates=map_updates)
     except ZenslamError as exc:

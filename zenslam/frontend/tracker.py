@@ -671,6 +671,12 @@ class Tracker:
         if self.config.localization:
             return False  # ORB-SLAM's NeedNewKeyFrame in localisation mode
         n_kfs = self.map.n_keyframes
+        if self.config.start_in_map:
+            # The map entered (a saved one, or the backend's after a frontend restart) counts: its
+            # keyframes were made before ours, which are numbered from past its newest. Counted as
+            # the first own keyframe id (culled ones included); ORB-SLAM's rules below ask only
+            # whether the map is new (2 keyframes or fewer) or past one second of keyframes.
+            n_kfs += self.config.local_map.keyframe_id_start
         paused = self.config.relocalisation.pause_keyframes and self._recently_relocalised(frame)
         if paused and n_kfs > (self.keyframe_config.max_frames or self.camera_fps):
             return False  # ORB-SLAM: no keyframe within a second of a relocalisation

@@ -165,8 +165,12 @@ class Inbox(Generic[T]):
     def count_waiting(self, matches: Callable[[T], bool]) -> int:
         """Waiting messages for which ``matches(decoded message)`` holds (a lower bound like ``depth``;
         each is decoded to check, and decoded again when taken)."""
+        return sum(1 for message in self.waiting() if matches(message))
+
+    def waiting(self) -> list[T]:
+        """The waiting messages that decode, oldest first, left in place (decoded again when taken)."""
         self._pull()
-        return sum(1 for sample in self._pending if (message := self._try_decode(sample, False)) is not None and matches(message))
+        return [message for sample in self._pending if (message := self._try_decode(sample, False)) is not None]
 
     def _try_decode(self, sample: zenoh.Sample, count: bool) -> T | None:
         """The sample decoded, or None when it does not decode (counted and logged when ``count``)."""

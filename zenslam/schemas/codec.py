@@ -206,6 +206,10 @@ class KeyframeTrajectoryMessage:
     culled_keyframe_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # (C,) int64
     culled_stamps_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # (C,) int64
     culled_T_world_cam: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4)))  # (C, 4, 4)
+    # The first ids a frontend continuing this map may use (a restarted frontend): past every keyframe
+    # and frontend point id the backend knows, mapped, culled, fused away or waiting in its inbox.
+    next_keyframe_id: int = 0
+    next_frontend_point_id: int = 0
 
 
 @dataclass(frozen=True)
@@ -755,6 +759,7 @@ def _trajectory_to_pb(trajectory: KeyframeTrajectoryMessage, out: pb.KeyframeTra
             f"{np.shape(trajectory.T_world_cam)} do not agree (expected ({k}, 4, 4))"
         )
     out.keyframes_processed, out.finished, out.num_keyframes = trajectory.keyframes_processed, trajectory.finished, k
+    out.next_keyframe_id, out.next_frontend_point_id = trajectory.next_keyframe_id, trajectory.next_frontend_point_id
     out.keyframe_ids = _pack(trajectory.keyframe_ids, "<i8", (), "keyframe trajectory keyframe_ids")
     out.stamps_ns = _pack(trajectory.stamps_ns, "<i8", (), "keyframe trajectory stamps_ns")
     out.T_world_cam = _pack(trajectory.T_world_cam, "<f8", (4, 4), "keyframe trajectory T_world_cam")
@@ -782,6 +787,8 @@ def _trajectory_from_pb(msg: pb.KeyframeTrajectory) -> KeyframeTrajectoryMessage
         culled_keyframe_ids=_unpack(msg.culled_keyframe_ids, "<i8", (c,), "keyframe trajectory culled_keyframe_ids"),
         culled_stamps_ns=_unpack(msg.culled_stamps_ns, "<i8", (c,), "keyframe trajectory culled_stamps_ns"),
         culled_T_world_cam=_unpack(msg.culled_T_world_cam, "<f8", (c, 4, 4), "keyframe trajectory culled_T_world_cam"),
+        next_keyframe_id=msg.next_keyframe_id,
+        next_frontend_point_id=msg.next_frontend_point_id,
     )
 
 

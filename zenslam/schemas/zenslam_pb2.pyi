@@ -337,7 +337,7 @@ class StageStatus(_message.Message):
     def __init__(self, stage: _Optional[str] = ..., state: _Optional[_Union[StageState, str]] = ..., processed: _Optional[int] = ..., step_ms: _Optional[float] = ..., queue_depth: _Optional[int] = ..., dropped: _Optional[int] = ..., detail: _Optional[str] = ..., timings_ms: _Optional[_Mapping[str, float]] = ..., skipped: _Optional[_Mapping[str, int]] = ...) -> None: ...
 
 class KeyframeTrajectory(_message.Message):
-    __slots__ = ("keyframes_processed", "finished", "num_keyframes", "keyframe_ids", "stamps_ns", "T_world_cam", "num_culled", "culled_keyframe_ids", "culled_stamps_ns", "culled_T_world_cam")
+    __slots__ = ("keyframes_processed", "finished", "num_keyframes", "keyframe_ids", "stamps_ns", "T_world_cam", "num_culled", "culled_keyframe_ids", "culled_stamps_ns", "culled_T_world_cam", "next_keyframe_id", "next_frontend_point_id")
     KEYFRAMES_PROCESSED_FIELD_NUMBER: _ClassVar[int]
     FINISHED_FIELD_NUMBER: _ClassVar[int]
     NUM_KEYFRAMES_FIELD_NUMBER: _ClassVar[int]
@@ -348,6 +348,8 @@ class KeyframeTrajectory(_message.Message):
     CULLED_KEYFRAME_IDS_FIELD_NUMBER: _ClassVar[int]
     CULLED_STAMPS_NS_FIELD_NUMBER: _ClassVar[int]
     CULLED_T_WORLD_CAM_FIELD_NUMBER: _ClassVar[int]
+    NEXT_KEYFRAME_ID_FIELD_NUMBER: _ClassVar[int]
+    NEXT_FRONTEND_POINT_ID_FIELD_NUMBER: _ClassVar[int]
     keyframes_processed: int
     finished: bool
     num_keyframes: int
@@ -358,7 +360,9 @@ class KeyframeTrajectory(_message.Message):
     culled_keyframe_ids: bytes
     culled_stamps_ns: bytes
     culled_T_world_cam: bytes
-    def __init__(self, keyframes_processed: _Optional[int] = ..., finished: _Optional[bool] = ..., num_keyframes: _Optional[int] = ..., keyframe_ids: _Optional[bytes] = ..., stamps_ns: _Optional[bytes] = ..., T_world_cam: _Optional[bytes] = ..., num_culled: _Optional[int] = ..., culled_keyframe_ids: _Optional[bytes] = ..., culled_stamps_ns: _Optional[bytes] = ..., culled_T_world_cam: _Optional[bytes] = ...) -> None: ...
+    next_keyframe_id: int
+    next_frontend_point_id: int
+    def __init__(self, keyframes_processed: _Optional[int] = ..., finished: _Optional[bool] = ..., num_keyframes: _Optional[int] = ..., keyframe_ids: _Optional[bytes] = ..., stamps_ns: _Optional[bytes] = ..., T_world_cam: _Optional[bytes] = ..., num_culled: _Optional[int] = ..., culled_keyframe_ids: _Optional[bytes] = ..., culled_stamps_ns: _Optional[bytes] = ..., culled_T_world_cam: _Optional[bytes] = ..., next_keyframe_id: _Optional[int] = ..., next_frontend_point_id: _Optional[int] = ...) -> None: ...
 
 class MapSnapshot(_message.Message):
     __slots__ = ("keyframes", "num_points", "point_ids", "p_world")

@@ -300,6 +300,22 @@ class RunLog:
             "keyframes": sum(1 for s in states if s.keyframe_id >= 0),
         }
 
+    def restart_events(self) -> list[dict[str, object]]:
+        """The stage restarts (``restarts``), each frontend restart with ``frames_lost``: the frames
+        between the last pose before the crash and the first after it, when the restarted frontend
+        had relocalised into the backend's map (None: it never did), and ``relocalised_at``, that frame."""
+        posed = sorted(i for i, s in self.states.items() if s.has_pose)
+        events = []
+        for event in self.restarts:
+            if event.get("stage") == "frontend" and "last_frame_index" in event:
+                crash = int(event["last_frame_index"])  # type: ignore[call-overload]
+                before = [i for i in posed if i <= crash]
+                after = next((i for i in posed if i > crash), None)
+                last = before[-1] if before else -1
+                event = {**event, "frames_lost": None if after is None else after - last - 1, "relocalised_at": after}
+            events.append(event)
+        return events
+
     def relocalisation_counts(self) -> dict[str, int]:
         """The ``relocalisation`` section of metrics.json: ``count``, frames that found the map again
         after tracking was lost; ``frames_lost``, frames without a pose once tracking had started

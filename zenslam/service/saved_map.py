@@ -16,6 +16,7 @@ from pathlib import Path
 from zenslam.backend.map_file import MapHeader, check_compatible, read_header
 from zenslam.camera import PinholeCalibration, SensorKind
 from zenslam.errors import ConfigError
+from zenslam.frontend.config import entering_map
 from zenslam.service.run_config import RunConfig
 
 logger = logging.getLogger(__name__)
@@ -24,7 +25,7 @@ logger = logging.getLogger(__name__)
 def with_map_options(config: RunConfig, load: Path | None, save: Path | None, localization: bool) -> RunConfig:
     """``config`` with the saved-map options: paths made absolute (the stages run elsewhere), the
     frontend told to start in the map (and its id spaces moved past the map's), localisation mode."""
-    backend, tracking = config.backend, config.frontend.tracking
+    backend, frontend = config.backend, config.frontend
     if localization and not (load or backend.map_file):
         raise ConfigError("--localization tracks against a saved map: give it with --map FILE")
     if save is not None:
@@ -33,15 +34,9 @@ def with_map_options(config: RunConfig, load: Path | None, save: Path | None, lo
         backend = dataclasses.replace(backend, map_file=str(Path(load).expanduser().resolve()))
     if backend.map_file:
         header = read_header(backend.map_file)
-        local_map = dataclasses.replace(
-            tracking.local_map,
-            keyframe_id_start=max(tracking.local_map.keyframe_id_start, header.next_keyframe_id),
-            point_id_start=max(tracking.local_map.point_id_start, header.next_frontend_point_id),
-        )
-        tracking = dataclasses.replace(tracking, start_in_map=True, local_map=local_map)
+        frontend = entering_map(frontend, header.next_keyframe_id, header.next_frontend_point_id)
     if localization:
-        tracking = dataclasses.replace(tracking, localization=True)
-    frontend = dataclasses.replace(config.frontend, tracking=tracking)
+        frontend = dataclasses.replace(frontend, tracking=dataclasses.replace(frontend.tracking, localization=True))
     return dataclasses.replace(config, backend=backend, frontend=frontend)
 
 

@@ -66,37 +66,90 @@ STAGE = "source"
 _STOPPED_SUBSCRIBER_WAIT_S = 5.0  # stopped at start-up: seconds to wait for the frontend's subscription
 
 
-def _wait_for_answer(
-    states: bus.Inbox, index: int, timeout_s: float, should_stop: Callable[[], bool], frontend_alive: Callable[[], bool]
-) -> bool:
-    """Lockstep: wait for the frontend's state of frame ``index``; False when the frontend ended its
-    stream first (it was stopped: no more answers will come) or ``should_stop()`` turned true.
+_RESEND_S = 5.0  # seconds between sends of the frames in flight to a restarted frontend, until it answers one
 
-    Every ``timeout_s`` without the answer, the frontend's liveliness is checked: a running frontend
-    may be waiting for the backend (a global BA after a loop runs in place in lockstep and grows with
-    the map), so the wait goes on with a warning; a frontend that is gone is an error."""
-    deadline = time.monotonic() + timeout_s
-    waited_s = 0.0
-    while not should_stop():
-        state = states.get(timeout_s=0.1)
-        if isinstance(state, codec.TrackingStateMessage) and state.index == index:
-            return True
-        if isinstance(state, codec.EndOfStream):
-            logger.info("the frontend ended its stream before answering frame %d: stopping", index)
-            return False
-        if time.monotonic() > deadline:
-            waited_s += timeout_s
-            if not frontend_alive():
-                raise bus.BusError(
-                    f"lockstep: the frontend did not report frame {index} within {waited_s:.0f} s "
-                    "(source.answer_timeout_s) and is no longer running; check the frontend's log"
-                )
-            logger.warning(
-                "lockstep: no answer to frame %d for %.0f s; the frontend is running (it may wait for a long "
-                "global BA in the backend), waiting on", index, waited_s,
-            )  # fmt: skip
-            deadline = time.monotonic() + timeout_s
-    return False
+
+class _AnswerWindow:
+    """Lockstep and pipelined: the frames sent and not yet answered by the frontend's state, oldest
+    first, each with its message. A frontend that crashes loses the frames it held; when it comes
+    back (restarted by the supervisor) they are sent again, oldest first, and again every
+    ``_RESEND_S`` seconds until it answers one (a frame sent as its token arrives may not reach its
+    new subscription; one it already has it refuses as not newer)."""
+
+    def __init__(
+        self, states: bus.Inbox, frontend: bus.Comebacks, resend: Callable[[bytes], None], timeout_s: float,
+        restart_wait_s: float, should_stop: Callable[[], bool],
+    ) -> None:
+        self._states = states
+        self._frontend = frontend
+        self._resend = resend
+        self._timeout_s = timeout_s  # source.answer_timeout_s
+        self._restart_wait_s = restart_wait_s  # how long a gone frontend may take to come back
+        self._should_stop = should_stop
+        self._frames: deque[tuple[int, bytes]] = deque()
+        self._resend_due: float | None = None  # after a frontend restart: when to send the frames again
+        self.resent = 0  # frames sent again to a restarted frontend
+
+    def __len__(self) -> int:
+        return len(self._frames)
+
+    def sent(self, index: int, message: bytes) -> None:
+        self._frames.append((index, message))
+
+    def wait_for_oldest(self) -> bool:
+        """Wait for the frontend's state of the oldest frame in flight; False when the frontend ended
+        its stream first (it was stopped: no more answers will come) or ``should_stop()`` turned true.
+
+        Every ``timeout_s`` without the answer, the frontend's liveliness is checked: a running
+        frontend may be waiting for the backend (a global BA after a loop runs in place in lockstep
+        and grows with the map), so the wait goes on with a warning. A frontend that is gone gets
+        ``restart_wait_s`` to come back before that is an error."""
+        index = self._frames[0][0]
+        deadline = time.monotonic() + self._timeout_s
+        waited_s = 0.0
+        gone_since: float | None = None
+        while not self._should_stop():
+            self._resend_after_a_restart()
+            state = self._states.get(timeout_s=0.1)
+            if isinstance(state, codec.TrackingStateMessage) and state.index >= index:
+                self._resend_due = None  # the frontend takes frames
+                # A later frame's state: the oldest went to a frontend that crashed and never reached its successor.
+                while self._frames and self._frames[0][0] <= state.index:
+                    self._frames.popleft()
+                return True
+            if isinstance(state, codec.EndOfStream):
+                logger.info("the frontend ended its stream before answering frame %d: stopping", index)
+                return False
+            now = time.monotonic()
+            if self._frontend.gone:
+                gone_since = now if gone_since is None else gone_since
+                if now - gone_since > self._restart_wait_s:
+                    raise bus.BusError(
+                        f"the frontend is gone with frame {index} unanswered and did not come back within "
+                        f"{self._restart_wait_s:.0f} s (bus.start_timeout_s); check the frontend's log"
+                    )
+                deadline = now + self._timeout_s
+                continue
+            gone_since = None
+            if now > deadline:
+                waited_s += self._timeout_s
+                logger.warning(
+                    "no answer to frame %d for %.0f s; the frontend is running (it may wait for a long global BA "
+                    "in the backend), waiting on", index, waited_s,
+                )  # fmt: skip
+                deadline = now + self._timeout_s
+        return False
+
+    def _resend_after_a_restart(self) -> None:
+        now = time.monotonic()
+        if self._frontend.returned():
+            logger.warning("the frontend restarted: sending its %d frame(s) in flight again", len(self._frames))
+        elif self._resend_due is None or now < self._resend_due or self._frontend.gone:
+            return
+        for _, message in self._frames:
+            self._resend(message)
+            self.resent += 1
+        self._resend_due = now + _RESEND_S
 
 
 def play(
@@ -132,10 +185,12 @@ def play(
     # End of stream goes on the same key, lossless, so it arrives, and after the frames.
     end_pub = bus.declare_publisher(session, key, codec.SENSOR_FRAME, "lossless")
     status_pub = bus.declare_publisher(session, keys.status(session_name, STAGE), codec.STAGE_STATUS, "lossless")
-    states = None
+    window = None
     if lockstep:
         # Lossless: the answer to every frame must be seen, or the source would wait forever.
         states = bus.subscribe(session, keys.frontend_state(session_name), codec.decode_tracking_state, "lossless", 64)
+        frontend = bus.Comebacks(session, session_name, "frontend")
+        window = _AnswerWindow(states, frontend, frame_pub.put, config.answer_timeout_s, start_timeout_s, should_stop)
     if not bus.wait_for_subscribers(frame_pub, start_timeout_s, keep_waiting=lambda: not should_stop()):
         if not should_stop():
             raise bus.BusError(f"no subscriber to {key} within {start_timeout_s:.0f} s; is the frontend running?")
@@ -143,14 +198,9 @@ def play(
         # must still reach the frontend, or it would wait for frames that never come.
         bus.wait_for_subscribers(frame_pub, min(start_timeout_s, _STOPPED_SUBSCRIBER_WAIT_S))
     pacer = _Pacer(0.0 if lockstep else config.rate, should_stop)
-
-    def frontend_alive() -> bool:
-        return "frontend" in bus.alive_processes(session, session_name)
-
     log_cpu_times("at stream start")
     sent = 0
     skipped: Counter[str] = Counter()  # frames not sent, by reason
-    in_flight: deque[int] = deque()  # lockstep: indices of the frames sent and not answered, oldest first
     answered = True  # False once the frontend stops answering (it ended its stream) or we are stopped
 
     def status(state: codec.StageStateName, step_ms: float = 0.0, detail: str = "") -> codec.StageStatusMessage:
@@ -172,18 +222,20 @@ def play(
                 camera, sensor_kind, frame = frame.calibration, frame.sensor, frame.frame
             pacer.wait_for(frame.stamp_ns)
             started = time.perf_counter()
-            frame_pub.put(codec.encode_sensor_frame(frame, camera, sensor_kind, source_name, config.depth_encoding))
+            message = codec.encode_sensor_frame(frame, camera, sensor_kind, source_name, config.depth_encoding)
+            frame_pub.put(message)
             sent += 1
-            in_flight.append(frame.index)
+            if window is not None:
+                window.sent(frame.index, message)
             if rerun is not None:
                 rerun.log_frame(frame)  # while the frontend tracks it
             # States come lossless and in frame order: the oldest frame in flight is answered first.
-            while answered and states is not None and len(in_flight) >= config.frames_in_flight:
-                answered = _wait_for_answer(states, in_flight.popleft(), config.answer_timeout_s, should_stop, frontend_alive)
+            while answered and window is not None and len(window) >= config.frames_in_flight:
+                answered = window.wait_for_oldest()
             status_pub.put(codec.encode_stage_status(status("running", (time.perf_counter() - started) * 1e3)))
         # The last answers. Stopped, we leave the frames in flight to the frontend: it tracks them before our end of stream.
-        while answered and states is not None and in_flight:
-            answered = _wait_for_answer(states, in_flight.popleft(), config.answer_timeout_s, should_stop, frontend_alive)
+        while answered and window is not None and len(window):
+            answered = window.wait_for_oldest()
         detail = STOPPED if not answered or should_stop() else ""
         final = status("finished", detail=detail)
     except ZenslamError as exc:
@@ -193,8 +245,9 @@ def play(
         # The final status goes first: whoever sees the end of stream can already have the totals.
         status_pub.put(codec.encode_stage_status(final))
         end_pub.put(codec.encode_end_of_stream(codec.SENSOR_FRAME, sent))
-        if states is not None:
+        if window is not None:
             states.close()
+            frontend.close()
     if final.skipped:
         logger.warning("skipped %d frame(s) or message(s): %s", sum(final.skipped.values()), dict(sorted(final.skipped.items())))
     if final.dropped:

@@ -343,8 +343,9 @@ def _check(supervisor: Supervisor, stop: StopFlag, follower: _Follower, supervis
     if stop():
         return
     frame = follower.log.frame_counts()["frames"]
+    last_index = max(follower.log.states, default=-1)  # the newest frame tracked: what a frontend restart lost follows it
     for restarted in supervisor.restart_failed(supervision):
-        follower.log.restarts.append({**restarted, "frame": frame})
+        follower.log.restarts.append({**restarted, "frame": frame, "last_frame_index": last_index})
         stage = str(restarted["stage"])
         follower.heard[stage] = time.monotonic()
         follower.progressed.discard(stage)  # starting again: watched as a stage that starts
@@ -372,9 +373,12 @@ def _start_stages(
         if ground_truth is not None:
             publish_ground_truth(session, supervisor.session_name, ground_truth)
     recorder = config.recorder.enabled
-    # A restarted backend rebuilds its map from its journal; the other stages cannot yet recover
-    # what they held, so their failure fails the run.
+    # A restarted backend rebuilds its map from its journal; a restarted frontend relocalises into the
+    # backend's map (the source sends it the frames in flight again). The source and the recorder's
+    # restarts are their own (``start_recorder``); a source that fails fails the run.
     restartable = {"backend"} if config.backend.journal else set()
+    if config.frontend.tracking.relocalisation.enabled:
+        restartable.add("frontend")
     stages = [
         ProcessSpec(name, STAGE_MODULES[name], stage_args(name, recorder, wait_for), restartable=name in restartable)
         for name in ("backend", "frontend", "source")
@@ -641,7 +645,7 @@ def _run(args: argparse.Namespace, stop: StopFlag) -> int:
     extra = {"run": {
         "run_id": run_id, "source": config.source.spec, "mode": config.mode, "completed": completed, **log.stream_timing(),
         "failures": [] if failure is None else failure.stages,
-        "restarts": len(log.restarts), "restart_events": log.restarts,
+        "restarts": len(log.restarts), "restart_events": log.restart_events(),
     }}
     sensor = given.sensor or recorded_sensor(recording) or "stereo"  # a bus source's sensor: what was recorded
     evaluation_config = evaluation_config_for(config.evaluation, sensor)
