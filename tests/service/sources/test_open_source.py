@@ -28,3 +28,21 @@ def test_synthetic_default_is_the_stereo_loop():
 
 def test_synthetic_sensor_suffix():
     assert open_source("synthetic:still/rgbd").sensor == "rgbd"
+
+
+def test_a_synthetic_scene_takes_more_laps_of_its_own_length():
+    one = open_source("synthetic:figure_eight")
+    many = open_source("synthetic:figure_eight/rgbd,laps=5")
+    assert many.config.laps == 5 and many.sensor == "rgbd"
+    lap_s = one.config.duration_s / one.config.laps
+    assert many.config.duration_s == pytest.approx(5 * lap_s)
+    assert len(many) == 5 * (len(one) - 1) // one.config.laps + 1
+
+
+@pytest.mark.parametrize(
+    ("spec", "problem"),
+    [("synthetic:loop,laps=0", "laps=N"), ("synthetic:loop,speed=2", "laps=N"), ("synthetic:still,laps=2", "has no laps")],
+)
+def test_bad_synthetic_options_are_named(spec, problem):
+    with pytest.raises(SourceSpecError, match=problem):
+        open_source(spec)

@@ -3,8 +3,9 @@
 Spec strings (what ``zenslam run SOURCE`` and ``zenslam inspect SOURCE`` take):
 ``kitti:<root>/sequences/NN``, ``euroc:<sequence folder holding mav0/>``, ``tum:<sequence folder>``,
 ``synthetic`` (the loop scene) or ``synthetic:<scene>`` with scene one of loop, figure_eight, still,
-corridor, corridor_aliased, optionally followed by ``/<sensor>`` (stereo, rgbd, mono), e.g.
-``synthetic:figure_eight/rgbd``;
+corridor, corridor_aliased, optionally followed by ``/<sensor>`` (stereo, rgbd, mono) and by
+``,laps=N`` (N laps of the scene's path, each as long as one of the scene's own: long runs), e.g.
+``synthetic:figure_eight/rgbd`` or ``synthetic:figure_eight,laps=20``;
 ``mcap:<recording>`` replays the sensor frames of a run's ``run.mcap``;
 ``zenoh:<key>`` takes the frames another program publishes under that key (sources/zenoh_family.py
 states the keys and messages): a *bus source*, opened by the source process with ``open_bus_family``,
@@ -74,7 +75,7 @@ def _open_dataset(spec: str, kind: str, argument: str) -> Source:
     if kind not in SOURCE_KINDS:
         raise SourceSpecError(
             f"unknown source {spec!r}: use one of kitti:<root>/sequences/NN, euroc:<folder>, tum:<folder>, "
-            "synthetic[:<scene>[/<sensor>]], mcap:<run.mcap>, zenoh:<key>"
+            "synthetic[:<scene>[/<sensor>][,laps=N]], mcap:<run.mcap>, zenoh:<key>"
         )
     if not argument:
         raise SourceSpecError(f"source {spec!r} needs a path after '{kind}:', e.g. {kind}:/data/{kind}/sequence")
@@ -99,7 +100,8 @@ def _open_dataset(spec: str, kind: str, argument: str) -> Source:
 def _open_synthetic(argument: str, sensor_choice: SensorKind | None) -> Source:
     from zenslam.service.sources.synthetic import SCENE_NAMES, SyntheticSource, scene_config
 
-    scene, _, sensor = (argument or "loop").partition("/")
+    name, *options = (argument or "loop").split(",")
+    scene, _, sensor = name.partition("/")
     if scene not in SCENE_NAMES:
         raise SourceSpecError(f"unknown synthetic scene {scene!r}: choose one of {sorted(SCENE_NAMES)}")
     sensors = ("stereo", "rgbd", "mono")
@@ -107,5 +109,13 @@ def _open_synthetic(argument: str, sensor_choice: SensorKind | None) -> Source:
         raise SourceSpecError(f"unknown synthetic sensor {sensor!r}: choose one of {list(sensors)}")
     if sensor_choice is not None:
         sensor = sensor_choice  # a scene renders any sensor; the choice overrides the spec's
-    overrides = {"sensor": sensor} if sensor else {}
+    overrides: dict[str, object] = {"sensor": sensor} if sensor else {}
+    for option in options:
+        key, _, value = option.partition("=")
+        if key != "laps" or not value.isdigit() or int(value) < 1:
+            raise SourceSpecError(f"synthetic option {option!r} not understood: the one option is laps=N, N a whole number of laps >= 1")
+        preset = scene_config(scene)
+        if preset.trajectory not in ("loop", "figure_eight", "corridor"):
+            raise SourceSpecError(f"synthetic scene {scene!r} has no laps (a still camera): laps=N applies to a path")
+        overrides.update(laps=int(value), duration_s=preset.duration_s / preset.laps * int(value))
     return SyntheticSource(scene_config(scene, **overrides))
