@@ -376,6 +376,30 @@ def test_a_killed_frontend_is_restarted_and_relocalises_into_the_backends_map(tm
     assert mcap_io.has_summary(run.run_dir / "run.mcap")
 
 
+@pytest.mark.extended  # two runs side by side: CI runs it after the README's command
+def test_a_killed_source_resumes_at_the_first_frame_not_tracked_and_lockstep_outputs_are_unharmed(tmp_path):
+    """SIGKILL of the source mid-stream: the supervisor restarts it after the newest frame tracked,
+    every frame is tracked once, in order (a frame in flight sent again is refused as not newer),
+    so the lockstep outputs are those of an unharmed run, byte for byte."""
+    options = ("--max-frames", "80")
+    unharmed = _Run(tmp_path, "synthetic", *options, run_id="it-unharmed")
+    run = _Run(tmp_path, "synthetic", *options)
+    run.wait_for("30 frames tracked", lambda: run.frames_tracked() >= 30)
+    os.kill(_stage_pid(run, "zenslam.service.source_node"), signal.SIGKILL)
+    code = run.finish()
+    context = f"stdout:\n{run.stdout[-2000:]}\nstderr:\n{run.stderr[-4000:]}"
+    assert code == 0, context
+    metrics = json.loads((run.run_dir / "metrics.json").read_text())
+    assert metrics["run"]["completed"] is True and metrics["run"]["restarts"] == 1
+    [event] = metrics["run"]["restart_events"]
+    assert event["stage"] == "source" and event["last_frame_index"] >= 29, event
+    assert metrics["frames"] == metrics["tracked_ok"] == 80
+    assert "resuming after frame" in (run.run_dir / "logs" / "source.log").read_text()
+    assert unharmed.finish() == 0, unharmed.stderr[-3000:]
+    for name in ("trajectory.tum", "keyframes.tum"):
+        assert (run.run_dir / name).read_bytes() == (unharmed.run_dir / name).read_bytes(), name
+
+
 def _zombie(pid: int) -> bool:
     try:
         return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"

@@ -42,6 +42,13 @@ print("Traceback: ValueError: calibration is nonsense", file=sys.stderr, flush=T
 sys.exit(3)
 """
 
+# Prints its arguments; fails with status 3 (a crash) at its first start, 2 (its own error) once restarted.
+ARGV_CHILD = """
+import sys
+print("argv:", " ".join(sys.argv[1:]), flush=True)
+sys.exit(2 if "--restart" in sys.argv else 3)
+"""
+
 # Ignores SIGINT and SIGTERM, and starts a grandchild in its process group that does the same.
 STUBBORN_CHILD = """
 import signal, subprocess, sys, time
@@ -83,7 +90,7 @@ def modules(tmp_path: Path) -> dict[str, str]:
     pkg = tmp_path / "children"
     pkg.mkdir()
     for name, text in {"stage_child": STAGE_CHILD, "crashing_child": CRASHING_CHILD, "stubborn_child": STUBBORN_CHILD, "env_child": ENV_CHILD,
-                       "slow_start_child": SLOW_START_CHILD}.items():
+                       "slow_start_child": SLOW_START_CHILD, "argv_child": ARGV_CHILD}.items():
         (pkg / f"{name}.py").write_text(textwrap.dedent(text))
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([str(pkg), env.get("PYTHONPATH", "")])
@@ -227,3 +234,20 @@ def test_a_restartable_stage_is_restarted_a_bounded_number_of_times_within_the_w
     assert SupervisionConfig(max_restarts=0)  # 0 is allowed: no restarts
     with pytest.raises(ConfigError, match="max_restarts"):
         SupervisionConfig(max_restarts=-1)
+
+
+def test_a_restart_gets_its_resume_arguments_and_a_stage_reporting_its_own_error_is_not_restarted(tmp_path, modules):
+    """The restart of a stage passes the arguments saying where to resume (a source: the newest frame
+    tracked); a stage that exits with status 2 reported its own error (bad input, a bad setting),
+    which a restart would meet again: the run fails at once."""
+    config = SupervisionConfig(max_restarts=3)
+    with _supervisor(tmp_path, modules) as supervisor:
+        supervisor.start(ProcessSpec("source", "argv_child", ("--wait-for", "frontend"), restartable=True))
+        supervisor.wait_exit(timeout_s=30.0)
+        resume = {"source": ("--resume-after", "41"), "backend": ("--unrelated",)}
+        assert supervisor.restart_failed(config, resume) == [{"stage": "source", "exit_code": 3, "restart": 1}]
+        supervisor.wait_exit(timeout_s=30.0)
+        with pytest.raises(ProcessError, match=r"source exited with status 2; the end"):
+            supervisor.restart_failed(config, resume)
+        log = (tmp_path / "run" / "logs" / "source.log").read_text()
+    assert "--wait-for frontend --restart 1 --resume-after 41" in log and "--unrelated" not in log

@@ -18,7 +18,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,7 +27,7 @@ import zenoh
 
 from zenslam.errors import ConfigError, ProcessError
 from zenslam.runtime import bus, cpu_kernels
-from zenslam.runtime.stop import STOP_SIGNALS
+from zenslam.runtime.stop import EXIT_FAILED, STOP_SIGNALS
 
 logger = logging.getLogger(__name__)
 
@@ -41,9 +41,12 @@ class SupervisionConfig:
     # A stage that has not made progress yet since it (re)started gets bus.start_timeout_s at least.
     # A global BA sends nothing while it runs: keep this above the longest one.
     hang_timeout_s: float = 600.0
-    # A stage that can recover what it held (the backend, from its journal) and crashed or hung is
-    # started again, at most this many times within restart_window_s seconds; one more failure in
-    # that window fails the run with its outputs written. 0: no restarts, any failure fails the run.
+    # A stage that can recover what it held (the backend from its journal, the frontend by
+    # relocalising, the source where tracking got to) and crashed (a signal, an exit status other
+    # than 2) or hung is started again, at most this many times within restart_window_s seconds;
+    # one more failure in that window fails the run with its outputs written. A stage that exits
+    # with status 2 reported its own error (bad input, a bad setting): starting it again would meet
+    # the same, so it fails the run at once. 0: no restarts, any failure fails the run.
     max_restarts: int = 3  # per stage
     restart_window_s: float = 600.0  # seconds
 
@@ -148,12 +151,13 @@ class Supervisor:
             raise ProcessError(f"a process named {spec.name!r} is already running in this run")
         self._children[spec.name] = self._launch(spec, restart=0)
 
-    def _launch(self, spec: ProcessSpec, restart: int) -> _Child:
-        """The process of ``spec``; a restart appends to the log of the processes before it."""
+    def _launch(self, spec: ProcessSpec, restart: int, resume: Sequence[str] = ()) -> _Child:
+        """The process of ``spec``; a restart appends to the log of the processes before it and
+        passes ``resume``, the arguments that tell it where its predecessor left off."""
         log_dir = self.run_dir / "logs"
         log_dir.mkdir(parents=True, exist_ok=True)
         log_path = log_dir / f"{spec.name}.log"
-        restart_args = ["--restart", str(restart)] if restart else []
+        restart_args = ["--restart", str(restart), *resume] if restart else []
         command = stage_command(spec.module, [*self.common_args(), *spec.args, *restart_args])
         logger.debug("starting %s: %s", spec.name, " ".join(command))
         with open(log_path, "ab" if restart else "wb") as log, stop_signals_blocked():
@@ -217,10 +221,11 @@ class Supervisor:
             how["hung_s"] = round(self._hung[name], 1)
         return {"stage": name, **how}
 
-    def restart_failed(self, config: SupervisionConfig) -> list[dict[str, object]]:
+    def restart_failed(self, config: SupervisionConfig, resume: Mapping[str, Sequence[str]] | None = None) -> list[dict[str, object]]:
         """Start again each child that exited with a failure, when its spec is restartable and it has
         been restarted fewer than ``config.max_restarts`` times in the last ``config.restart_window_s``
         seconds; returns those failures (as ``failures`` describes them, with the restart's number).
+        ``resume``: more arguments for a stage's restart, by stage name (where to resume).
         Raises ProcessError, as ``check`` does, for the first failed child that may not be restarted."""
         restarted = []
         for name, child in list(self._children.items()):
@@ -229,9 +234,10 @@ class Supervisor:
                 continue
             now = time.monotonic()
             recent = [t for t in self._restarted_at.get(name, []) if now - t <= config.restart_window_s]
-            if not child.spec.restartable or len(recent) >= config.max_restarts:
+            reported = code == EXIT_FAILED and name not in self._hung  # its own error, logged: not a crash
+            if not child.spec.restartable or reported or len(recent) >= config.max_restarts:
                 why = ""
-                if child.spec.restartable and config.max_restarts:
+                if child.spec.restartable and config.max_restarts and not reported:
                     why = f" after {len(recent)} restart(s) within {config.restart_window_s:.0f} s (supervision.max_restarts)"
                 raise ProcessError(
                     f"process {name} exited with status {code}{why}; the end of {child.log_path}:\n{self.log_tail(name)}"
@@ -241,7 +247,7 @@ class Supervisor:
             self._restarted_at[name] = [*recent, now]
             restart = self._restart_counts.get(name, 0) + 1
             self._restart_counts[name] = restart
-            self._children[name] = self._launch(child.spec, restart)
+            self._children[name] = self._launch(child.spec, restart, (resume or {}).get(name, ()))
             logger.warning("%s failed (%s): restart %d; see %s", name, _how(failure), restart, child.log_path)
             restarted.append({**failure, "restart": restart})
         return restarted

@@ -165,6 +165,7 @@ def play(
     mode: RunMode = "lockstep",
     start_timeout_s: float = 60.0,
     bus_input: BusFrames | None = None,
+    sent_before: int = 0,
 ) -> int:
     """Publish ``frames`` on sensor/frame, then an end-of-stream message; returns the frames sent.
 
@@ -176,7 +177,8 @@ def play(
     mode plays at the recorded rate. ``start_timeout_s``: seconds to wait for the frontend's subscription.
     A codec.FrameMessage (a bus source's frame) brings its own calibration and sensor (then
     ``calibration`` and ``sensor`` may be None); ``bus_input``'s drops and rejected messages go
-    into every status.
+    into every status. ``sent_before``: frames the sources before this one sent in this run (a
+    restart): they count towards ``config.max_frames`` and the returned and end-of-stream counts.
     """
     lockstep = mode != "live"
     key = keys.sensor_frame(session_name)
@@ -199,7 +201,7 @@ def play(
         bus.wait_for_subscribers(frame_pub, min(start_timeout_s, _STOPPED_SUBSCRIBER_WAIT_S))
     pacer = _Pacer(0.0 if lockstep else config.rate, should_stop)
     log_cpu_times("at stream start")
-    sent = 0
+    sent = sent_before
     skipped: Counter[str] = Counter()  # frames not sent, by reason
     answered = True  # False once the frontend stops answering (it ended its stream) or we are stopped
 
@@ -276,6 +278,14 @@ def main(argv: list[str] | None = None) -> int:
         help="stage whose liveliness token must be present before the first frame (repeatable)",
     )
     parser.add_argument(
+        "--resume-after", type=int, default=-1, metavar="INDEX",
+        help="a restarted source: start at the first frame after INDEX, the newest one tracked (the supervisor passes it)",
+    )
+    parser.add_argument(
+        "--sent-before", type=int, default=0, metavar="N",
+        help="a restarted source: frames its predecessors sent (counted towards source.max_frames and the end of stream)",
+    )
+    parser.add_argument(
         "--publish-ground-truth", action="store_true",
         help="send the source's ground truth on source/ground_truth once the stages waited for are up (for the "
         "recorder; ``zenslam run`` sends it itself, a source started with ``zenslam stage`` does)",
@@ -298,7 +308,7 @@ def main(argv: list[str] | None = None) -> int:
             calibration = mono_calibration(calibration)  # settings files of stereo cameras state a baseline
 
         with (
-            rerun_log.open_stage_recording(STAGE, args.session, args.config, rerun_config) as recording,
+            rerun_log.open_stage_recording(STAGE, args.session, args.config, rerun_config, args.restart) as recording,
             bus.open_session(bus_config_with(bus_config, args.connect, args.bus_config)) as session,
         ):
             rerun = rerun_log.SourceLog(recording) if recording is not None else None
@@ -310,10 +320,15 @@ def main(argv: list[str] | None = None) -> int:
                 injector = FaultInjector(config.faults)
                 for fault in injector.beyond(len(source)):
                     logger.warning("source.faults %s starts past the last frame (%d); it is never applied", fault.describe(), len(source) - 1)
-                frames = frame_stream(source, injector)
+                if args.restart:
+                    logger.warning(
+                        "restart %d: resuming after frame %d, the newest tracked (%d frame(s) sent before)",
+                        args.restart, args.resume_after, args.sent_before,
+                    )  # fmt: skip
+                frames = frame_stream(source, injector, start=args.resume_after + 1)
                 play(
                     session, args.session, frames, calibration, source.sensor, config, stop, source.name, rerun,
-                    mode=load_mode(args.config), start_timeout_s=timeout_s,
+                    mode=load_mode(args.config), start_timeout_s=timeout_s, sent_before=args.sent_before,
                 )
     except ZenslamError as exc:
         logger.error("%s", exc)
@@ -330,7 +345,7 @@ def _play_bus_input(
 
     family = open_bus_family(spec, config.ros_domain)
     with (
-        rerun_log.open_stage_recording(STAGE, args.session, args.config, rerun_config) as recording,
+        rerun_log.open_stage_recording(STAGE, args.session, args.config, rerun_config, args.restart) as recording,
         bus.open_session(bus_config_with(bus_config, [*args.connect, *config.connect], args.bus_config)) as session,
     ):
         rerun = rerun_log.SourceLog(recording) if recording is not None else None

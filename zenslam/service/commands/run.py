@@ -344,7 +344,10 @@ def _check(supervisor: Supervisor, stop: StopFlag, follower: _Follower, supervis
         return
     frame = follower.log.frame_counts()["frames"]
     last_index = max(follower.log.states, default=-1)  # the newest frame tracked: what a frontend restart lost follows it
-    for restarted in supervisor.restart_failed(supervision):
+    # A restarted source resumes at the first frame not yet tracked; what its predecessors sent counts
+    # towards source.max_frames (frames in flight then reach the frontend twice: it refuses the second).
+    resume = {"source": ("--resume-after", str(last_index), "--sent-before", str(max(frame, 0)))}
+    for restarted in supervisor.restart_failed(supervision, resume):
         follower.log.restarts.append({**restarted, "frame": frame, "last_frame_index": last_index})
         stage = str(restarted["stage"])
         follower.heard[stage] = time.monotonic()
@@ -374,9 +377,10 @@ def _start_stages(
             publish_ground_truth(session, supervisor.session_name, ground_truth)
     recorder = config.recorder.enabled
     # A restarted backend rebuilds its map from its journal; a restarted frontend relocalises into the
-    # backend's map (the source sends it the frames in flight again). The source and the recorder's
-    # restarts are their own (``start_recorder``); a source that fails fails the run.
-    restartable = {"backend"} if config.backend.journal else set()
+    # backend's map (the source sends it the frames in flight again); a restarted source resumes at
+    # the first frame not yet tracked (a bus source takes the frames published from then on). The
+    # recorder's restarts are set up with it (``start_recorder``).
+    restartable = {"backend", "source"} if config.backend.journal else {"source"}
     if config.frontend.tracking.relocalisation.enabled:
         restartable.add("frontend")
     stages = [

@@ -46,11 +46,12 @@ def stamp_problem(index: int, stamp_ns: int, previous_index: int, previous_ns: i
     return SkippedFrame(index, reason, error)
 
 
-def frame_stream(source: Source, injector: FaultInjector | None = None) -> Iterator[SensorFrame | SkippedFrame]:
-    """Every frame of ``source`` in order, with ``injector``'s faults applied: the frame, or why it was skipped."""
+def frame_stream(source: Source, injector: FaultInjector | None = None, start: int = 0) -> Iterator[SensorFrame | SkippedFrame]:
+    """Every frame of ``source`` from index ``start`` on, in order, with ``injector``'s faults
+    applied: the frame, or why it was skipped."""
     injector = injector or FaultInjector()
     previous: tuple[int, int] | None = None  # (index, stamp_ns) of the last frame passed on
-    for index in range(len(source)):
+    for index in range(max(start, 0), len(source)):
         try:
             frame = injector.read(source, index)
         except FrameReadError as exc:
