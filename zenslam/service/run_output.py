@@ -22,9 +22,11 @@ saw, less those the source skipped), ``relocalisation``:
 from __future__ import annotations
 
 import dataclasses
+import dataclasses
 import logging
 import os
 import time
+from array import array
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -54,6 +56,7 @@ FINAL_TRAJECTORY_FILENAME = "trajectory_final.tum"
 KEYFRAMES_FILENAME = "keyframes.tum"
 PLOT_FILENAME = "trajectory_top.png"
 _NO_POSE = Trajectory(np.zeros(0, dtype=np.int64), np.zeros((0, 4, 4)))
+_NO_TIMINGS: dict[str, float] = {}  # the timings of a state kept by RunLog (never written to)
 
 
 def new_run_id() -> str:
@@ -97,7 +100,11 @@ class RunLog:
 
     def __init__(self, live: bool = False) -> None:
         self.live = live  # a live-mode run: the frontend's own drops count (else its gaps are the source's skips)
+        # Frame index -> its state, without its timings (kept apart, in ``_timings``: a long run
+        # holds one state per frame).
         self.states: dict[int, codec.TrackingStateMessage] = {}
+        self._timings: dict[str, array] = {}  # tracking step -> milliseconds of each frame that ran it
+        self._first_step: tuple[int, float] | None = None  # the first frame's index and its tracking ms
         self.poses: dict[int, np.ndarray] = {}  # stamp_ns -> T_world_cam
         self.ended = False  # the frontend's end of stream arrived
         self.updated_keyframes: list[int] = []  # keyframe id of every backend map update received, in order
@@ -137,8 +144,8 @@ class RunLog:
         """
         if self.first_state_s is None or self.last_message_s is None or not self.states:
             return {}
-        first = self.states[min(self.states)]
-        stream_s = self.last_message_s - self.first_state_s + first.timings_ms.get("total", 0.0) / 1e3
+        first_ms = self._first_step[1] if self._first_step is not None else 0.0
+        stream_s = self.last_message_s - self.first_state_s + first_ms / 1e3
         stamps = np.array(sorted(s.stamp_ns for s in self.states.values()), dtype=np.int64)
         period_ns = float(np.median(np.diff(stamps))) if len(stamps) > 1 else 0.0
         duration_s = (float(stamps[-1] - stamps[0]) + period_ns) / 1e9
@@ -211,7 +218,12 @@ class RunLog:
         return _timing_table(samples, "keyframes")
 
     def add_state(self, state: codec.TrackingStateMessage) -> None:
-        self.states[state.index] = state
+        if state.timings_ms and state.index not in self.states:
+            for name, ms in state.timings_ms.items():
+                self._timings.setdefault(name, array("d")).append(ms)
+        if self._first_step is None or state.index <= self._first_step[0]:
+            self._first_step = (state.index, state.timings_ms.get("total", 0.0))
+        self.states[state.index] = dataclasses.replace(state, timings_ms=_NO_TIMINGS) if state.timings_ms else state
 
     def add_pose(self, pose: codec.StampedPose) -> None:
         self.poses[pose.stamp_ns] = pose.T_world_cam
@@ -277,11 +289,7 @@ class RunLog:
 
     def timing(self) -> dict[str, dict[str, float]]:
         """Per tracking step: mean, median and max milliseconds over the frames that ran it."""
-        samples: dict[str, list[float]] = {}
-        for index in sorted(self.states):
-            for name, ms in self.states[index].timings_ms.items():
-                samples.setdefault(name, []).append(ms)
-        return _timing_table(samples, "frames")
+        return _timing_table({name: list(ms) for name, ms in self._timings.items()}, "frames")
 
     def frame_counts(self) -> dict[str, object]:
         """The ``frames``, ``lost_frames``, ``lost_reasons``, ``initializing_*`` and ``keyframes`` sections of metrics.json."""
