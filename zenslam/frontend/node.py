@@ -15,6 +15,10 @@ mode (every frame, in order, as in lockstep) applies updates as live mode does. 
 lost frame asks it for relocalisation candidates on backend/relocalisation (``RelocalisationQueries``)
 and waits for the answer: in lockstep the backend is idle between keyframes, so the answer, and
 the run, stay deterministic.
+
+A frontend restarted after a crash (``--restart N``) asks the backend for the first keyframe and
+point ids past its map (``continuing_config``), starts lost and relocalises into the backend's map,
+as a run from a saved map does; answers to its predecessor's keyframes are not applied.
 """
 
 from __future__ import annotations

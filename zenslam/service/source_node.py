@@ -4,7 +4,9 @@ Live mode sends frame i at its recorded time (scaled by ``source.rate``) whether
 keeps up, with DROP congestion control, like a camera. Lockstep mode keeps at most
 ``source.frames_in_flight`` frames sent without the frontend's frontend/state (frame i+1 is read
 while frame i is tracked), with lossless delivery: every frame is tracked, in order, and the run is
-deterministic. Either way the stream ends with an end-of-stream message.
+deterministic. Either way the stream ends with an end-of-stream message. A frontend that crashes
+and is restarted gets the frames in flight again (``_AnswerWindow``); a source that crashes is
+restarted with ``--resume-after`` the newest frame tracked and goes on from the next.
 
 Bad frames (unreadable, corrupt, stamps that do not increase; see sources.frame_stream) are not
 sent: each is logged once as a warning and counted, and the counts by reason travel in the
