@@ -168,6 +168,7 @@ def play(
     start_timeout_s: float = 60.0,
     bus_input: BusFrames | None = None,
     sent_before: int = 0,
+    recorded: bool = False,
 ) -> int:
     """Publish ``frames`` on sensor/frame, then an end-of-stream message; returns the frames sent.
 
@@ -181,6 +182,9 @@ def play(
     ``calibration`` and ``sensor`` may be None); ``bus_input``'s drops and rejected messages go
     into every status. ``sent_before``: frames the sources before this one sent in this run (a
     restart): they count towards ``config.max_frames`` and the returned and end-of-stream counts.
+    ``recorded``: a recorder records the run; in lockstep and pipelined mode no frame is sent while
+    it is gone (crashed, not restarted yet), for up to ``start_timeout_s``, so the recording misses
+    only what was in flight when it died.
     """
     lockstep = mode != "live"
     key = keys.sensor_frame(session_name)
@@ -195,6 +199,7 @@ def play(
         states = bus.subscribe(session, keys.frontend_state(session_name), codec.decode_tracking_state, "lossless", 64)
         frontend = bus.Comebacks(session, session_name, "frontend")
         window = _AnswerWindow(states, frontend, frame_pub.put, config.answer_timeout_s, start_timeout_s, should_stop)
+    recorder = bus.Comebacks(session, session_name, "recorder") if recorded and lockstep else None
     if not bus.wait_for_subscribers(frame_pub, start_timeout_s, keep_waiting=lambda: not should_stop()):
         if not should_stop():
             raise bus.BusError(f"no subscriber to {key} within {start_timeout_s:.0f} s; is the frontend running?")
@@ -225,6 +230,9 @@ def play(
             if isinstance(frame, codec.FrameMessage):
                 camera, sensor_kind, frame = frame.calibration, frame.sensor, frame.frame
             pacer.wait_for(frame.stamp_ns)
+            if recorder is not None and not _wait_for_a_restarted_recorder(recorder, start_timeout_s, should_stop):
+                recorder.close()
+                recorder = None  # it did not come back: the run goes on unrecorded
             started = time.perf_counter()
             message = codec.encode_sensor_frame(frame, camera, sensor_kind, source_name, config.depth_encoding)
             frame_pub.put(message)
@@ -252,12 +260,31 @@ def play(
         if window is not None:
             states.close()
             frontend.close()
+        if recorder is not None:
+            recorder.close()
     if final.skipped:
         logger.warning("skipped %d frame(s) or message(s): %s", sum(final.skipped.values()), dict(sorted(final.skipped.items())))
     if final.dropped:
         logger.info("dropped %d frame(s) that arrived while tracking was busy (the newest is tracked)", final.dropped)
     logger.info("sent %d frames and the end of stream on %s", sent, key)
     return sent
+
+
+def _wait_for_a_restarted_recorder(recorder: bus.Comebacks, timeout_s: float, should_stop: Callable[[], bool]) -> bool:
+    """While the recorder is gone (it crashed; the supervisor restarts it), wait up to ``timeout_s``
+    seconds for it to come back before sending the next frame; False when it did not."""
+    recorder.poll()
+    if not recorder.gone:
+        return True
+    logger.warning("the recorder is gone: holding the next frame until it is back (up to %.0f s)", timeout_s)
+    deadline = time.monotonic() + timeout_s
+    while recorder.gone and not should_stop() and time.monotonic() < deadline:
+        time.sleep(0.02)
+        recorder.poll()
+    if recorder.gone and not should_stop():
+        logger.warning("the recorder did not come back within %.0f s: going on without it", timeout_s)
+    recorder.returned()  # its comeback is taken
+    return not recorder.gone
 
 
 def _skip(frame: SkippedFrame, skipped: Counter[str], strict: bool, source_name: str) -> None:
@@ -331,6 +358,7 @@ def main(argv: list[str] | None = None) -> int:
                 play(
                     session, args.session, frames, calibration, source.sensor, config, stop, source.name, rerun,
                     mode=load_mode(args.config), start_timeout_s=timeout_s, sent_before=args.sent_before,
+                    recorded="recorder" in args.wait_for,
                 )
     except ZenslamError as exc:
         logger.error("%s", exc)
