@@ -13,7 +13,9 @@ keep it flat), nor the processes' memory: the figures at the last lap are compar
 lap 2 (the first lap builds the map; the second is the first revisit).
 
 Run: ``.venv/bin/python benchmarks/soak.py [--laps 20] [--scene figure_eight] [--mode pipelined]
-[--config YAML] [--keep DIR]`` (writes benchmarks/results/soak.json, or ``--results PATH``).
+[--config YAML] [--keep DIR]`` (writes benchmarks/results/soak.json, or ``--results PATH``). The run
+folder (about 4 GB for 20 laps, most of it run.mcap) goes into a temporary folder, removed at the end, or is kept
+under ``--keep DIR``.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import argparse
 import json
 import os
 import platform
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -112,6 +115,7 @@ def main() -> None:
     source = open_source(spec)
     frames = len(source)
     frames_per_lap = (frames - 1) // args.laps
+    # The run folder is large (run.mcap and the rerun files: about 4 GB for 20 figure-eight laps): removed unless --keep.
     output = args.keep or Path(tempfile.mkdtemp(prefix="zenslam-soak-"))
     run_id = f"soak-{os.getpid()}"
     command = [sys.executable, "-m", "zenslam.service.cli", "run", spec, f"--{args.mode}", "--output", str(output),
@@ -170,6 +174,8 @@ def main() -> None:
         print(f"lap {last['lap']} / lap 2: " + ", ".join(f"{k} {v:.3f}" for k, v in ratios.items() if v is not None))
         print(f"within {_TARGET:.0%} of lap 2: {result['within_target']}")
     print(f"exit {popen.returncode}, {wall_s:.0f} s; ATE {result['ate_m']}; restarts {result['restarts']}; loops {result['loops']}")
+    if args.keep is None:
+        shutil.rmtree(output, ignore_errors=True)
     args.results.parent.mkdir(parents=True, exist_ok=True)
     args.results.write_text(json.dumps(result, indent=1))
     print(f"wrote {args.results}")
