@@ -13,9 +13,9 @@ keep it flat), nor the processes' memory: the figures at the last lap are compar
 lap 2 (the first lap builds the map; the second is the first revisit).
 
 Run: ``.venv/bin/python benchmarks/soak.py [--laps 20] [--scene figure_eight] [--mode pipelined]
-[--config YAML] [--keep DIR]`` (writes benchmarks/results/soak.json, or ``--results PATH``). The run
-folder (about 4 GB for 20 laps, most of it run.mcap) goes into a temporary folder, removed at the end, or is kept
-under ``--keep DIR``.
+[--config YAML] [--keep DIR]`` (writes benchmarks/results/soak.json, or ``--results PATH``). The
+run folder (about 4 GB for 20 laps, most of it run.mcap) goes into a temporary folder, removed at
+the end, or is kept under ``--keep DIR``.
 """
 
 from __future__ import annotations
