@@ -293,9 +293,10 @@ def test_a_stopped_stage_is_caught_as_hung_and_fails_the_run_with_its_outputs(tm
     assert _pose_lines(run.run_dir / "trajectory.tum") == metrics["tracked_ok"] >= 5
 
 
-def _completed_with_one_backend_restart(run: _Run, code: int) -> dict:
-    """What a run whose backend was restarted once leaves: exit 0, completed, the restart counted
-    and logged, every output; returns the restart event."""
+def _completed_with_one_restart(run: _Run, code: int, stage: str) -> tuple[dict, dict]:
+    """What a run whose ``stage`` was killed (or killed as hung) and restarted once leaves: exit 0,
+    no traceback, completed, the restart counted, a finished run.mcap; returns metrics.json and the
+    restart event."""
     context = f"stdout:\n{run.stdout[-2000:]}\nstderr:\n{run.stderr[-4000:]}"
     assert code == 0, context
     assert "Traceback" not in run.stdout + run.stderr, context
@@ -303,11 +304,18 @@ def _completed_with_one_backend_restart(run: _Run, code: int) -> dict:
     assert metrics["run"]["completed"] is True and metrics["run"]["failures"] == []
     assert metrics["run"]["restarts"] == 1
     [event] = metrics["run"]["restart_events"]
-    assert event["stage"] == "backend" and event["signal"] == "SIGKILL" and event["restart"] == 1, event
+    assert event["stage"] == stage and event["signal"] == "SIGKILL" and event["restart"] == 1, event
+    assert mcap_io.has_summary(run.run_dir / "run.mcap")
+    return metrics, event
+
+
+def _completed_with_one_backend_restart(run: _Run, code: int) -> dict:
+    """What a run whose backend was restarted once leaves: as ``_completed_with_one_restart``, the
+    map rebuilt from the journal, both rerun files, no journal left; returns the restart event."""
+    _, event = _completed_with_one_restart(run, code, "backend")
     assert "rebuilt the map from the journal" in (run.run_dir / "logs" / "backend.log").read_text()
     assert (run.run_dir / "backend.restart1.rrd").is_file() and (run.run_dir / "backend.rrd").is_file()
     assert not (run.run_dir / "backend.journal").exists(), "a finished run keeps no journal"
-    assert mcap_io.has_summary(run.run_dir / "run.mcap")
     return event
 
 
@@ -357,14 +365,7 @@ def test_a_killed_frontend_is_restarted_and_relocalises_into_the_backends_map(tm
     run = _Run(tmp_path, "synthetic", "--max-frames", "120")
     run.wait_for("40 frames tracked", lambda: run.frames_tracked() >= 40)
     os.kill(_stage_pid(run, "zenslam.frontend.node"), signal.SIGKILL)
-    code = run.finish()
-    context = f"stdout:\n{run.stdout[-2000:]}\nstderr:\n{run.stderr[-4000:]}"
-    assert code == 0, context
-    assert "Traceback" not in run.stdout + run.stderr, context
-    metrics = json.loads((run.run_dir / "metrics.json").read_text())
-    assert metrics["run"]["completed"] is True and metrics["run"]["restarts"] == 1
-    [event] = metrics["run"]["restart_events"]
-    assert event["stage"] == "frontend" and event["signal"] == "SIGKILL", event
+    metrics, event = _completed_with_one_restart(run, run.finish(), "frontend")
     assert event["relocalised_at"] is not None and 0 <= event["frames_lost"] <= 10, event
     assert metrics["relocalisation"]["count"] >= 1
     assert metrics["tracked_ok"] >= 120 - 10
@@ -373,7 +374,6 @@ def test_a_killed_frontend_is_restarted_and_relocalises_into_the_backends_map(tm
     log = (run.run_dir / "logs" / "frontend.log").read_text()
     assert "---- restart 1 of frontend ----" in log and "entering the backend's map" in log
     assert (run.run_dir / "frontend.restart1.rrd").is_file()
-    assert mcap_io.has_summary(run.run_dir / "run.mcap")
 
 
 @pytest.mark.extended  # two runs side by side: CI runs it after the README's command
@@ -386,13 +386,8 @@ def test_a_killed_source_resumes_at_the_first_frame_not_tracked_and_lockstep_out
     run = _Run(tmp_path, "synthetic", *options)
     run.wait_for("30 frames tracked", lambda: run.frames_tracked() >= 30)
     os.kill(_stage_pid(run, "zenslam.service.source_node"), signal.SIGKILL)
-    code = run.finish()
-    context = f"stdout:\n{run.stdout[-2000:]}\nstderr:\n{run.stderr[-4000:]}"
-    assert code == 0, context
-    metrics = json.loads((run.run_dir / "metrics.json").read_text())
-    assert metrics["run"]["completed"] is True and metrics["run"]["restarts"] == 1
-    [event] = metrics["run"]["restart_events"]
-    assert event["stage"] == "source" and event["last_frame_index"] >= 29, event
+    metrics, event = _completed_with_one_restart(run, run.finish(), "source")
+    assert event["last_frame_index"] >= 29, event
     assert metrics["frames"] == metrics["tracked_ok"] == 80
     assert "resuming after frame" in (run.run_dir / "logs" / "source.log").read_text()
     assert unharmed.finish() == 0, unharmed.stderr[-3000:]
@@ -416,15 +411,9 @@ def test_a_killed_recorder_is_restarted_and_the_recording_stays_one_readable_fil
     run = _Run(tmp_path, "synthetic", "--max-frames", "120")
     run.wait_for("40 frames tracked", lambda: run.frames_tracked() >= 40)
     os.kill(_stage_pid(run, "zenslam.service.recorder"), signal.SIGKILL)
-    code = run.finish()
-    context = f"stdout:\n{run.stdout[-2000:]}\nstderr:\n{run.stderr[-4000:]}"
-    assert code == 0, context
-    metrics = json.loads((run.run_dir / "metrics.json").read_text())
-    assert metrics["run"]["completed"] is True and metrics["run"]["restarts"] == 1
-    [event] = metrics["run"]["restart_events"]
-    assert event["stage"] == "recorder" and event["signal"] == "SIGKILL", event
+    _completed_with_one_restart(run, run.finish(), "recorder")
     recording = run.run_dir / "run.mcap"
-    assert mcap_io.has_summary(recording) and not list(run.run_dir.glob("run.crashed*"))
+    assert not list(run.run_dir.glob("run.crashed*"))
     assert "carried" in (run.run_dir / "logs" / "recorder.log").read_text()
     states = [decoded for _, decoded in mcap_io.iter_decoded(recording, ["/frontend/state"])]
     assert isinstance(states[-1], codec.EndOfStream)

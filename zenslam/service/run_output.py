@@ -22,7 +22,6 @@ saw, less those the source skipped), ``relocalisation``:
 from __future__ import annotations
 
 import dataclasses
-import dataclasses
 import logging
 import os
 import time
