@@ -112,12 +112,14 @@ class BusFrames:
     def frames(self) -> Iterator[codec.FrameMessage | SkippedFrame]:
         """Each frame the consumer asks for: the newest complete one (see the module docstring)."""
         with ExitStack() as stack:
-            # The keys a publisher waits on (its images) are declared last, so that once a publisher sees
-            # them matched, every other key of the frame (calibration, depth, right image) is matched too.
-            for key, role in sorted(self._roles.items(), key=lambda item: item[1] in _WAITED_ON):
-                stack.enter_context(self._session.declare_subscriber(key, self._receiver(key, role)))
+            # The publishers' tokens are watched first, and the keys a publisher waits on (its images) are
+            # declared last: once a publisher sees its images matched, every other key of the frame
+            # (calibration, depth, right image) is matched too and its token's going will be seen,
+            # however fast it publishes and leaves.
             liveliness = self._session.liveliness()
             stack.enter_context(liveliness.declare_subscriber(self._family.liveliness_key(), self._on_token, history=True))
+            for key, role in sorted(self._roles.items(), key=lambda item: item[1] in _WAITED_ON):
+                stack.enter_context(self._session.declare_subscriber(key, self._receiver(key, role)))
             subscribed_at = self._clock()
             logger.info("%s: waiting for frames on %s", self._family.name, ", ".join(self._roles))
             previous: tuple[int, int] | None = None
@@ -158,9 +160,10 @@ class BusFrames:
 
     def _on_token(self, sample: zenoh.Sample) -> None:
         with self._lock:
+            # A token that went before its arrival was seen still shows that a publisher was there and left.
+            self._tokens_seen = True
             if sample.kind == zenoh.SampleKind.PUT:
                 self._tokens.add(str(sample.key_expr))
-                self._tokens_seen = True
             else:
                 self._tokens.discard(str(sample.key_expr))
 
