@@ -40,6 +40,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
@@ -227,18 +228,23 @@ class SourceLog:
 
     def __init__(self, recording: StageRecording) -> None:
         self.recording = recording
-        if recording.config.jpeg:
-            # The first compression imports rerun's image encoder (~0.3 s): done here, at start-up, it
-            # does not hold up the first frame (a live source would drop the frames arriving meanwhile).
-            rr.Image(np.zeros((8, 8), np.uint8), color_model="L").compress(jpeg_quality=recording.config.jpeg_quality)
 
     def log_frame(self, frame: SensorFrame) -> None:
         config = self.recording.config
         if frame.index % config.image_every_n != 0:
             return
         self.recording.at(frame.index, frame.stamp_ns)
-        image = rr.Image(frame.left, color_model="L")
-        self.recording.log("source/camera/left", image.compress(jpeg_quality=config.jpeg_quality) if config.jpeg else image)
+        image = _jpeg_image(frame.left, config.jpeg_quality) if config.jpeg else rr.Image(frame.left, color_model="L")
+        self.recording.log("source/camera/left", image)
+
+
+def _jpeg_image(grey: np.ndarray, quality: int) -> rr.EncodedImage:
+    """``grey`` (uint8) as a JPEG-encoded image, compressed by OpenCV. rerun's own ``Image.compress``
+    goes through Pillow, whose first save loads every image plugin: 40 MB more in the source process."""
+    encoded, data = cv2.imencode(".jpg", grey, [cv2.IMWRITE_JPEG_QUALITY, quality])
+    if not encoded:
+        raise ValueError(f"OpenCV could not JPEG-encode a {grey.shape} {grey.dtype} image")
+    return rr.EncodedImage(contents=data.tobytes(), media_type="image/jpeg")
 
 
 class FrontendLog:
