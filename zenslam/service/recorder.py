@@ -29,7 +29,6 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -50,20 +49,14 @@ from zenslam.runtime.stage import (
     log_cpu_times,
     setup_process_logging,
 )
-from zenslam.runtime.supervisor import ProcessSpec, Supervisor
 from zenslam.schemas import codec, keys
 from zenslam.schemas.map_update import MapUpdate
 from zenslam.service import mcap_io
-from zenslam.service.recorder_config import RecorderConfig
-from zenslam.service.stages import STAGE_MODULES, stage_args
-
-if TYPE_CHECKING:
-    from zenslam.service.run_config import RunConfig
+from zenslam.service.recorder_config import RECORDING_NAME, RecorderConfig
 
 logger = logging.getLogger(__name__)
 
 STAGE = "recorder"
-RECORDING_NAME = "run.mcap"
 CAMERA_TOPICS = mcap_io.CAMERA_TOPICS
 TF_TOPIC = "/tf"
 MAP_POINTS_TOPIC = "/map/points"
@@ -475,25 +468,6 @@ def set_aside(path: Path, restart: int) -> Path | None:
     path.replace(aside)
     logger.warning("restart %d: %s was left unfinished by the recorder before; carrying it over from %s", restart, path, aside)
     return aside
-
-
-def start_recorder(
-    supervisor: Supervisor, session: zenoh.Session, config: RunConfig, run_dir: Path, keep_waiting: Callable[[], bool]
-) -> Path | None:
-    """``zenslam run``'s hook: start the recorder (before any other stage) and wait for it to listen.
-
-    It follows the source, frontend and backend and exits by itself once they have all exited,
-    so the supervisor's ``wait_exit`` also waits for the recording to be finished. Returns the
-    recording's path, or None when ``recorder.enabled`` is false.
-    """
-    if not config.recorder.enabled:
-        return None
-    path = Path(run_dir) / RECORDING_NAME
-    args = ("--output", str(path), *stage_args(STAGE, recorder=True))
-    # Restartable: a restarted recorder carries its predecessor's file over (``set_aside``).
-    supervisor.start(ProcessSpec(STAGE, STAGE_MODULES[STAGE], args, restartable=True))
-    supervisor.wait_until_alive(session, [STAGE], config.bus.start_timeout_s, keep_waiting)
-    return path
 
 
 def main(argv: list[str] | None = None) -> int:

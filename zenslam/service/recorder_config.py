@@ -9,6 +9,8 @@ from typing import Literal
 from zenslam.errors import ConfigError
 from zenslam.service.mcap_io import ChunkCompression
 
+RECORDING_NAME = "run.mcap"  # the recorder's file in the run folder
+
 
 @dataclass(frozen=True)
 class RecorderConfig:

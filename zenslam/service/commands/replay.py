@@ -21,7 +21,7 @@ from zenslam.errors import ProcessError, RecordingError
 from zenslam.runtime.stop import EXIT_INTERRUPTED
 from zenslam.service import backend_replay, mcap_io, replay
 from zenslam.service.commands import run as run_command
-from zenslam.service.recorder import RECORDING_NAME
+from zenslam.service.recorder_config import RECORDING_NAME
 from zenslam.service.run_output import CONFIG_FILENAME, new_run_id
 
 logger = logging.getLogger(__name__)

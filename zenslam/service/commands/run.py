@@ -43,8 +43,14 @@ from zenslam.schemas import codec, keys
 from zenslam.service import mcap_io
 from zenslam.service.evaluation.plot import PLANES
 from zenslam.service.recorded_ground_truth import publish_ground_truth
-from zenslam.service.recorder import RECORDING_NAME, start_recorder
-from zenslam.service.ros2.run_bridge import Ros2RunBridge, domain_id_from, add_ros2_publish_arguments, open_run_bridge, ros2_publish_config
+from zenslam.service.recorder_config import RECORDING_NAME
+from zenslam.service.ros2.run_bridge import (
+    Ros2RunBridge,
+    add_ros2_publish_arguments,
+    domain_id_from,
+    open_run_bridge,
+    ros2_publish_config,
+)
 from zenslam.service.run_config import (
     RunConfig,
     apply_orbslam_settings,
@@ -52,6 +58,8 @@ from zenslam.service.run_config import (
     load_run_config,
     read_orbslam_settings,
 )
+from zenslam.service.run_failure import RunFailure
+from zenslam.service.run_input import recorded_sensor, run_input
 from zenslam.service.run_output import (
     RunLog,
     RunResult,
@@ -61,8 +69,6 @@ from zenslam.service.run_output import (
     write_config,
     write_outputs,
 )
-from zenslam.service.run_failure import RunFailure
-from zenslam.service.run_input import recorded_sensor, run_input
 from zenslam.service.saved_map import check_map_fits, with_map_options
 from zenslam.service.sources import Source, is_bus_spec
 from zenslam.service.sources.config import DEFAULT_BUS_INPUT
@@ -360,6 +366,18 @@ def _check_source(log: RunLog) -> None:
         raise ProcessError(f"the source stopped the run: {log.source_failure}")
 
 
+def _start_recorder(supervisor: Supervisor, session, config: RunConfig, run_dir: Path, keep_waiting) -> None:
+    """Start the recorder (before any other stage) and wait for it to listen.
+
+    It follows the source, frontend and backend and exits by itself once they have all exited, so
+    the supervisor's ``wait_exit`` also waits for the recording to be finished. Restartable: a
+    restarted recorder carries its predecessor's file over (``recorder.set_aside``).
+    """
+    args = ("--output", str(run_dir / RECORDING_NAME), *stage_args("recorder", recorder=True))
+    supervisor.start(ProcessSpec("recorder", STAGE_MODULES["recorder"], args, restartable=True))
+    supervisor.wait_until_alive(session, ["recorder"], config.bus.start_timeout_s, keep_waiting)
+
+
 def _start_stages(
     supervisor: Supervisor, session, config: RunConfig, run_dir: Path, stop: StopFlag, ground_truth: Trajectory | None,
     follower: _Follower, wait_for: tuple[str, ...] = (),
@@ -372,14 +390,14 @@ def _start_stages(
     if not stop() and config.recorder.enabled:
         # The recorder comes first, and each stage waits until it sees the recorder's token before
         # publishing: then the recorder's subscription has reached it too.
-        start_recorder(supervisor, session, config, run_dir, stop.keep_going)
+        _start_recorder(supervisor, session, config, run_dir, stop.keep_going)
         if ground_truth is not None:
             publish_ground_truth(session, supervisor.session_name, ground_truth)
     recorder = config.recorder.enabled
     # A restarted backend rebuilds its map from its journal; a restarted frontend relocalises into the
     # backend's map (the source sends it the frames in flight again); a restarted source resumes at
     # the first frame not yet tracked (a bus source takes the frames published from then on). The
-    # recorder's restarts are set up with it (``start_recorder``).
+    # recorder's restarts are set up with it (``_start_recorder``).
     restartable = {"backend", "source"} if config.backend.journal else {"source"}
     if config.frontend.tracking.relocalisation.enabled:
         restartable.add("frontend")
