@@ -242,6 +242,33 @@ def test_serve_refuses_frames_of_another_camera_or_not_after_the_last():
     assert node.refusal(_message(frames[2])) is None
 
 
+def test_a_frame_sent_again_is_refused_and_answered_with_the_newest_state():
+    """A restarted source resumes after the newest frame the hub saw tracked, which can be older than
+    the frontend's: the frames it sends again are not tracked twice, but each is answered (with the
+    newest state) so that the source, waiting for a state at or past it, goes on."""
+    session_name = "sent-again"
+    with bus.open_session(bus.BusConfig()) as session:
+        frames = bus.declare_publisher(session, keys.sensor_frame(session_name), codec.SENSOR_FRAME, "lossless")
+        states = bus.subscribe(session, keys.frontend_state(session_name), codec.decode_tracking_state, "lossless", 64)
+        node = FrontendNode(StubPipeline)
+        stop = threading.Event()
+        frontend = threading.Thread(target=lambda: serve(session, session_name, node, "lockstep", bus.BusConfig(), stop.is_set))
+        frontend.start()
+        try:
+            assert bus.wait_for_alive(session, session_name, ["frontend"], timeout_s=10.0) == set()
+            sequence = _frames(5)
+            for frame in (*sequence[:4], sequence[2], sequence[3], sequence[4]):
+                frames.put(codec.encode_sensor_frame(frame, CAL, "stereo"))
+            received = [states.get(timeout_s=10.0) for _ in range(7)]
+        finally:
+            stop.set()
+            frontend.join(timeout=10.0)
+            states.close()
+    assert [state.index for state in received] == [0, 1, 2, 3, 3, 3, 4]
+    assert (received[4].stamp_ns, received[5].stamp_ns) == (received[3].stamp_ns,) * 2
+    assert node._pipeline.seen == [0, 1, 2, 3, 4] and node.refused == 2  # none tracked twice
+
+
 def test_a_restarted_frontend_applies_no_answer_to_its_predecessors_keyframes():
     """Keyframe ids below the frontend's first (``entering_map``: past the backend's map) were its
     predecessor's: their answers are not applied, corrections and answers to its own keyframes are."""

@@ -19,6 +19,11 @@ the run, stay deterministic.
 A frontend restarted after a crash (``--restart N``) asks the backend for the first keyframe and
 point ids past its map (``continuing_config``), starts lost and relocalises into the backend's map,
 as a run from a saved map does; answers to its predecessor's keyframes are not applied.
+
+A frame whose index is not after the last one tracked (sent again by a restarted source, or to a
+restarted frontend) is refused and answered with the newest frame's state once more: the source
+waits for a state at or past each frame it sent, and a subscriber to frontend/state can see a
+state twice then (same message, same index).
 """
 
 from __future__ import annotations
@@ -181,6 +186,10 @@ class FrontendNode:
             return f"frame {frame.index} (stamp {frame.stamp_ns} ns) is not after frame {self._last_index} (stamp {self._last_stamp_ns} ns)"
         return None
 
+    def tracked_already(self, message: codec.FrameMessage) -> bool:
+        """Whether the frame's index is not after the last frame's: it was sent before (or skipped)."""
+        return self._last_index is not None and message.frame.index <= self._last_index
+
     def handle(self, message: codec.FrameMessage) -> FrontendMessages:
         """Track one frame; the pipeline is built on the first one, from its calibration and sensor."""
         camera = (message.calibration, message.sensor)
@@ -271,6 +280,7 @@ class _Outputs:
         self.state = bus.declare_publisher(session, keys.frontend_state(session_name), codec.TRACKING_STATE, "lossless")
         self.keyframe = bus.declare_publisher(session, keys.frontend_keyframe(session_name), codec.KEYFRAME, "lossless")
         self.status = bus.declare_publisher(session, keys.status(session_name, STAGE), codec.STAGE_STATUS, "lossless")
+        self._last_state: bytes | None = None
 
     def send(self, messages: FrontendMessages, keyframes: bool = True) -> None:
         """The frame's messages; its keyframes only when ``keyframes`` (held while the backend is gone)."""
@@ -279,6 +289,12 @@ class _Outputs:
         if messages.pose is not None:
             self.pose.put(messages.pose)
         self.state.put(messages.state)
+        self._last_state = messages.state
+
+    def send_last_state_again(self) -> None:
+        """The newest frame's state once more (nothing before the first frame is tracked)."""
+        if self._last_state is not None:
+            self.state.put(self._last_state)
 
     def send_status(self, status: codec.StageStatusMessage) -> None:
         self.status.put(codec.encode_stage_status(status))
@@ -483,6 +499,10 @@ def serve(
                 if (problem := node.refusal(message)) is not None:
                     node.refused += 1
                     logger.warning("refused a frame (%d so far): %s", node.refused, problem)
+                    if node.tracked_already(message):
+                        # Sent again by a restarted source, or to this restarted frontend: the source
+                        # waits for an answer, and the newest state (of a later frame) is one.
+                        outputs.send_last_state_again()
                     continue
                 try:
                     sent = node.handle(message)

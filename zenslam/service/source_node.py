@@ -76,7 +76,7 @@ class _AnswerWindow:
     first, each with its message. A frontend that crashes loses the frames it held; when it comes
     back (restarted by the supervisor) they are sent again, oldest first, and again every
     ``_RESEND_S`` seconds until it answers one (a frame sent as its token arrives may not reach its
-    new subscription; one it already has it refuses as not newer)."""
+    new subscription; one it already has it refuses as not newer, answering with its newest state)."""
 
     def __init__(
         self, states: bus.Inbox, frontend: bus.Comebacks, resend: Callable[[bytes], None], timeout_s: float,
