@@ -13,7 +13,7 @@ import pytest
 
 from zenslam.camera import PinholeCalibration
 from zenslam.runtime import rerun_log
-from zenslam.runtime.rerun_log import BackendLog, FrontendLog, RerunConfig, SourceLog, StageRecording, read_rrd, recording_ids
+from zenslam.runtime.rerun_log import BackendLog, FrontendLog, RerunConfig, StageRecording, read_rrd, recording_ids
 from zenslam.service.sources.frame import SensorFrame
 
 CALIBRATION = PinholeCalibration(400.0, 400.0, 80.0, 60.0, 160, 120, 0.1)
@@ -63,29 +63,30 @@ def test_open_stage_recording_writes_beside_the_config_or_nothing(tmp_path):
         assert recording is None
 
 
-@pytest.mark.parametrize("jpeg", [False, True])
-def test_the_source_logs_every_nth_left_image(tmp_path, jpeg):
-    image = np.random.default_rng(0).integers(0, 255, (120, 160), dtype=np.uint8)
-    with StageRecording(tmp_path, "r", "source", RerunConfig(image_every_n=2, jpeg=jpeg)) as recording:
-        source = SourceLog(recording)
-        for index in range(5):
-            source.log_frame(SensorFrame(index, index * 50_000_000, image, right=image))
-    data = read_rrd(tmp_path / "source.rrd")
-    component = "EncodedImage:blob" if jpeg else "Image:buffer"
-    assert _frames(data, "/source/camera/left", component) == [0, 2, 4]
-    (buffer,) = _value(data, "/source/camera/left", component, 2)
-    if jpeg:  # a JPEG of the image (lossy: noise is the worst case for it)
-        decoded = cv2.imdecode(np.frombuffer(bytes(buffer), np.uint8), cv2.IMREAD_UNCHANGED)
-        assert decoded.shape == image.shape and np.abs(decoded.astype(int) - image).mean() < 25
-    else:
-        assert bytes(buffer) == image.tobytes()
-
-
 def _output(index: int, state: str = "ok", lost_reason: str | None = None, T=None, n_tracked: int = 2) -> SimpleNamespace:
     return SimpleNamespace(
         index=index, stamp_ns=index * 100_000_000, state=state, lost_reason=lost_reason,
         T_world_cam=T, n_tracked=n_tracked, timings_ms={"extraction": 1.5, "total": 3.0},
     )  # fmt: skip
+
+
+@pytest.mark.parametrize("jpeg", [False, True])
+def test_the_frontend_logs_every_nth_left_image(tmp_path, jpeg):
+    image = np.random.default_rng(0).integers(0, 255, (120, 160), dtype=np.uint8)
+    with StageRecording(tmp_path, "r", "frontend", RerunConfig(image_every_n=2, jpeg=jpeg)) as recording:
+        frontend = FrontendLog(recording)
+        for index in range(5):
+            frontend.log_frame(_output(index), left=image)
+        frontend.log_frame(_output(6))  # no image at hand: none logged
+    data = read_rrd(tmp_path / "frontend.rrd")
+    component = "EncodedImage:blob" if jpeg else "Image:buffer"
+    assert _frames(data, "/frontend/camera/left", component) == [0, 2, 4]
+    (buffer,) = _value(data, "/frontend/camera/left", component, 2)
+    if jpeg:  # a JPEG of the image (lossy: noise is the worst case for it)
+        decoded = cv2.imdecode(np.frombuffer(bytes(buffer), np.uint8), cv2.IMREAD_UNCHANGED)
+        assert decoded.shape == image.shape and np.abs(decoded.astype(int) - image).mean() < 25
+    else:
+        assert bytes(buffer) == image.tobytes()
 
 
 def test_the_frontend_logs_keypoints_tracked_points_pose_state_counts_and_timings(tmp_path):

@@ -259,7 +259,7 @@ class FrontendNode:
         from zenslam.runtime.rerun_log import tracked_keypoints
 
         self.rerun.log_camera(message.calibration)
-        self.rerun.log_frame(out, tracked_keypoints(self._pipeline, message.frame.index))
+        self.rerun.log_frame(out, tracked_keypoints(self._pipeline, message.frame.index), message.frame.left)
 
     def apply_map_update(self, update: MapUpdate) -> None:
         """Apply the backend's correction to the pipeline's map before the next frame is tracked."""

@@ -14,8 +14,8 @@ class RerunConfig:
     """What the stage processes log to rerun (the ``rerun`` section): ``<run>/<stage>.rrd``, one recording per run."""
 
     enabled: bool = True  # every stage process writes its .rrd next to the run's config.yaml
-    # frames; the source logs every n-th left image (keypoints and poses are logged every frame). Every
-    # second image keeps the viewer's video smooth enough to follow and halves source.rrd, the largest .rrd.
+    # frames; the frontend logs every n-th left image it tracks (keypoints and poses: every frame). Every
+    # second image keeps the viewer's video smooth enough to follow and halves the images' share of frontend.rrd.
     image_every_n: int = 2
     # JPEG-compressed images: a third of the CPU and of the file size of raw images.
     jpeg: bool = True

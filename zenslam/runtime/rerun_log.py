@@ -1,6 +1,6 @@
-"""The rerun recording of each stage process: one ``<run>/<stage>.rrd`` per process, one recording per run.
+"""The rerun recording of the frontend and backend processes: one ``<run>/<stage>.rrd`` each, one recording per run.
 
-This is the only module that configures rerun. Every stage process opens a ``StageRecording``
+This is the only module that configures rerun. The frontend and the backend each open a ``StageRecording``
 (application id "zenslam", recording id = the run id, so the viewer opens the files of a run as
 one recording) saved next to the run's ``config.yaml``, with the default blueprint of
 ``default_blueprint``. Data is logged on explicit timelines only: ``frame`` (the source's frame
@@ -8,9 +8,13 @@ index) and ``sensor_time`` (the frame's stamp); rerun's automatic wall-clock ``l
 ``log_tick`` are switched off and the wall-clock start-time property is not sent, so two lockstep
 runs log the same data (the timing entities aside, which hold measured milliseconds).
 
+The source and the recorder log nothing to rerun: the frontend logs the images it tracks (under its
+keypoints), and the rerun SDK with the pyarrow it loads costs each process that imports it about
+70 MB. The recorder's run.mcap holds every bus message, for Foxglove or a replay.
+
 Entity paths mirror the packages::
 
-    source/camera/left              the left image (every ``image_every_n``-th frame)
+    frontend/camera/left            the left image tracked (every ``image_every_n``-th frame)
     frontend/keypoints              every ORB keypoint of the frame (Points2D, level-0 pixels)
     frontend/matches                the keypoints tracked to map points (Points2D)
     frontend/pose                   T_world_cam (Transform3D), with a camera frustum below it
@@ -83,7 +87,7 @@ def rrd_path(run_dir: str | Path, stage: str) -> Path:
 def default_blueprint() -> rrb.Blueprint:
     """The layout the viewer opens with: the image with keypoints, the 3D map, and time series below."""
     image = rrb.Spatial2DView(
-        name="left image", origin="/", contents=["source/camera/left", "frontend/keypoints", "frontend/matches"]
+        name="left image", origin="/", contents=["frontend/camera/left", "frontend/keypoints", "frontend/matches"]
     )
     world = rrb.Spatial3DView(
         name="map",
@@ -223,24 +227,9 @@ def _log_world_axes(recording: StageRecording) -> None:
     recording.log("/", rr.ViewCoordinates.RDF, static=True)
 
 
-class SourceLog:
-    """What the source process logs: the left image of every ``image_every_n``-th frame."""
-
-    def __init__(self, recording: StageRecording) -> None:
-        self.recording = recording
-
-    def log_frame(self, frame: SensorFrame) -> None:
-        config = self.recording.config
-        if frame.index % config.image_every_n != 0:
-            return
-        self.recording.at(frame.index, frame.stamp_ns)
-        image = _jpeg_image(frame.left, config.jpeg_quality) if config.jpeg else rr.Image(frame.left, color_model="L")
-        self.recording.log("source/camera/left", image)
-
-
 def _jpeg_image(grey: np.ndarray, quality: int) -> rr.EncodedImage:
     """``grey`` (uint8) as a JPEG-encoded image, compressed by OpenCV. rerun's own ``Image.compress``
-    goes through Pillow, whose first save loads every image plugin: 40 MB more in the source process."""
+    goes through Pillow, whose first save loads every image plugin: 40 MB more in the logging process."""
     encoded, data = cv2.imencode(".jpg", grey, [cv2.IMWRITE_JPEG_QUALITY, quality])
     if not encoded:
         raise ValueError(f"OpenCV could not JPEG-encode a {grey.shape} {grey.dtype} image")
@@ -248,7 +237,7 @@ def _jpeg_image(grey: np.ndarray, quality: int) -> rr.EncodedImage:
 
 
 class FrontendLog:
-    """What the frontend process logs per frame: keypoints, tracked points, pose, state, counts, timings."""
+    """What the frontend process logs per frame: the image, keypoints, tracked points, pose, state, counts, timings."""
 
     def __init__(self, recording: StageRecording) -> None:
         self.recording = recording
@@ -269,10 +258,15 @@ class FrontendLog:
         )
         self.recording.log("frontend/pose/camera", pinhole, static=True)
 
-    def log_frame(self, output: Any, keypoints: tuple[np.ndarray, np.ndarray] | None = None) -> None:
-        """Log one TrackingOutput; ``keypoints`` = (px (N, 2) level-0 pixels, tracked (N,) bool) when known."""
+    def log_frame(self, output: Any, keypoints: tuple[np.ndarray, np.ndarray] | None = None, left: np.ndarray | None = None) -> None:
+        """Log one TrackingOutput; ``keypoints`` = (px (N, 2) level-0 pixels, tracked (N,) bool) when known;
+        ``left``: the frame's left image (uint8), logged on every ``image_every_n``-th frame."""
         rec = self.recording
         rec.at(output.index, output.stamp_ns)
+        config = rec.config
+        if left is not None and output.index % config.image_every_n == 0:
+            image = _jpeg_image(left, config.jpeg_quality) if config.jpeg else rr.Image(left, color_model="L")
+            rec.log("frontend/camera/left", image)
         if keypoints is not None:
             px, tracked = keypoints
             rec.log("frontend/keypoints", rr.Points2D(px, radii=1.5, colors=_KEYPOINT_RGB))
