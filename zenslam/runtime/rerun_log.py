@@ -51,7 +51,6 @@ import rerun.blueprint as rrb
 
 from zenslam.camera import PinholeCalibration
 from zenslam.runtime.rerun_config import RerunConfig
-from zenslam.schemas.sensor_data import SensorFrame
 
 logger = logging.getLogger(__name__)
 
