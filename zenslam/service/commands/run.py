@@ -351,7 +351,8 @@ def _check(supervisor: Supervisor, stop: StopFlag, follower: _Follower, supervis
     frame = follower.log.frame_counts()["frames"]
     last_index = max(follower.log.states, default=-1)  # the newest frame tracked: what a frontend restart lost follows it
     # A restarted source resumes at the first frame not yet tracked; what its predecessors sent counts
-    # towards source.max_frames (frames in flight then reach the frontend twice: it refuses the second).
+    # towards source.max_frames (frames in flight then reach the frontend twice: it refuses the second
+    # copy and answers it with its newest state).
     resume = {"source": ("--resume-after", str(last_index), "--sent-before", str(max(frame, 0)))}
     for restarted in supervisor.restart_failed(supervision, resume):
         follower.log.restarts.append({**restarted, "frame": frame, "last_frame_index": last_index})
