@@ -236,7 +236,15 @@ def _stage_pid(run: _Run, module: str) -> int:
 NO_RESTARTS_YAML = "supervision:\n  max_restarts: 0\n"
 
 
-@pytest.mark.parametrize(("stage", "module"), [("backend", "zenslam.backend.node"), ("frontend", "zenslam.frontend.node")])
+# The stages whose failure a run reports; the frontend's case goes through the supervisor's same path,
+# so CI runs it after the README's command (extended), to keep that command a few minutes long.
+STAGES = [
+    pytest.param("backend", "zenslam.backend.node", id="backend-zenslam.backend.node"),
+    pytest.param("frontend", "zenslam.frontend.node", id="frontend-zenslam.frontend.node", marks=pytest.mark.extended),
+]
+
+
+@pytest.mark.parametrize(("stage", "module"), STAGES)
 def test_a_stage_killed_mid_stream_fails_the_run_and_its_outputs_are_written(tmp_path, stage, module):
     """SIGKILL of a stage (an out-of-memory kill, a segfault) with restarts disabled: exit 2, one
     line naming the stage and the signal, and the run folder holds what reached the hub, as after
@@ -264,7 +272,7 @@ def test_a_stage_killed_mid_stream_fails_the_run_and_its_outputs_are_written(tmp
     assert (run.run_dir / "keyframes.tum").is_file()
 
 
-@pytest.mark.parametrize(("stage", "module"), [("backend", "zenslam.backend.node"), ("frontend", "zenslam.frontend.node")])
+@pytest.mark.parametrize(("stage", "module"), STAGES)
 def test_a_stopped_stage_is_caught_as_hung_and_fails_the_run_with_its_outputs(tmp_path, stage, module):
     """SIGSTOP (a stage that hangs) with restarts disabled: after supervision.hang_timeout_s without a
     word from it while its input waits, the run kills it and fails as for a crash, naming the stage as hung."""
@@ -336,6 +344,7 @@ def test_a_backend_killed_mid_stream_is_restarted_and_the_lockstep_outputs_are_t
         assert (run.run_dir / name).read_bytes() == (unharmed.run_dir / name).read_bytes(), name
 
 
+@pytest.mark.extended  # waits out a 10 s hang: CI runs it after the README's command
 def test_a_stopped_backend_is_caught_as_hung_and_restarted(tmp_path):
     """SIGSTOP of the backend: after supervision.hang_timeout_s of silence while keyframes wait, it is
     killed and restarted like a crashed one, and the run completes."""

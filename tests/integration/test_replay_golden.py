@@ -92,7 +92,11 @@ def test_golden_replays_identically_through_the_whole_pipeline(tmp_path, kernels
     assert (tmp_path / "golden-replay" / "run.mcap").is_file()
 
 
-@pytest.mark.parametrize("kernels", KERNEL_CHOICES.values(), ids=KERNEL_CHOICES)
+# The forced kernels through the backend alone: CI runs it after the README's command (the whole
+# pipeline's replay under forced kernels, in that command, covers the backend's outputs too).
+@pytest.mark.parametrize(
+    "kernels", [pytest.param(KERNEL_CHOICES["machine"], id="machine"), pytest.param(KERNEL_CHOICES["forced"], id="forced", marks=pytest.mark.extended)]
+)
 def test_golden_replays_identically_through_the_backend_alone(tmp_path, kernels):
     result = _zenslam("replay", str(GOLDEN), "--stage", "backend", cwd=tmp_path, kernels=kernels)
     assert result.returncode == 0 and _verdict(result) == "identical", (
@@ -117,6 +121,7 @@ def test_a_kitti_run_replays_identically_through_the_whole_pipeline(kitti_record
     assert "  /frontend/pose: 51 recorded, 51 replayed" in result.stdout
 
 
+@pytest.mark.extended  # CI runs it after the README's command; the whole-pipeline replay above covers the backend
 @pytest.mark.dataset
 def test_a_kitti_run_replays_identically_through_the_backend_alone(kitti_recording, tmp_path):
     result = _zenslam("replay", str(kitti_recording), "--stage", "backend", cwd=tmp_path)
