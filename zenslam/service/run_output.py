@@ -27,7 +27,6 @@ import os
 import time
 from array import array
 from collections import Counter
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import get_args
@@ -43,6 +42,7 @@ from zenslam.service.evaluation.metrics import Evaluation, EvaluationConfig, eva
 from zenslam.service.evaluation.plot import Plane, save_evaluation_plot
 from zenslam.service.evaluation.report import METRICS_FILENAME, write_metrics
 from zenslam.service.evaluation.trajectory_io import write_tum
+from zenslam.service.frame_table import FrameStates, FrameTable
 from zenslam.service.run_config import RunConfig, run_config_to_yaml
 from zenslam.service.sources.frame_stream import SkipReason
 from zenslam.trajectory import Trajectory
@@ -55,7 +55,6 @@ FINAL_TRAJECTORY_FILENAME = "trajectory_final.tum"
 KEYFRAMES_FILENAME = "keyframes.tum"
 PLOT_FILENAME = "trajectory_top.png"
 _NO_POSE = Trajectory(np.zeros(0, dtype=np.int64), np.zeros((0, 4, 4)))
-_NO_TIMINGS: dict[str, float] = {}  # the timings of a state kept by RunLog (never written to)
 
 
 def new_run_id() -> str:
@@ -99,12 +98,11 @@ class RunLog:
 
     def __init__(self, live: bool = False) -> None:
         self.live = live  # a live-mode run: the frontend's own drops count (else its gaps are the source's skips)
-        # Frame index -> its state, without its timings (kept apart, in ``_timings``: a long run
-        # holds one state per frame).
-        self.states: dict[int, codec.TrackingStateMessage] = {}
+        # Every frame's state (without its timings, kept apart in ``_timings``) and pose, as columns:
+        # a long run holds one of each per frame.
+        self.frames = FrameTable()
         self._timings: dict[str, array] = {}  # tracking step -> milliseconds of each frame that ran it
         self._first_step: tuple[int, float] | None = None  # the first frame's index and its tracking ms
-        self.poses: dict[int, np.ndarray] = {}  # stamp_ns -> T_world_cam
         self.ended = False  # the frontend's end of stream arrived
         self.updated_keyframes: list[int] = []  # keyframe id of every backend map update received, in order
         self.corrected_poses: dict[int, np.ndarray] = {}  # keyframe id -> its newest T_world_cam from a map update
@@ -128,6 +126,18 @@ class RunLog:
         self.first_state_s: float | None = None
         self.last_message_s: float | None = None
 
+    @property
+    def states(self) -> dict[int, codec.TrackingStateMessage]:
+        """Frame index -> its state (without timings), built anew on each call: for tests and tools."""
+        states = self.frames.states()
+        return {int(states.index[k]): states.message(k) for k in range(len(states))}
+
+    @property
+    def poses(self) -> dict[int, np.ndarray]:
+        """Stamp (ns) -> T_world_cam of every pose received, built anew on each call: for tests and tools."""
+        stamps, poses = self.frames.poses()
+        return dict(zip(stamps.tolist(), poses))
+
     def note_arrival(self, received_s: float, state: bool = False) -> None:
         """A tracking state (``state``) or map update arrived at ``received_s`` seconds."""
         if state and self.first_state_s is None:
@@ -141,11 +151,11 @@ class RunLog:
         The first frame was sent before its state arrived by the time the frontend took to track it,
         which its state reports; the data's duration is its stamps' span plus one frame period.
         """
-        if self.first_state_s is None or self.last_message_s is None or not self.states:
+        if self.first_state_s is None or self.last_message_s is None or not len(self.frames):
             return {}
         first_ms = self._first_step[1] if self._first_step is not None else 0.0
         stream_s = self.last_message_s - self.first_state_s + first_ms / 1e3
-        stamps = np.array(sorted(s.stamp_ns for s in self.states.values()), dtype=np.int64)
+        stamps = np.sort(self.frames.states().stamp_ns)
         period_ns = float(np.median(np.diff(stamps))) if len(stamps) > 1 else 0.0
         duration_s = (float(stamps[-1] - stamps[0]) + period_ns) / 1e9
         out = {"stream_s": stream_s, "data_duration_s": duration_s}
@@ -204,7 +214,7 @@ class RunLog:
         """Keyframes the frontend sent and the backend processed (updates received). The frontend numbers
         its keyframes 0, 1, 2, ... as it makes them, and a state names the keyframe its frame made, so
         the newest id counts the ones made from earlier frames too (a monocular map's first keyframe)."""
-        newest = max((s.keyframe_id for s in self.states.values()), default=-1)
+        newest = self.frames.newest_keyframe_id
         # A restarted backend may answer the keyframe in hand when its predecessor died a second time.
         return {"sent": max(newest + 1 - self.first_keyframe_id, 0), "processed": len(set(self.updated_keyframes))}
 
@@ -217,31 +227,38 @@ class RunLog:
         return _timing_table(samples, "keyframes")
 
     def add_state(self, state: codec.TrackingStateMessage) -> None:
-        if state.timings_ms and state.index not in self.states:
+        first = not self.frames.has(state.index)
+        if not self.frames.add_state(state):
+            return
+        if state.timings_ms and first:
             for name, ms in state.timings_ms.items():
                 self._timings.setdefault(name, array("d")).append(ms)
         if self._first_step is None or state.index <= self._first_step[0]:
             self._first_step = (state.index, state.timings_ms.get("total", 0.0))
-        self.states[state.index] = dataclasses.replace(state, timings_ms=_NO_TIMINGS) if state.timings_ms else state
 
     def add_pose(self, pose: codec.StampedPose) -> None:
-        self.poses[pose.stamp_ns] = pose.T_world_cam
+        self.frames.add_pose(pose.stamp_ns, pose.T_world_cam)
 
     def missing_poses(self) -> int:
         """Poses announced by a state (has_pose) that have not arrived."""
-        return sum(1 for s in self.states.values() if s.has_pose and s.stamp_ns not in self.poses)
+        return self.frames.missing_poses()
 
-    def _trajectory(self, keep: Callable[[codec.TrackingStateMessage], bool]) -> Trajectory | None:
-        chosen = sorted(
-            (s.stamp_ns, self.poses[s.stamp_ns]) for s in self.states.values() if keep(s) and s.stamp_ns in self.poses
-        )
-        if not chosen:
-            return None
-        return Trajectory(np.array([c[0] for c in chosen], dtype=np.int64), np.stack([c[1] for c in chosen]))
+    def _posed(self, states: FrameStates, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(rows of ``states`` in ``keep`` whose pose arrived, by stamp; their T_world_cam)."""
+        stamps, poses = self.frames.poses()
+        rows = np.flatnonzero(keep)
+        at = np.searchsorted(stamps, states.stamp_ns[rows])
+        found = at < len(stamps)
+        found[found] = stamps[at[found]] == states.stamp_ns[rows[found]]
+        rows, at = rows[found], at[found]
+        order = np.argsort(states.stamp_ns[rows], kind="stable")
+        return rows[order], poses[at[order]]
 
     def trajectory(self) -> Trajectory | None:
         """T_world_cam of every frame tracked ok, by stamp; None if there is none."""
-        return self._trajectory(lambda s: s.state == "ok")
+        states = self.frames.states()
+        rows, poses = self._posed(states, states.is_state("ok"))
+        return Trajectory(states.stamp_ns[rows], poses) if len(rows) else None
 
     def final_trajectory(self) -> Trajectory | None:
         """ORB-SLAM's saved trajectory: every frame tracked ok as its reference keyframe's final pose
@@ -254,16 +271,15 @@ class RunLog:
         if backend is not None:
             final.update(zip(np.asarray(backend.culled_keyframe_ids).tolist(), backend.culled_T_world_cam))
             final.update(zip(np.asarray(backend.keyframe_ids).tolist(), backend.T_world_cam))
-        live = self.trajectory()
-        if live is None:
+        states = self.frames.states()
+        rows, tracked = self._posed(states, states.is_state("ok"))
+        if not len(rows):
             return None
-        by_stamp = {s.stamp_ns: s for s in self.states.values()}
         poses = []
-        for stamp, T in zip(live.stamps_ns.tolist(), live.T_world_cam):
-            state = by_stamp[stamp]
-            reference = final.get(state.reference_keyframe_id)
-            poses.append(T if reference is None or state.T_reference_cam is None else reference @ state.T_reference_cam)
-        return Trajectory(live.stamps_ns, np.stack(poses))
+        for k, T in zip(rows.tolist(), tracked):
+            reference, T_reference_cam = final.get(int(states.reference_keyframe_id[k])), states.T_reference_cam[k]
+            poses.append(T if reference is None or np.isnan(T_reference_cam[0, 0]) else reference @ T_reference_cam)
+        return Trajectory(states.stamp_ns[rows], np.stack(poses))
 
     def keyframe_trajectory(self) -> Trajectory | None:
         """The backend's final poses of this run's keyframes when it answered; else the keyframes the frontend made,
@@ -277,14 +293,13 @@ class RunLog:
             stamps, poses = np.asarray(backend.stamps_ns, dtype=np.int64)[mine], np.asarray(backend.T_world_cam)[mine]
             order = np.argsort(stamps, kind="stable")
             return Trajectory(stamps[order], poses[order])
-        made = sorted(
-            (s.stamp_ns, s.keyframe_id) for s in self.states.values()
-            if s.keyframe_id >= 0 and s.keyframe_id not in self.removed_keyframes and s.stamp_ns in self.poses
-        )
-        if not made:
+        states = self.frames.states()
+        made = (states.keyframe_id >= 0) & ~np.isin(states.keyframe_id, list(self.removed_keyframes))
+        rows, tracked = self._posed(states, made)
+        if not len(rows):
             return None
-        poses = [self.corrected_poses.get(kf, self.poses[stamp]) for stamp, kf in made]
-        return Trajectory(np.array([stamp for stamp, _ in made], dtype=np.int64), np.stack(poses))
+        poses = [self.corrected_poses.get(int(states.keyframe_id[k]), T) for k, T in zip(rows.tolist(), tracked)]
+        return Trajectory(states.stamp_ns[rows], np.stack(poses))
 
     def timing(self) -> dict[str, dict[str, float]]:
         """Per tracking step: mean, median and max milliseconds over the frames that ran it."""
@@ -292,26 +307,27 @@ class RunLog:
 
     def frame_counts(self) -> dict[str, object]:
         """The ``frames``, ``lost_frames``, ``lost_reasons``, ``initializing_*`` and ``keyframes`` sections of metrics.json."""
-        states = [self.states[i] for i in sorted(self.states)]
-        lost = [s for s in states if s.state == "lost"]
-        reasons = Counter(s.lost_reason or "unknown" for s in lost)
-        waiting = Counter(s.lost_reason or "unknown" for s in states if s.state == "initializing" and s.lost_reason)
+        states = self.frames.states()
+        lost = states.is_state("lost")
+        reasons = Counter(reason or "unknown" for reason in states.lost_reasons(lost))
+        waiting = Counter(reason for reason in states.lost_reasons(states.is_state("initializing")) if reason)
         return {
             "frames": len(states),
-            "tracked_ok": sum(1 for s in states if s.state == "ok"),
-            "lost_frames": len(lost),
+            "tracked_ok": int(np.count_nonzero(states.is_state("ok"))),
+            "lost_frames": int(np.count_nonzero(lost)),
             "lost_reasons": dict(sorted(reasons.items())),
             # Frames without a map yet (or starting one over), by what they waited for, e.g. waiting_for_parallax.
             "initializing_frames": sum(waiting.values()),
             "initializing_reasons": dict(sorted(waiting.items())),
-            "keyframes": sum(1 for s in states if s.keyframe_id >= 0),
+            "keyframes": int(np.count_nonzero(states.keyframe_id >= 0)),
         }
 
     def restart_events(self) -> list[dict[str, object]]:
         """The stage restarts (``restarts``), each frontend restart with ``frames_lost``: the frames
         between the last pose before the crash and the first after it, when the restarted frontend
         had relocalised into the backend's map (None: it never did), and ``relocalised_at``, that frame."""
-        posed = sorted(i for i, s in self.states.items() if s.has_pose)
+        states = self.frames.states()
+        posed = states.index[states.has_pose].tolist()
         events = []
         for event in self.restarts:
             if event.get("stage") == "frontend" and "last_frame_index" in event:
@@ -327,12 +343,14 @@ class RunLog:
         """The ``relocalisation`` section of metrics.json: ``count``, frames that found the map again
         after tracking was lost; ``frames_lost``, frames without a pose once tracking had started
         (lost, or waiting to start a new map); ``new_maps``, maps started over after a loss."""
-        states = [self.states[i] for i in sorted(self.states)]
-        first = next((k for k, s in enumerate(states) if s.has_pose), len(states))
+        states = self.frames.states()
+        posed = np.flatnonzero(states.has_pose)
+        first = int(posed[0]) if len(posed) else len(states)
+        after = np.arange(len(states)) > first
         return {
-            "count": sum(1 for s in states if s.relocalised),
-            "frames_lost": sum(1 for s in states[first:] if not s.has_pose),
-            "new_maps": sum(1 for s in states[first + 1 :] if s.state == "initializing" and s.has_pose),
+            "count": int(np.count_nonzero(states.relocalised)),
+            "frames_lost": int(np.count_nonzero(~states.has_pose[first:])),
+            "new_maps": int(np.count_nonzero(after & states.is_state("initializing") & states.has_pose)),
         }
 
 

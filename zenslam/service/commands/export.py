@@ -67,7 +67,7 @@ def read_final_trajectory(recording: Path) -> Trajectory | None:
     """``RunLog.final_trajectory`` of the recorded states, poses and map updates (arrival order);
     None when no state names a reference keyframe (recordings made before states carried one)."""
     log = run_log_from_recording(recording)
-    if not any(s.reference_keyframe_id >= 0 for s in log.states.values()):
+    if not np.any(log.frames.states().reference_keyframe_id >= 0):
         return None
     return log.final_trajectory()
 

@@ -349,7 +349,7 @@ def _check(supervisor: Supervisor, stop: StopFlag, follower: _Follower, supervis
     if stop():
         return
     frame = follower.log.frame_counts()["frames"]
-    last_index = max(follower.log.states, default=-1)  # the newest frame tracked: what a frontend restart lost follows it
+    last_index = follower.log.frames.newest_index()  # the newest frame tracked: what a frontend restart lost follows it
     # A restarted source resumes at the first frame not yet tracked; what its predecessors sent counts
     # towards source.max_frames (frames in flight then reach the frontend twice: it refuses the second
     # copy and answers it with its newest state).
