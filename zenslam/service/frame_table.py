@@ -126,10 +126,6 @@ class FrameTable:
         rows = len(stamps) - 1 - first
         return unique, np.frombuffer(self._pose_T, dtype=float).reshape(-1, 4, 4)[rows]
 
-    def pose_count(self) -> int:
-        """Distinct stamps posed."""
-        return len(np.unique(np.frombuffer(self._pose_stamp, dtype=np.int64))) if len(self._pose_stamp) else 0
-
     def missing_poses(self) -> int:
         """States that announced a pose (has_pose) whose pose has not arrived."""
         if not len(self._index):

@@ -338,7 +338,7 @@ def _watch_for_hang(follower: _Follower, supervisor: Supervisor, hang_timeout_s:
     if keyframes_wait and backend_silent_s >= backend_limit_s:
         supervisor.kill_hung("backend", backend_silent_s)
         return
-    frames_wait = not log.ended and follower.source_sent > log.frame_counts()["frames"]
+    frames_wait = not log.ended and follower.source_sent > len(log.frames)
     if frames_wait and not keyframes_wait and frontend_silent_s >= frontend_limit_s:
         supervisor.kill_hung("frontend", frontend_silent_s)
 
@@ -348,7 +348,7 @@ def _check(supervisor: Supervisor, stop: StopFlag, follower: _Follower, supervis
     raise for any other failed stage. Interrupted, neither: the run winds down and ``_report_exits`` says."""
     if stop():
         return
-    frame = follower.log.frame_counts()["frames"]
+    frame = len(follower.log.frames)
     last_index = follower.log.frames.newest_index()  # the newest frame tracked: what a frontend restart lost follows it
     # A restarted source resumes at the first frame not yet tracked; what its predecessors sent counts
     # towards source.max_frames (frames in flight then reach the frontend twice: it refuses the second
@@ -567,7 +567,7 @@ def track(
                     except ProcessError as exc:
                         # A stage died or failed: what reached the hub is kept. Leaving this block stops
                         # the other stages (the recorder finishes run.mcap); the caller writes the outputs.
-                        frame = follower.log.frame_counts()["frames"]
+                        frame = len(follower.log.frames)
                         follower.drain(time.monotonic() + _POSE_GRACE_S)  # also lets a stage that reported its failure exit
                         if follower.log.source_failure is not None:  # it said so before exiting: let it exit
                             supervisor.wait_for_exit("source", _POSE_GRACE_S)
