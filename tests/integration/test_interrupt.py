@@ -26,6 +26,7 @@ import pytest
 
 from zenslam.schemas import codec
 from zenslam.service import mcap_io
+from zenslam.service.recorder_config import RecorderConfig
 
 pytestmark = pytest.mark.integration
 
@@ -411,6 +412,11 @@ def _zombie(pid: int) -> bool:
         return True
 
 
+def _one_stretch(missing: list[int], topic: str) -> None:
+    """Frames lost on ``topic`` (frame indices, sorted) are one run of consecutive frames, or none."""
+    assert missing == list(range(missing[0], missing[-1] + 1)) if missing else True, f"{topic}: frames lost in more than one stretch: {missing}"
+
+
 @pytest.mark.extended  # CI runs it after the README's command
 def test_a_killed_recorder_is_restarted_and_the_recording_stays_one_readable_file(tmp_path):
     """SIGKILL of the recorder: the run goes on and completes, the restarted recorder carries its
@@ -426,7 +432,18 @@ def test_a_killed_recorder_is_restarted_and_the_recording_stays_one_readable_fil
     assert "carried" in (run.run_dir / "logs" / "recorder.log").read_text()
     states = [decoded for _, decoded in mcap_io.iter_decoded(recording, ["/frontend/state"])]
     assert isinstance(states[-1], codec.EndOfStream)
-    # Lost: the crashed recorder's open chunk (4 MiB: a few frames here) and what was sent while it restarted.
+    # Lost: the crashed recorder's open chunk (recorder.chunk_size of messages, a few frames here) and
+    # the outputs sent while it restarted (the source holds its frames meanwhile): one stretch of
+    # frames on each topic, and no more camera frames than one chunk holds.
     assert len(states) - 1 >= 100, len(states)
+    _one_stretch(sorted(set(range(120)) - {state.index for state in states[:-1]}), "/frontend/state")
+    frames = {
+        message.frame.index: len(stored.data)
+        for stored, message in mcap_io.iter_decoded(recording, [mcap_io.SENSOR_FRAME_TOPIC])
+        if isinstance(message, codec.FrameMessage)
+    }
+    lost = sorted(set(range(120)) - set(frames))
+    _one_stretch(lost, mcap_io.SENSOR_FRAME_TOPIC)
+    assert (len(lost) - 1) * min(frames.values()) < RecorderConfig().chunk_size, f"{len(lost)} camera frames lost"
     exported = export_recording(recording, tmp_path / "export")
     assert exported.poses == len(states) - 1 and exported.keyframes > 0

@@ -129,7 +129,7 @@ class FrameMessage:
     source_name: str = ""
 
 
-@dataclass(frozen=True, slots=True)  # slots: a run's hub keeps one per frame
+@dataclass(frozen=True, slots=True)  # slots: one per frame, and tools hold a run's worth
 class TrackingStateMessage:
     """The outcome of tracking one frame (frontend/state)."""
 
