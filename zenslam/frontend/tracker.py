@@ -419,7 +419,8 @@ class Tracker:
         if not self._on_vo and not odometry.is_vo(self.config.visual_odometry):
             start, pose_ms = time.perf_counter(), self._timers["pose_optimization"]
             T_cam_world, rows, n_inliers = self._track_local_map(frame, odometry.T_cam_world, odometry.rows)
-            if n_inliers < self.config.visual_odometry.joint_below_map_inliers and len(odometry.vo_keypoints):
+            joint_below = self.config.visual_odometry.joint_below_map_inliers
+            if (joint_below is None or n_inliers < joint_below) and len(odometry.vo_keypoints):
                 T_cam_world, rows, n_inliers = self._with_odometry(frame, T_cam_world, rows, odometry)
             self._add_time("local_map_tracking", start, pose_ms)
             if n_inliers >= self._min_local_map_inliers(frame):
