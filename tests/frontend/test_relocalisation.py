@@ -367,3 +367,34 @@ def test_without_a_source_of_candidates_tracking_recovers_as_before() -> None:
     assert tracker.track(_blind(scene.view(path_pose(4), seed=4, index=4)[0])).state == "lost"
     back = tracker.track(scene.view(path_pose(5), seed=5, index=5)[0])
     assert back.state == "ok" and not back.relocalised
+
+
+def _union(a: Scene, b: Scene) -> Scene:
+    """One scene holding the points of both (``b``'s ids after ``a``'s)."""
+    both = Scene.__new__(Scene)
+    both.p_world = np.vstack([a.p_world, b.p_world])
+    both.descriptors = np.vstack([a.descriptors, b.descriptors])
+    both.angles = np.concatenate([a.angles, b.angles])
+    both.size_constant = np.concatenate([a.size_constant, b.size_constant])
+    both.ids = np.concatenate([a.ids, b.ids + len(a.ids)])
+    return both
+
+
+def test_localisation_leaves_visual_odometry_by_relocalising_and_says_so() -> None:
+    """Localisation mode: where the map's points vanish the frames go on by visual odometry; the first
+    frame that relocalises into the map again is flagged relocalised (metrics.json counts it) and
+    restarts the motion model, whose velocity would otherwise hold the jump back onto the map."""
+    tracker, backend, mapped = _tracker(localization=True)
+    unmapped = Scene(seed=12, n_points=12000, ring=True)
+    both = _union(mapped, unmapped)
+    views = [mapped] * 4 + [both] * 2 + [unmapped] * 4 + [both] * 2
+    results = [_track(tracker, backend, scene.view(path_pose(k), seed=k, index=k)[0]) for k, scene in enumerate(views[:11])]
+    assert not tracker.motion.has_velocity
+    results.append(_track(tracker, backend, both.view(path_pose(11), seed=11, index=11)[0]))
+    assert [r.state for r in results] == ["ok"] * len(views)
+    assert tracker.map.n_keyframes == 1 and all(r.keyframe is None for r in results[1:])
+    assert all(r.n_tracked < 10 and not r.relocalised for r in results[6:10])  # on visual odometry
+    assert results[10].relocalised and results[10].n_tracked >= 30 and not results[11].relocalised
+    T0 = path_pose(0)
+    t_err, r_err = pose_errors(invert_T(results[10].T_world_cam), invert_T(T0) @ path_pose(10))
+    assert t_err < 0.02 and r_err < 0.2, (t_err, r_err)

@@ -56,7 +56,7 @@ class TrackingOutput:
     timings_ms: dict[str, float]
     reference_keyframe_id: int = -1  # the keyframe the pose is kept relative to, -1 none
     T_reference_cam: np.ndarray | None = None  # (4, 4) the camera in that keyframe's frame
-    relocalised: bool = False  # tracking was lost before this frame and found the map again here
+    relocalised: bool = False  # tracking was lost (or, localising, on visual odometry) before this frame and found the map again here
     earlier_keyframes: tuple[KeyFrame, ...] = ()  # made at this step from earlier frames, sent before ``keyframe``
 
     @property

@@ -137,7 +137,7 @@ class TrackResult:
     # and the camera in that keyframe's frame (4, 4), so the pose can follow the keyframe's corrections.
     reference_keyframe_id: int = -1
     T_reference_cam: np.ndarray | None = None
-    relocalised: bool = False  # the frame found the map again after tracking was lost
+    relocalised: bool = False  # the frame found the map again after tracking was lost (or, localising, on visual odometry)
     # Keyframes made at this step from earlier frames, to be sent before ``keyframe``: a monocular
     # map's first keyframe (its reference frame), made when the second one is.
     earlier_keyframes: tuple[KeyFrame, ...] = ()
@@ -409,7 +409,7 @@ class Tracker:
         if self._on_vo and self._relocalises(candidates):
             found, _ = self._relocalise(frame, candidates)
             if found is not None:
-                return self._tracked(frame, *found, 0)
+                return self._tracked(frame, *found, 0, relocalised=True)
         if odometry is None and not self._on_vo:
             start, pose_ms = time.perf_counter(), self._timers["pose_optimization"]
             odometry = self._track_reference_keyframe(frame)

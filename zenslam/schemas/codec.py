@@ -144,7 +144,7 @@ class TrackingStateMessage:
     # The keyframe the pose is kept relative to (-1 none) and the camera in its frame (4x4, as tracked).
     reference_keyframe_id: int = -1
     T_reference_cam: np.ndarray | None = None
-    relocalised: bool = False  # tracking was lost before this frame and found the map again here
+    relocalised: bool = False  # tracking was lost (or, localising, on visual odometry) before this frame and found the map again here
 
 
 @dataclass(frozen=True)

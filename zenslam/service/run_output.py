@@ -341,7 +341,7 @@ class RunLog:
 
     def relocalisation_counts(self) -> dict[str, int]:
         """The ``relocalisation`` section of metrics.json: ``count``, frames that found the map again
-        after tracking was lost; ``frames_lost``, frames without a pose once tracking had started
+        after tracking was lost (or, in localisation mode, ran on visual odometry); ``frames_lost``, frames without a pose once tracking had started
         (lost, or waiting to start a new map); ``new_maps``, maps started over after a loss."""
         states = self.frames.states()
         posed = np.flatnonzero(states.has_pose)
