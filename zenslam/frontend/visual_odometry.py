@@ -51,9 +51,8 @@ class VisualOdometryConfig:
     min_matches: int = 20  # inlier matches (map and VO points) a pose needs, else the frame is lost
     max_points: int = 100  # VO points made beyond the close-depth threshold, nearest first
     # Localisation mode: a frame tracked in the map is optimised once more with its VO matches added
-    # when it has fewer inlier map matches than this (None: always, as ORB-SLAM2; 0: never). Always,
-    # against below 100: figure-eight localised in the loop's map 2.59 -> 2.29 cm ATE, RPE 1.08 ->
-    # 0.41 cm; the loop in its own map 0.26 -> 0.25 cm (benchmarks/README.md, "Saved maps").
+    # when it has fewer inlier map matches than this (None: always, as ORB-SLAM2; 0: never; the
+    # measurements are in benchmarks/README.md, "Saved maps and localisation").
     joint_below_map_inliers: int | None = None
 
 
