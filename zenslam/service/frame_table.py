@@ -98,7 +98,9 @@ class FrameTable:
 
     def states(self) -> FrameStates:
         """Every frame's state, in frame order."""
-        order = np.argsort(np.frombuffer(self._index, dtype=np.int64), kind="stable") if len(self._index) else np.zeros(0, np.int64)
+        n = len(self._index)
+        order = np.argsort(np.frombuffer(self._index, dtype=np.int64), kind="stable") if n else np.zeros(0, np.int64)
+        T_reference = np.frombuffer(self._T_reference, dtype=float).reshape(-1, 4, 4)[order] if n else np.zeros((0, 4, 4))
 
         def column(values: array, dtype) -> np.ndarray:
             return np.frombuffer(values, dtype=dtype)[order] if len(values) else np.zeros(0, dtype)
@@ -112,7 +114,7 @@ class FrameTable:
             flags=column(self._flags, np.int8),
             keyframe_id=column(self._keyframe, np.int64),
             reference_keyframe_id=column(self._reference, np.int64),
-            T_reference_cam=np.frombuffer(self._T_reference, dtype=float).reshape(-1, 4, 4)[order] if len(self._index) else np.zeros((0, 4, 4)),
+            T_reference_cam=T_reference,
             reasons=tuple(self._reasons),
         )
 
