@@ -414,7 +414,8 @@ def _zombie(pid: int) -> bool:
 
 def _one_stretch(missing: list[int], topic: str) -> None:
     """Frames lost on ``topic`` (frame indices, sorted) are one run of consecutive frames, or none."""
-    assert missing == list(range(missing[0], missing[-1] + 1)) if missing else True, f"{topic}: frames lost in more than one stretch: {missing}"
+    if missing:
+        assert missing == list(range(missing[0], missing[-1] + 1)), f"{topic}: frames lost in more than one stretch: {missing}"
 
 
 @pytest.mark.extended  # CI runs it after the README's command
