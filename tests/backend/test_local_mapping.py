@@ -335,3 +335,32 @@ def test_a_backlog_defers_fusion_ba_and_keyframe_culling_to_the_last_queued_keyf
     assert mapper.map.check_consistency() == []
     frontend.apply(mapper.process(frontend.next_message(), queued=0))
     assert len(adjuster.problems) == n_ba + 1 and mapper.last_stats.deferred == 0
+
+
+def test_local_ba_runs_at_most_once_per_min_interval_of_keyframe_stamps() -> None:
+    """Keyframes 0.1 s apart with ``ba_window.min_interval_s`` 0.25: BA on every third keyframe from
+    the first window on, the ones between mapped without one and flagged; 0 runs it on every one."""
+    config = from_mapping(LocalMappingConfig, {"ba_window": {"min_interval_s": 0.25}})
+    frontend, adjuster = SyntheticFrontend(seed=7), StubAdjuster()
+    mapper = LocalMapper(new_backend_map(config), config, adjuster)
+    with_ba, waited = [], []
+    for k in range(12):
+        n_ba = len(adjuster.problems)
+        frontend.apply(mapper.process(frontend.next_message()))
+        assert mapper.map.check_consistency() == []
+        if len(adjuster.problems) > n_ba:
+            with_ba.append(k)
+        waited.append(mapper.last_stats.ba_waited)
+    assert with_ba == [2, 5, 8, 11]  # keyframes 0 and 1: too few keyframes for a window (min_keyframes 3)
+    assert [k for k, w in enumerate(waited) if w] == [3, 4, 6, 7, 9, 10]
+
+    every = StubAdjuster()
+    mapper = LocalMapper(new_backend_map(LocalMappingConfig()), LocalMappingConfig(), every)
+    run(SyntheticFrontend(seed=7), mapper, 12)
+    assert len(every.problems) == 10 and mapper.totals["ba_waited"] == 0
+
+
+def test_local_ba_min_interval_is_a_finite_time() -> None:
+    for bad in (-0.1, float("nan"), float("inf")):
+        with pytest.raises(ConfigError, match="min_interval_s"):
+            BAWindowConfig(min_interval_s=bad)

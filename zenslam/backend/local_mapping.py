@@ -10,6 +10,7 @@ associations changed, every point created, moved or re-described, and the remove
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections import Counter
 from collections.abc import Iterator
@@ -46,6 +47,13 @@ class BAWindowConfig:
     max_local_keyframes: int = 10  # optimised poses: the new keyframe and its best connected ones
     max_fixed_keyframes: int = 5  # other keyframes seeing local points, held fixed, most points first
     min_keyframes: int = 3  # BA runs once the map holds this many keyframes (ORB-SLAM: more than 2)
+    # Local BA at most once per this much data time (s, between keyframe stamps; 0 = on every
+    # keyframe). A keyframe sooner after the last BA is still inserted, triangulated, fused and
+    # culled around: ORB-SLAM's mapping thread likewise skips or aborts BA while keyframes come
+    # faster than it maps, but by wall time; stamps keep lockstep deterministic. On a car at 10 Hz
+    # (every KITTI frame a keyframe) 0.2 s halves the BA time at no loss of accuracy, while a
+    # room's slower keyframes lose some (benchmarks/README.md, local mapping).
+    min_interval_s: float = 0.0
     # Stereo/RGB-D observations deeper than this many baselines get their right-image u's sigma
     # multiplied by ``far_right_sigma_scale`` (a threshold of 0 = never): a disparity of a few
     # pixels carries a depth bias of a fraction of a pixel that a window of stereo factors turns
@@ -60,6 +68,10 @@ class BAWindowConfig:
     # sigma, which leaves a far RGB-D point's depth to the parallax between keyframes (noisier than
     # the sensor), so BA can scale the map.
     rgbd_depth_sigma_at_1m: float = 0.0015  # metres of depth noise at 1 m depth (m / m^2)
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.min_interval_s) and self.min_interval_s >= 0):
+            raise ConfigError(f"local_mapping.ba_window.min_interval_s={self.min_interval_s} must be a finite time >= 0 s")
 
 
 @dataclass(frozen=True)
@@ -113,6 +125,7 @@ class LocalMappingStats:
     points_removed_after_ba: int = 0  # points dropped by BA or left with too few observations
     keyframes_culled: int = 0
     deferred: int = 0  # 1 when fusion, local BA and keyframe culling waited for queued keyframes
+    ba_waited: int = 0  # 1 when local BA waited for ``ba_window.min_interval_s`` to pass
 
 
 def new_backend_map(config: LocalMappingConfig) -> BackendMap:
@@ -131,6 +144,7 @@ class LocalMapper:
         self.last_timings_ms: dict[str, float] = {}  # per step of the last call, milliseconds
         self.last_stats = LocalMappingStats()
         self.last_ba_stats: dict = {}  # the bundle adjuster's stats of the last call
+        self._last_ba_stamp_ns: int | None = None  # stamp of the keyframe local BA last ran on
         self.totals: Counter[str] = Counter()  # LocalMappingStats fields summed over all calls
 
     def process(self, keyframe: KeyframeMessage, queued: int = 0) -> MapUpdate:
@@ -161,9 +175,13 @@ class LocalMapper:
                 before = len(self.map.changes.removed_points)
                 counts["fusion_matches"] = fuse_with_neighbours(self.map, kf_id, self.config.fusion)
                 counts["points_fused"] = len(self.map.changes.removed_points) - before
+        ba_due = self._local_ba_due(int(keyframe.stamp_ns))
         with _timed(timings, "local_ba"):
-            if not deferred:
-                counts.update(self._local_ba(kf_id))
+            if not deferred and ba_due:
+                ba_counts = self._local_ba(kf_id)
+                counts.update(ba_counts)
+                if ba_counts:  # a window was optimised (none while the map is too small)
+                    self._last_ba_stamp_ns = int(keyframe.stamp_ns)
         with _timed(timings, "keyframe_culling"):
             if not deferred:
                 culled_kfs, touched = cull_redundant_keyframes(self.map, kf_id, self.config.keyframe_culling)
@@ -172,6 +190,7 @@ class LocalMapper:
         timings["total"] = (time.perf_counter() - started) * 1e3
         counts.update(points_created=len(created), points_culled=len(culled), keyframes_culled=len(culled_kfs))
         counts["deferred"] = int(deferred)
+        counts["ba_waited"] = int(not deferred and not ba_due)
         self.last_stats = LocalMappingStats(**counts)
         self.totals.update(counts)
         self.last_timings_ms = timings
@@ -228,6 +247,13 @@ class LocalMapper:
         far = (z <= 0) | ~(chi2 <= self.config.max_association_chi2)
         kf.map_point_ids[keypoints[far]] = -1
         return int(np.count_nonzero(far))
+
+    def _local_ba_due(self, stamp_ns: int) -> bool:
+        """Whether local BA runs on a keyframe stamped ``stamp_ns``: ``ba_window.min_interval_s`` after
+        the last one ran (always with an interval of 0, before the first, and when stamps restart)."""
+        interval_ns = round(self.config.ba_window.min_interval_s * 1e9)
+        last = self._last_ba_stamp_ns
+        return interval_ns == 0 or last is None or not last <= stamp_ns < last + interval_ns
 
     def _local_ba(self, kf_id: int) -> dict[str, int]:
         """Build the BA window around ``kf_id``, optimise it and apply the result to the map."""
