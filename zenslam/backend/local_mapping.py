@@ -51,8 +51,8 @@ class BAWindowConfig:
     # keyframe). A keyframe sooner after the last BA is still inserted, triangulated, fused and
     # culled around: ORB-SLAM's mapping thread likewise skips or aborts BA while keyframes come
     # faster than it maps, but by wall time; stamps keep lockstep deterministic. On a car at 10 Hz
-    # (every KITTI frame a keyframe) 0.2 s halves the BA time at no loss of accuracy, while a
-    # room's slower keyframes lose some (benchmarks/README.md, local mapping).
+    # (every KITTI frame a keyframe) 0.2 s saves much of the BA time at no loss of accuracy, while
+    # rooms, with slower keyframes, lose accuracy (benchmarks/README.md, local mapping).
     min_interval_s: float = 0.0
     # Stereo/RGB-D observations deeper than this many baselines get their right-image u's sigma
     # multiplied by ``far_right_sigma_scale`` (a threshold of 0 = never): a disparity of a few
