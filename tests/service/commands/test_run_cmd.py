@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import time
 
 from zenslam.service.commands import run as run_command
 from zenslam.service.run_config import RunConfig
@@ -34,3 +35,47 @@ def test_plane_defaults_to_auto():
     args = _run_parser().parse_args(["synthetic"])
     assert args.plane == "auto"
     assert _run_parser().parse_args(["synthetic", "--plane", "xz"]).plane == "xz"
+
+
+class _Log:
+    """What the hang watch reads of the run's log: 22 frames tracked, every keyframe answered."""
+
+    ended = backend_ended = False
+    frames = range(22)
+
+    def keyframe_counts(self) -> dict[str, int]:
+        return {"sent": 13, "processed": 13}
+
+
+class _Supervisor:
+    def __init__(self) -> None:
+        self.killed: list[str] = []
+
+    def kill_hung(self, name: str, silent_s: float) -> None:
+        self.killed.append(name)
+
+
+def _follower(frontend_silent_s: float, answered_s_ago: float) -> run_command._Follower:
+    """A run's follower without a bus: the frontend last heard ``frontend_silent_s`` ago, the backend's
+    last map update ``answered_s_ago``; 30 frames sent by the source, so frames wait for the frontend."""
+    now = time.monotonic()
+    follower = object.__new__(run_command._Follower)
+    follower.heard = {"frontend": now - frontend_silent_s, "backend": now - answered_s_ago}
+    follower.answered_at = now - answered_s_ago
+    follower.progressed = {"frontend", "backend"}
+    follower.start_timeout_s = 30.0
+    follower.source_sent = 30
+    follower.log = _Log()
+    return follower
+
+
+def test_the_frontends_hang_clock_starts_again_at_the_backends_answer():
+    """Lockstep: a frontend silent for 14 s while it waited for a backend that hung and was rebuilt is
+    not hung the moment the answer arrives; one silent that long after an answer is."""
+    stop, since = (lambda: False), time.monotonic() - 60.0
+    waited = _Supervisor()
+    run_command._watch_for_hang(_follower(frontend_silent_s=14.0, answered_s_ago=0.01), waited, 10.0, since, stop)
+    assert waited.killed == []
+    stuck = _Supervisor()
+    run_command._watch_for_hang(_follower(frontend_silent_s=14.0, answered_s_ago=12.0), stuck, 10.0, since, stop)
+    assert stuck.killed == ["frontend"]

@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
+import math
 import os
 import time
 from pathlib import Path
@@ -257,6 +258,7 @@ class _Follower:
         self.progressed: set[str] = set()
         self.start_timeout_s = config.bus.start_timeout_s
         self.source_sent = 0  # frames the source says it sent
+        self.answered_at = -math.inf  # when the last map update arrived (time.monotonic())
 
     def poll(self, timeout_s: float) -> None:
         """Take what has arrived (waiting up to ``timeout_s`` seconds for a state)."""
@@ -286,7 +288,7 @@ class _Follower:
                 self.log.note_arrival(time.monotonic())
             updated = True
         if updated:
-            self.heard["backend"] = time.monotonic()
+            self.heard["backend"] = self.answered_at = time.monotonic()
             self.progressed.add("backend")
             if self.ros2 is not None:
                 self.ros2.publish_path(self.log.keyframe_trajectory())
@@ -324,10 +326,13 @@ def _watch_for_hang(follower: _Follower, supervisor: Supervisor, hang_timeout_s:
     never; a stage still starting gets ``bus.start_timeout_s``), counted from ``since`` at the latest
     (when following began): the backend while keyframes wait for it; the frontend while frames the
     source sent wait for it, unless it waits for the backend's answers itself. The next ``_check``
-    then restarts it or fails the run, as for a crash."""
+    then restarts it or fails the run, as for a crash. The frontend's silence counts from the
+    backend's last answer at the latest: in lockstep it is silent while it waits for one (for as long
+    as a hung backend takes to be caught and rebuilt), and it needs a moment to go on once one came."""
     if hang_timeout_s <= 0 or stop():
         return
-    backend_silent_s, frontend_silent_s = follower.silent_s("backend", since), follower.silent_s("frontend", since)
+    backend_silent_s = follower.silent_s("backend", since)
+    frontend_silent_s = follower.silent_s("frontend", max(since, follower.answered_at))
     backend_limit_s = follower.hang_limit_s("backend", hang_timeout_s)
     frontend_limit_s = follower.hang_limit_s("frontend", hang_timeout_s)
     if backend_silent_s < backend_limit_s and frontend_silent_s < frontend_limit_s:
