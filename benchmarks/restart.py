@@ -74,22 +74,24 @@ def _run(scene: str, work: Path, run_id: str, yaml: str, kill: tuple[str, int] |
     config.write_text(yaml)
     command = [str(ZENSLAM), "run", scene, "--config", str(config), "--output", str(work), "--run-id", run_id, "--no-progress"]
     started = time.monotonic()
-    with open(work / f"{run_id}.log", "w") as log:
-        proc = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
-        killed_at = None
-        if kill is not None:
-            stage, frame = kill
-            reached = _ReachedFrame(frame)
-            with Client.for_run(work / run_id) as client:
-                client.on_state(reached)
-                while proc.poll() is None and not reached.event.wait(0.05):
-                    pass
-                target = _stage_process(psutil.Process(proc.pid), stage) if proc.poll() is None else None
-                if target is not None:
-                    target.send_signal(signal.SIGKILL)
-                    killed_at = frame
-                proc.wait()
-        proc.wait()
+    killed_at = None
+    with open(work / f"{run_id}.log", "w") as log, subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT) as proc:
+        try:
+            if kill is not None:
+                stage, frame = kill
+                reached = _ReachedFrame(frame)
+                with Client.for_run(work / run_id) as client:  # followed until the run ends
+                    client.on_state(reached)
+                    while proc.poll() is None and not reached.event.wait(0.05):
+                        pass
+                    target = _stage_process(psutil.Process(proc.pid), stage) if proc.poll() is None else None
+                    if target is not None:
+                        target.send_signal(signal.SIGKILL)
+                        killed_at = frame
+                    proc.wait()
+        except BaseException:
+            proc.send_signal(signal.SIGINT)  # the run writes its outputs and stops its stages
+            raise
     run_dir = work / run_id
     metrics = json.loads((run_dir / "metrics.json").read_text())
     events = metrics["run"].get("restart_events") or []
