@@ -15,6 +15,7 @@ from zenslam.frontend.local_map import LocalMapConfig
 from zenslam.frontend.orb_extractor import Features
 from zenslam.frontend.relocalisation import RelocalisationConfig, as_keyframe, relocalise
 from zenslam.frontend.tracker import Tracker, TrackingConfig
+from zenslam.frontend.visual_odometry import VisualOdometryConfig
 from zenslam.geometry import invert_T, make_T, so3_exp, so3_log
 from zenslam.map_point_rules import scale_invariance_range
 from zenslam.schemas.relocalisation import (
@@ -398,3 +399,48 @@ def test_localisation_leaves_visual_odometry_by_relocalising_and_says_so() -> No
     T0 = path_pose(0)
     t_err, r_err = pose_errors(invert_T(results[10].T_world_cam), invert_T(T0) @ path_pose(10))
     assert t_err < 0.02 and r_err < 0.2, (t_err, r_err)
+
+
+def _bad_depths(frame: Frame, gain: float) -> Frame:
+    """The frame with every stereo disparity multiplied by ``gain`` (its depths divided by it)."""
+    u, has_depth = frame.features.px[:, 0], frame.depth_m > 0
+    right_u = np.where(has_depth, u - gain * (u - frame.right_u), frame.right_u).astype(np.float32)
+    depth = np.where(has_depth, frame.depth_m / gain, frame.depth_m).astype(np.float32)
+    return dataclasses.replace(frame, right_u=right_u, depth_m=depth)
+
+
+def _localise_off_the_map(anchor_keep_ratio: float, bad_frame: int | None) -> list[np.ndarray]:
+    """T_cam_world of each frame of a localisation run that leaves the map and goes on by visual
+    odometry, with the depths of frame ``bad_frame`` 30% too far."""
+    odometry = VisualOdometryConfig(anchor_keep_ratio=anchor_keep_ratio)
+    tracker, backend, mapped = _tracker(localization=True, visual_odometry=odometry)
+    unmapped = Scene(seed=12, n_points=12000, ring=True)
+    both = _union(mapped, unmapped)
+    views = [mapped] * 4 + [both] * 2 + [unmapped] * 6
+    poses = []
+    for k, scene in enumerate(views):
+        frame = scene.view(path_pose(k), seed=k, index=k)[0]
+        result = _track(tracker, backend, _bad_depths(frame, 0.7) if k == bad_frame else frame)
+        assert result.state == "ok", k
+        poses.append(invert_T(result.T_world_cam))
+    assert tracker.n_vo_frames >= 5
+    return poses
+
+
+def test_visual_odometry_places_frames_on_an_anchor_so_one_frames_bad_depths_do_not_carry_on() -> None:
+    """Localisation mode off the map: frames on visual odometry are matched to the VO points of an
+    anchor frame, not of the last frame, so a frame whose depths are off places only itself badly.
+    Chained frame to frame (ORB-SLAM2, ``anchor_keep_ratio`` 1.0) its error passes to every later frame."""
+    T0 = path_pose(0)
+
+    def errors_mm(poses: list[np.ndarray], frames: range) -> list[float]:
+        return [1e3 * pose_errors(poses[k], invert_T(T0) @ path_pose(k))[0] for k in frames]
+
+    clean = _localise_off_the_map(0.5, None)
+    anchored = _localise_off_the_map(0.5, 8)
+    chained = _localise_off_the_map(1.0, 8)
+    after = range(9, 12)
+    for k in after:  # frame 8 never became the anchor: the frames after it are placed as without it
+        assert np.allclose(anchored[k], clean[k], atol=1e-4), (k, anchored[k] - clean[k])
+    assert max(errors_mm(anchored, after)) < 15.0, errors_mm(anchored, after)
+    assert min(errors_mm(chained, after)) > 18.0, errors_mm(chained, after)

@@ -185,6 +185,12 @@ class Tracker:
         self._lost_streak = 0
         self._timers: dict[str, float] = {}
         self._on_vo = False  # localisation mode: the last frame was placed by visual odometry
+        # Localisation mode: the frame whose VO points frames on visual odometry are matched to, the
+        # VO matches of the first frame matched to it (0 before that), and whether the odometry of
+        # the frame being tracked came from it.
+        self._vo_anchor: _LastFrame | None = None
+        self._vo_anchor_matches = 0
+        self._odometry_from_anchor = False
         self._window_of = -1  # the saved keyframe whose window was fetched last
         self.n_vo_frames = 0  # localisation mode: frames placed by visual odometry
 
@@ -274,6 +280,7 @@ class Tracker:
         self._last = _LastFrame(frame, rows, T_cam_world)
         self._lost_streak = 0
         self._on_vo = False
+        self._vo_anchor = None
         if keyframe is not None:
             self._evict(keyframes_in_flight + 1)
         return TrackResult("ok", None, invert_T(T_cam_world), n_inliers, keyframe, dict(self._timers), relocalised=relocalised)
@@ -432,10 +439,18 @@ class Tracker:
     def _track_odometry(self, frame: Frame) -> OdometryPose | None:
         """The motion model (the last pose when it has no velocity) against the last frame's map and
         VO points; None with fewer than ``visual_odometry.min_matches`` inliers."""
-        last = self._last
+        last, min_matches = self._last, self.config.visual_odometry.min_matches
         predicted = self.motion.predict(last.T_cam_world, self._frame_gap(frame))
-        odometry = self._match_last_frame(frame, last.T_cam_world if predicted is None else predicted, True)
-        if odometry is None or odometry.n_total < self.config.visual_odometry.min_matches:
+        T_predicted = last.T_cam_world if predicted is None else predicted
+        odometry = None
+        anchored = self.config.visual_odometry.anchor_keep_ratio < 1.0
+        self._odometry_from_anchor = anchored and self._on_vo and self._vo_anchor is not None
+        if self._odometry_from_anchor:
+            odometry = self._match_last_frame(frame, T_predicted, True, self._vo_anchor)
+            self._odometry_from_anchor = odometry is not None and odometry.n_total >= min_matches
+        if not self._odometry_from_anchor:
+            odometry = self._match_last_frame(frame, T_predicted, True)
+        if odometry is None or odometry.n_total < min_matches:
             return None
         return odometry
 
@@ -453,12 +468,22 @@ class Tracker:
         """A frame placed by visual odometry: the motion model goes on, the map is not touched."""
         self._on_vo = True
         self.n_vo_frames += 1
+        self._keep_or_move_anchor(frame, odometry)
         self.motion.update(self._last.T_cam_world, odometry.T_cam_world, self._frame_gap(frame), self._elapsed_ns(frame))
         self._last = _LastFrame(frame, odometry.rows, odometry.T_cam_world)
         self._lost_streak = 0
         logger.debug("frame %d on visual odometry: %d map, %d total matches", frame.index, odometry.n_map, odometry.n_total)
         T_world_cam = invert_T(odometry.T_cam_world)
         return TrackResult("ok", None, T_world_cam, odometry.n_map, None, dict(self._timers))
+
+    def _keep_or_move_anchor(self, frame: Frame, odometry: OdometryPose) -> None:
+        """The frame becomes the VO anchor unless it was matched to the anchor and kept enough of it."""
+        matches = len(odometry.vo_keypoints)
+        if self._odometry_from_anchor and self._vo_anchor_matches == 0:
+            self._vo_anchor_matches = matches
+        elif not self._odometry_from_anchor or matches < self.config.visual_odometry.anchor_keep_ratio * self._vo_anchor_matches:
+            self._vo_anchor = _LastFrame(frame, odometry.rows, odometry.T_cam_world)
+            self._vo_anchor_matches = 0
 
     def _fetch_window(self, frame: Frame, candidates: CandidateSource, unanswered: int) -> None:
         """With a saved map: when the reference keyframe is a saved one whose window was not fetched
@@ -560,9 +585,12 @@ class Tracker:
             return None
         return odometry
 
-    def _match_last_frame(self, frame: Frame, T_predicted: np.ndarray, with_vo_points: bool) -> OdometryPose | None:
-        """``track_last_frame`` on the last frame's valid map points and, ``with_vo_points``, its VO points."""
-        last, lm, cfg = self._last, self.map, self.config
+    def _match_last_frame(
+        self, frame: Frame, T_predicted: np.ndarray, with_vo_points: bool, source: _LastFrame | None = None
+    ) -> OdometryPose | None:
+        """``track_last_frame`` on the valid map points and, ``with_vo_points``, the VO points of the
+        last frame (or of ``source``)."""
+        last, lm, cfg = source or self._last, self.map, self.config
         close_depth_m, max_points = (self.th_depth_m, cfg.visual_odometry.max_points) if with_vo_points else (-1.0, 0)
         points = last_frame_points(
             last.frame, last.rows, last.T_cam_world, lm.p_world, lm.descriptors, lm.valid, close_depth_m, max_points

@@ -14,7 +14,9 @@ mapping is behind: the last frame's near depths still tie the frame to the one b
 pose they give starts local-map tracking, which places the frame on the map's points alone.
 In localisation mode no keyframe, hence no point, is made: a frame with fewer than
 ``min_map_matches`` map inliers is *VO* and skips local-map tracking until a relocalisation finds
-the map again. A localisation frame that does track the local map is optimised once more with its
+the map again. Unlike ORB-SLAM2, whose odometry chains frame to frame, a frame on VO is matched to
+the VO points of an anchor frame, which it keeps while enough of them are matched
+(``anchor_keep_ratio``). A localisation frame that does track the local map is optimised once more with its
 VO matches added (``optimise_with_odometry``), as in ORB-SLAM2, whose ``TrackLocalMap`` keeps the
 frame's matches to the temporary points of the motion-model step: the map cannot be refined in
 this mode, and a frame that sees its points only from afar, where stereo placed them to within
@@ -54,6 +56,13 @@ class VisualOdometryConfig:
     # when it has fewer inlier map matches than this (None: always, as ORB-SLAM2; 0: never; the
     # measurements are in benchmarks/README.md, "Saved maps and localisation").
     joint_below_map_inliers: int | None = None
+    # Localisation mode: a frame on visual odometry is matched to the VO points of an anchor frame
+    # (the first frame on VO, then each frame that re-anchors) rather than of the last frame, so the
+    # pose drifts once per anchor rather than once per frame. A frame re-anchors when it keeps fewer
+    # VO matches than this fraction of the first frame matched to the anchor, or when the anchor
+    # gives no pose (it is then matched to the last frame, as ORB-SLAM2 does). 1.0: every frame is
+    # an anchor (ORB-SLAM2's frame-to-frame odometry).
+    anchor_keep_ratio: float = 0.5
 
 
 @dataclass(frozen=True)
