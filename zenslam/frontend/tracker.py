@@ -438,7 +438,8 @@ class Tracker:
 
     def _track_odometry(self, frame: Frame) -> OdometryPose | None:
         """The motion model (the last pose when it has no velocity) against the last frame's map and
-        VO points; None with fewer than ``visual_odometry.min_matches`` inliers."""
+        VO points, or on visual odometry against the anchor's (the last frame's when the anchor
+        gives no pose); None with fewer than ``visual_odometry.min_matches`` inliers."""
         last, min_matches = self._last, self.config.visual_odometry.min_matches
         predicted = self.motion.predict(last.T_cam_world, self._frame_gap(frame))
         T_predicted = last.T_cam_world if predicted is None else predicted
