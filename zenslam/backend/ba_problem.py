@@ -26,7 +26,10 @@ class LocalBAConfig:
     # solvers), or gtsam's COLAMD / METIS. COLAMD interleaves poses once windows reach ~15 keyframes.
     ordering: Literal["landmarks_first", "colamd", "metis"] = "landmarks_first"
     robust_iterations: int = 5  # first pass, Huber kernel on every observation (count)
-    refine_iterations: int = 10  # second pass, without outliers and without the kernel (count)
+    # Second pass, without outliers and without the kernel (count). ORB-SLAM runs 10; after the
+    # robust pass one Levenberg-Marquardt step is what it takes: a second one mostly confirmed
+    # convergence, at the cost of a solve (benchmarks/README.md, "Local bundle adjustment").
+    refine_iterations: int = 1
     two_passes: bool = True  # False: the robust pass only, then the final classification
     # Huber thresholds on whitened residual norms (sqrt of the 95% chi2 values, unitless).
     huber_mono: float = math.sqrt(5.991)  # (u, v) residuals, 2 dof
@@ -36,7 +39,7 @@ class LocalBAConfig:
     chi2_stereo: float = 7.815  # 95% of chi2 with 3 dof
     min_depth_m: float = 1e-3  # a point nearer than this along a camera's optical axis is behind it (m)
     # A pass stops early when the error drops by less than this fraction in one iteration: ORB-SLAM's
-    # 5 + 10 iterations are caps; past a 1e-3 relative decrease the estimate moves by far less than its noise.
+    # The iterations are caps; past a 1e-3 relative decrease the estimate moves by far less than its noise.
     relative_error_tolerance: float = 1e-3
     absolute_error_tolerance: float = 1e-5  # ... or by less than this (whitened squared error, unitless)
     # Levenberg-Marquardt damping lambda * I (unitless). Every rejected step costs a full
