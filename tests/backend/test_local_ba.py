@@ -321,3 +321,23 @@ def test_rgbd_chi2_is_the_factors_whitened_error():
         values.insert(landmark_key(int(problem.point_ids[j])), p)
     factor_chi2 = np.array([2.0 * state.factors[False][r].error(values) for r in rows.tolist()])
     np.testing.assert_allclose(chi2, factor_chi2, rtol=1e-6)
+
+
+def test_a_one_step_refinement_on_the_robust_passs_huber_factors_takes_the_kernel_free_step(monkeypatch):
+    """The refinement reuses the Huber factors: at its start every inlier is within Huber's threshold,
+    so they linearize as kernel-free factors would, and give the same step."""
+    problem, T_true, _, outlier = make_window(10, outlier_fraction=0.05)
+    reused = run(problem)
+    inner, kernels = local_ba._run_pass, []
+
+    def kernel_free_refinement(window, state, active, robust, iterations, config):
+        kernels.append(robust)
+        inner(window, state, active, robust and len(kernels) == 1, iterations, config)
+
+    monkeypatch.setattr(local_ba, "_run_pass", kernel_free_refinement)
+    rebuilt = run(problem)
+    assert kernels == [True, True]  # the refinement was handed the Huber factors
+    assert reused.stats["passes"] == 2 and not reused.inlier_obs[outlier].any()
+    np.testing.assert_allclose(reused.T_world_cam, rebuilt.T_world_cam, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(reused.p_world, rebuilt.p_world, rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(reused.inlier_obs, rebuilt.inlier_obs)

@@ -13,7 +13,11 @@ Two passes as ORB-SLAM: a few robust iterations, then observations with chi2 abo
 threshold (5.991 for 2 dof, 7.815 for 3) or in front of no camera are dropped and the rest is
 refined without the kernel.
 The refinement runs even when the robust pass converged and dropped nothing: skipping it saves
-little and costs accuracy.
+little and costs accuracy. A refinement of one step (the default) runs on the robust pass's Huber
+factors instead of kernel-free ones built anew: it linearizes where the robust pass ended, where
+every inlier's whitened residual is within Huber's threshold (the inlier test's chi2 threshold is
+its square), so Huber weighs each as the plain quadratic and the step is the kernel-free one; only
+the step's acceptance test sees Huber's error, for residuals the step takes past the threshold.
 Poses are gtsam ``Pose3`` = T_world_cam (the factors take the camera pose in the world). Fixed
 keyframes stay variables held by ``NonlinearEqualityPose3`` (a hard constraint: no prior with a
 made-up sigma changes the problem), and are copied to the result unchanged.
@@ -81,11 +85,15 @@ class LocalBundleAdjuster:
         schedule = [(True, config.robust_iterations)]
         if config.two_passes:
             schedule.append((False, config.refine_iterations))
+        # A one-step refinement after a robust pass runs on that pass's Huber factors (see the module doc).
+        reuse = config.two_passes and config.refine_iterations == 1 and config.robust_iterations > 0
         for robust, iterations in schedule:
             if iterations <= 0:
                 continue
-            _run_pass(window, state, active & ~state.dropped_points[problem.obs_point], robust, iterations, config)
-            state.factors[robust].clear()  # each kind of pass runs once: its factors are not needed again
+            kernel = robust or reuse
+            _run_pass(window, state, active & ~state.dropped_points[problem.obs_point], kernel, iterations, config)
+            if not (robust and reuse):
+                state.factors[kernel].clear()  # no pass needs these factors again
             active = window.classify(state) & ~state.dropped_points[problem.obs_point]
             if state.failure is not None:
                 break
