@@ -229,13 +229,13 @@ def _run_pass(
             return
         try:
             ordering = _landmarks_first(window, point_rows, pose_rows) if config.ordering == "landmarks_first" else None
-            optimizer, result = _optimize(graph, values, ordering, iterations, config)
+            optimizer, result, initial_error = _optimize(graph, values, ordering, iterations, config)
         except RuntimeError as exc:
             if _repair(exc, window, state, config):
                 continue
             return
         if math.isnan(state.initial_error):
-            state.initial_error = float(graph.error(values))
+            state.initial_error = initial_error
         state.final_error = float(optimizer.error())
         state.iterations += int(optimizer.iterations())
         state.passes += 1
@@ -250,7 +250,8 @@ def _optimize(
     iterations: int,
     config: LocalBAConfig,
 ):
-    """Run gtsam's Levenberg-Marquardt on the graph; returns the optimiser (error, iterations) and the result."""
+    """Run gtsam's Levenberg-Marquardt on the graph; returns the optimiser (error, iterations), the
+    result and the error it started from (which the optimiser computed when it was made)."""
     params = gtsam.LevenbergMarquardtParams()
     params.setlambdaInitial(config.lambda_initial)
     params.setlambdaLowerBound(config.lambda_lower_bound)
@@ -263,7 +264,8 @@ def _optimize(
     else:
         params.setOrdering(ordering)
     optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
-    return optimizer, optimizer.optimize()
+    initial_error = float(optimizer.error())
+    return optimizer, optimizer.optimize(), initial_error
 
 
 def _landmarks_first(window: _Window, point_rows: np.ndarray, pose_rows: np.ndarray) -> gtsam.Ordering:
