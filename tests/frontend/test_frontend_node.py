@@ -107,9 +107,18 @@ def test_keyframes_in_flight_reach_the_pipeline():
         node.handle(_message(frame))
     assert pipelines[0].in_flight == [0, 1, 1] and node.keyframes_in_flight == 2
     pipelines[0].apply_map_update = lambda update: None
-    node.apply_map_update(SimpleNamespace(keyframe_id=0))
+    node.apply_map_update(SimpleNamespace(keyframe_id=0, answers_keyframe=True))
     node.handle(_message(frames[3]))
     assert pipelines[0].in_flight[-1] == 1
+    # A correction (a loop's, a global BA's) answers no keyframe: keyframe 2 is still in flight, and
+    # once answered nothing is (before, a correction counted as an answer and left -1 in flight
+    # after it, so local mapping never looked idle to the keyframe decision again).
+    node.apply_map_update(SimpleNamespace(keyframe_id=0, answers_keyframe=False))
+    assert node.keyframes_in_flight == 1
+    node.apply_map_update(SimpleNamespace(keyframe_id=2, answers_keyframe=True))
+    assert node.keyframes_in_flight == 0
+    node.handle(_message(frames[4]))  # decided with local mapping idle; makes keyframe 4
+    assert pipelines[0].in_flight[-1] == 0 and node.keyframes_in_flight == 1
     alone = FrontendNode(lambda cal, sensor: StubPipeline(cal, sensor))
     for frame in frames:
         alone.handle(_message(frame))

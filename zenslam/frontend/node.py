@@ -137,6 +137,7 @@ class FrontendNode:
         self.skipped = 0  # frames never seen (gaps in the indices: dropped in live mode)
         self.built_ahead = 0  # frames whose ORB/stereo was built while waiting for the backend (lockstep)
         self.updates_applied = 0  # backend map updates applied to the pipeline's map
+        self.answers_applied = 0  # of those, answers to this frontend's keyframes (corrections are not)
         self.tracks_backend = False  # set by ``serve`` when the backend's map updates are applied
         self.backend_gone = False  # set by ``serve``: the backend crashed and is not back yet
         self.candidates: CandidateSource | None = None  # set by ``serve``: asks the backend where a lost frame is
@@ -241,12 +242,13 @@ class FrontendNode:
 
     @property
     def keyframes_in_flight(self) -> int:
-        """Keyframes sent whose map update has not been applied (each keyframe gets one update);
-        without a backend's updates (``serve`` without ``backend``) this is 0: nothing to wait for.
+        """Keyframes sent whose answer has not been applied (each keyframe gets one answer; a
+        correction, such as a loop's, answers none). Without a backend's updates (``serve`` without
+        ``backend``) this is 0: nothing to wait for.
         While the backend is gone (crashed, not restarted yet) it is 0 too: tracking makes keyframes
         as it needs them, on its own stereo or depth points, and they go to the restarted backend;
         held back they would leave tracking without points to track as the camera moves on."""
-        return self.keyframes - self.updates_applied if self.tracks_backend and not self.backend_gone else 0
+        return self.keyframes - self.answers_applied if self.tracks_backend and not self.backend_gone else 0
 
     def log_last_frame(self) -> None:
         """Log the last handled frame to rerun: called after its messages are sent, so the ~1 ms of
@@ -270,6 +272,7 @@ class FrontendNode:
             )
         self._pipeline.apply_map_update(update)
         self.updates_applied += 1
+        self.answers_applied += int(update.answers_keyframe)
 
 
 class _Outputs:
