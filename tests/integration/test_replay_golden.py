@@ -129,9 +129,10 @@ def test_a_kitti_run_replays_identically_through_the_backend_alone(kitti_recordi
 
 
 def test_a_behaviour_change_in_the_backend_is_caught():
-    """The guard works: one local-BA iteration fewer changes the map updates, and the report says where."""
+    """The guard works: one robust local-BA iteration fewer changes the map updates, and the report says where."""
     backend = replay.recorded_run_config(GOLDEN).backend
-    changed = dataclasses.replace(backend, local_ba=dataclasses.replace(backend.local_ba, refine_iterations=1))
+    local_ba = backend.local_ba
+    changed = dataclasses.replace(backend, local_ba=dataclasses.replace(local_ba, robust_iterations=local_ba.robust_iterations - 1))
     comparison = backend_replay.replay_backend(GOLDEN, changed)
     assert not comparison.equivalent
     assert comparison.difference.topic == replay.MAP_UPDATE_TOPIC and comparison.difference.field
