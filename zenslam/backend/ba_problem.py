@@ -38,8 +38,8 @@ class LocalBAConfig:
     chi2_mono: float = 5.991  # 95% of chi2 with 2 dof
     chi2_stereo: float = 7.815  # 95% of chi2 with 3 dof
     min_depth_m: float = 1e-3  # a point nearer than this along a camera's optical axis is behind it (m)
-    # A pass stops early when the error drops by less than this fraction in one iteration: ORB-SLAM's
-    # The iterations are caps; past a 1e-3 relative decrease the estimate moves by far less than its noise.
+    # A pass stops early when the error drops by less than this fraction in one iteration: the
+    # iterations are caps; past a 1e-3 relative decrease the estimate moves by far less than its noise.
     relative_error_tolerance: float = 1e-3
     absolute_error_tolerance: float = 1e-5  # ... or by less than this (whitened squared error, unitless)
     # Levenberg-Marquardt damping lambda * I (unitless). Every rejected step costs a full

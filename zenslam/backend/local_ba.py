@@ -40,9 +40,9 @@ poses) is a bug upstream and raises ``ZenslamError`` when the ``BAProblem`` is b
 Solver choice (the measurements are in benchmarks/README.md and ``benchmarks/local_ba.py``): batch
 Levenberg-Marquardt over the window, rebuilt on every call, sequential Cholesky, landmarks
 eliminated before poses, 5 + 1 iterations as caps (ORB-SLAM: 5 + 10) with a 1e-3
-relative-decrease stop and a 1e-2 damping floor. Fixed iterations with gtsam's default damping, gtsam's COLAMD ordering
-(it interleaves poses with landmarks) and multifrontal Cholesky were all slower for the same pose
-accuracy. iSAM2 fed keyframe by keyframe fails on windows with outliers (Gauss-Newton has no
+relative-decrease stop and a 1e-2 damping floor. Fixed iterations with gtsam's default damping,
+gtsam's COLAMD ordering (it interleaves poses with landmarks) and multifrontal Cholesky were all
+slower for the same pose accuracy. iSAM2 fed keyframe by keyframe fails on windows with outliers (Gauss-Newton has no
 damping for a landmark that Huber down-weights) and was slower in total even without them; a
 persistent iSAM2 would also have to mirror every point creation, fusion, culling and outlier
 decision of local mapping by removing factors, so local BA keeps no state between calls, and its

@@ -16,12 +16,12 @@ In localisation mode no keyframe, hence no point, is made: a frame with fewer th
 ``min_map_matches`` map inliers is *VO* and skips local-map tracking until a relocalisation finds
 the map again. Unlike ORB-SLAM2, whose odometry chains frame to frame, a frame on VO is matched to
 the VO points of an anchor frame, which it keeps while enough of them are matched
-(``anchor_keep_ratio``). A localisation frame that does track the local map is optimised once more with its
-VO matches added (``optimise_with_odometry``), as in ORB-SLAM2, whose ``TrackLocalMap`` keeps the
-frame's matches to the temporary points of the motion-model step: the map cannot be refined in
-this mode, and a frame that sees its points only from afar, where stereo placed them to within
-centimetres, is held steady by the last frame's near depths (``joint_below_map_inliers`` limits it
-to frames on few map points).
+(``anchor_keep_ratio``). A localisation frame that does track the local map is optimised once
+more with its VO matches added (``optimise_with_odometry``), as in ORB-SLAM2, whose
+``TrackLocalMap`` keeps the frame's matches to the temporary points of the motion-model step: the
+map cannot be refined in this mode, and a frame that sees its points only from afar, where stereo
+placed them to within centimetres, is held steady by the last frame's near depths
+(``joint_below_map_inliers`` limits it to frames on few map points).
 
 Plain numpy: the tracker owns the state (which frame is last, whether it was VO).
 """
