@@ -326,7 +326,7 @@ def test_rgbd_chi2_is_the_factors_whitened_error():
 def test_a_one_step_refinement_on_the_robust_passs_huber_factors_takes_the_kernel_free_step(monkeypatch):
     """The refinement reuses the Huber factors: at its start every inlier is within Huber's threshold,
     so they linearize as kernel-free factors would, and give the same step."""
-    problem, T_true, _, outlier = make_window(10, outlier_fraction=0.05)
+    problem, _, _, outlier = make_window(10, outlier_fraction=0.05)
     reused = run(problem)
     inner, kernels = local_ba._run_pass, []
 
