@@ -39,6 +39,13 @@ class BackendConfig:
     # Append every keyframe mapped to backend.journal in the run folder, so that a backend restarted
     # after a crash rebuilds the same map (backend/journal.py); false: a restarted backend starts empty.
     journal: bool = True
+    # Publish each keyframe's answer (its insertion, new points and fusion) before its local BA, and
+    # the BA's changes after it as a correction: a lockstep frontend tracks the next frame on the
+    # answer while the BA runs, and applies the correction before the frame after (a lag of one
+    # frame, the same in every run). Faster, and on a car at 10 Hz no less accurate, but the
+    # frames tracked on the map before its BA cost the synthetic rooms accuracy: measured in
+    # benchmarks/README.md, "Local mapping".
+    answer_before_local_ba: bool = False
 
     def __post_init__(self) -> None:
         if not 0 <= self.nice <= 19:

@@ -128,6 +128,16 @@ class LocalMappingStats:
     ba_waited: int = 0  # 1 when local BA waited for ``ba_window.min_interval_s`` to pass
 
 
+@dataclass(frozen=True)
+class _BegunWork:
+    """What ``LocalMapper.begin`` did on a keyframe, for ``finish`` to complete and report."""
+
+    deferred: bool  # fusion, local BA and keyframe culling wait for queued keyframes
+    timings: dict[str, float]  # per step so far, milliseconds
+    counts: dict[str, int]  # LocalMappingStats fields so far
+    seconds: float  # time taken so far
+
+
 def new_backend_map(config: LocalMappingConfig) -> BackendMap:
     """An empty map with the covisibility and essential-graph thresholds of ``config``."""
     return BackendMap(config.min_covisibility_weight, config.essential_min_weight)
@@ -146,13 +156,32 @@ class LocalMapper:
         self.last_ba_stats: dict = {}  # the bundle adjuster's stats of the last call
         self._last_ba_stamp_ns: int | None = None  # stamp of the keyframe local BA last ran on
         self.totals: Counter[str] = Counter()  # LocalMappingStats fields summed over all calls
+        self._begun: tuple[int, int] = (-1, 0)  # (id, stamp) of the keyframe ``begin`` took
+        self._begun_work = _BegunWork(False, {}, {}, 0.0)  # and what was done on it so far
 
     def process(self, keyframe: KeyframeMessage, queued: int = 0) -> MapUpdate:
-        """Run local mapping on one keyframe; returns what changed in the map.
+        """Run local mapping on one keyframe; returns what changed in the map, in one update.
 
         ``queued`` is the number of keyframes still waiting behind this one (0 in lockstep); with
         ``defer_when_queued`` a backlog skips fusion, local BA and keyframe culling, as ORB-SLAM does.
         """
+        self._map_keyframe(keyframe, queued)
+        return self._refine_window("keyframe")
+
+    def begin(self, keyframe: KeyframeMessage, queued: int = 0) -> MapUpdate:
+        """The first half of ``process``: insertion, point culling, triangulation and fusion; returns
+        the keyframe's answer. ``finish`` follows before the next keyframe."""
+        self._map_keyframe(keyframe, queued)
+        kf_id, stamp_ns = self._begun
+        return map_update_from_changes(self.map, kf_id, stamp_ns, self.map.take_changes())
+
+    def finish(self) -> MapUpdate:
+        """The second half: local BA and keyframe culling on the keyframe ``begin`` took; returns
+        their changes as a correction (an empty one when neither changed anything)."""
+        return self._refine_window("correction")
+
+    def _map_keyframe(self, keyframe: KeyframeMessage, queued: int) -> None:
+        """Insertion, recent-point culling, triangulation and fusion; the rest waits in ``_begun_work``."""
         deferred = self.config.defer_when_queued and queued > 0
         timings: dict[str, float] = {}
         started = time.perf_counter()
@@ -169,27 +198,37 @@ class LocalMapper:
         with _timed(timings, "triangulation"):
             created = create_new_points(self.map, kf_id, self.config.triangulation)
             self.recent_points.extend(created)
-        culled_kfs: list[int] = []
         with _timed(timings, "fusion"):
             if not deferred:
                 before = len(self.map.changes.removed_points)
                 counts["fusion_matches"] = fuse_with_neighbours(self.map, kf_id, self.config.fusion)
                 counts["points_fused"] = len(self.map.changes.removed_points) - before
-        ba_due = self._local_ba_due(int(keyframe.stamp_ns))
+        counts.update(points_created=len(created), points_culled=len(culled), deferred=int(deferred))
+        self._begun = (kf_id, int(keyframe.stamp_ns))
+        self._begun_work = _BegunWork(deferred, timings, counts, time.perf_counter() - started)
+
+    def _refine_window(self, kind: MapUpdateKind) -> MapUpdate:
+        """Local BA and keyframe culling on the keyframe ``_map_keyframe`` took; the changes since
+        the last update taken, as an update of ``kind``."""
+        kf_id, stamp_ns = self._begun
+        work = self._begun_work
+        deferred, timings, counts = work.deferred, work.timings, work.counts
+        started = time.perf_counter()
+        culled_kfs: list[int] = []
+        ba_due = self._local_ba_due(stamp_ns)
         with _timed(timings, "local_ba"):
             if not deferred and ba_due:
                 ba_counts = self._local_ba(kf_id)
                 counts.update(ba_counts)
                 if ba_counts:  # a window was optimised (none while the map is too small)
-                    self._last_ba_stamp_ns = int(keyframe.stamp_ns)
+                    self._last_ba_stamp_ns = stamp_ns
         with _timed(timings, "keyframe_culling"):
             if not deferred:
                 culled_kfs, touched = cull_redundant_keyframes(self.map, kf_id, self.config.keyframe_culling)
                 self.map.remove_weak_points(touched, self.config.min_keyframes_per_point)
-        update = map_update_from_changes(self.map, kf_id, keyframe.stamp_ns, self.map.take_changes())
-        timings["total"] = (time.perf_counter() - started) * 1e3
-        counts.update(points_created=len(created), points_culled=len(culled), keyframes_culled=len(culled_kfs))
-        counts["deferred"] = int(deferred)
+        update = map_update_from_changes(self.map, kf_id, stamp_ns, self.map.take_changes(), kind=kind)
+        timings["total"] = (work.seconds + time.perf_counter() - started) * 1e3
+        counts["keyframes_culled"] = len(culled_kfs)
         counts["ba_waited"] = int(not deferred and not ba_due)
         self.last_stats = LocalMappingStats(**counts)
         self.totals.update(counts)

@@ -3,7 +3,10 @@ backend/trajectory and backend/relocalisation.
 
 ``BackendNode.step`` runs local mapping, then loop closing, on one decoded keyframe and returns the
 map updates to publish (the keyframe's answer, then any loop correction) and the verified loop
-candidates for backend/loop; it is testable without the bus. A background global BA's correction
+candidates for backend/loop; it is testable without the bus. With ``answer_before_local_ba`` the
+worker runs it in two halves, ``begin`` (up to fusion: the answer, published at once) and
+``finish`` (local BA, keyframe culling and loop closing: the corrections), so that a lockstep
+frontend tracks its next frame while local BA runs. A background global BA's correction
 is published between keyframes when it finishes. ``serve`` is the loop: it takes keyframes from a lossless,
 bounded inbox (a full inbox blocks the frontend's send, nothing is dropped), tells local mapping
 how many keyframes wait behind the current one (ORB-SLAM's CheckNewKeyFrames: a backlog defers
@@ -106,6 +109,8 @@ class BackendNode:
         self.loaded: MapHeader | None = None  # the header of the saved map the node started from, if any
         self.refused = 0  # keyframes refused (see ``refusal``)
         self._camera: tuple | None = None  # calibration, sensor and pyramid scales of the first keyframe
+        self._begun: codec.KeyframeMessage | None = None  # the keyframe ``begin`` took, for ``finish``
+        self.answer_before_local_ba = False  # the worker publishes each answer before local BA (begin/finish)
 
     @classmethod
     def from_config(cls, config: BackendConfig, global_ba_in_background: bool = False) -> BackendNode:
@@ -133,6 +138,7 @@ class BackendNode:
                 global_ba = GlobalBARunner(bmap, config.loop_closing.global_ba, config.local_mapping.ba_window, global_ba_in_background)
         node = cls(mapper, places, loop_closer, global_ba)
         node.loaded = loaded
+        node.answer_before_local_ba = config.answer_before_local_ba
         return node
 
     def step(self, keyframe: codec.KeyframeMessage, queued: int = 0) -> StepOutput:
@@ -142,6 +148,37 @@ class BackendNode:
         The answer says how many corrections follow it, so a lockstep frontend applies them before
         its next frame.
         """
+        self._check_first(keyframe)
+        update = self.mapper.process(keyframe, queued=queued)
+        self._took(keyframe)
+        corrections, loops = self._after_local_mapping(keyframe, update)
+        answer = dataclasses.replace(update, corrections_following=len(corrections))
+        return StepOutput([answer, *corrections], loops)
+
+    def begin(self, keyframe: codec.KeyframeMessage, queued: int = 0) -> StepOutput:
+        """``step`` in two halves (``backend.answer_before_local_ba``): insertion, point culling,
+        triangulation and fusion, and the keyframe's answer, to publish at once; ``finish`` must
+        follow before the next keyframe. The answer announces one update after it, the keyframe's
+        local-mapping correction (which announces the loop corrections after it), and that a
+        lockstep frontend may track its next frame before applying them."""
+        self._check_first(keyframe)
+        answer = self.mapper.begin(keyframe, queued=queued)
+        self._took(keyframe)
+        self._begun = keyframe
+        return StepOutput([dataclasses.replace(answer, corrections_following=1, corrections_after_next_frame=True)])
+
+    def finish(self) -> StepOutput:
+        """The second half of ``step`` on the keyframe ``begin`` took: local BA, keyframe culling and
+        loop closing; its local-mapping correction, then the loop corrections it announces."""
+        keyframe, self._begun = self._begun, None
+        if keyframe is None:
+            raise RuntimeError("BackendNode.finish without a keyframe begun")
+        refined = self.mapper.finish()
+        corrections, loops = self._after_local_mapping(keyframe, refined)
+        return StepOutput([dataclasses.replace(refined, corrections_following=len(corrections)), *corrections], loops)
+
+    def _check_first(self, keyframe: codec.KeyframeMessage) -> None:
+        """Note the run's camera on its first keyframe; a saved map must have been made with it."""
         if self._camera is None:
             self._camera = (keyframe.calibration, keyframe.sensor, keyframe.scale_factors.tobytes())
         if self.loaded is not None and self.processed == 0:
@@ -152,21 +189,28 @@ class BackendNode:
                 self.loaded, keyframe.calibration, keyframe.sensor,
                 vocabulary.content_id if vocabulary is not None else self.loaded.vocabulary_id,
             )  # fmt: skip
-        update = self.mapper.process(keyframe, queued=queued)
+
+    def _took(self, keyframe: codec.KeyframeMessage) -> None:
         self.processed += 1
         self._newest = (int(keyframe.id), int(keyframe.stamp_ns))
+
+    def _after_local_mapping(
+        self, keyframe: codec.KeyframeMessage, update: MapUpdate
+    ) -> tuple[list[MapUpdate], list[codec.LoopMessage]]:
+        """The keyframe database follows the map (``update`` removed keyframes), then loop closing
+        on the keyframe: its corrections and loop messages."""
+        kf_id = int(keyframe.id)
         corrections: list[MapUpdate] = []
         loops: list[codec.LoopMessage] = []
         if self.places is not None:
             self.places.remove(np.asarray(update.removed_keyframe_ids).tolist())
-            if int(keyframe.id) in self.map.keyframes:
-                self.places.add(int(keyframe.id), self.map.keyframe(int(keyframe.id)).descriptors)
-        if self.loop_closer is not None and int(keyframe.id) in self.map.keyframes:
-            corrections, loops = self._close_loops(int(keyframe.id), update)
+            if kf_id in self.map.keyframes:
+                self.places.add(kf_id, self.map.keyframe(kf_id).descriptors)
+        if self.loop_closer is not None and kf_id in self.map.keyframes:
+            corrections, loops = self._close_loops(kf_id, update)
         if self.rerun is not None:
             self.rerun.log_keyframe(keyframe, self.mapper)
-        answer = dataclasses.replace(update, corrections_following=len(corrections))
-        return StepOutput([answer, *corrections], loops)
+        return corrections, loops
 
     def refusal(self, keyframe: codec.KeyframeMessage) -> str | None:
         """Why ``keyframe`` cannot be mapped, or None: what the decoder could not know (its values are
@@ -497,7 +541,12 @@ def _process(
         if journal is not None:
             journal.keyframe(payload, queued)
         try:
-            output = node.step(message, queued)
+            if node.answer_before_local_ba:
+                # The answer goes out before local BA: the frontend tracks its next frame meanwhile.
+                outputs.send_step(node.begin(message, queued))
+                output = node.finish()
+            else:
+                output = node.step(message, queued)
         except Exception as exc:
             outputs.send_status(codec.StageStatusMessage(STAGE, "failed", node.processed, detail=f"{type(exc).__name__}: {exc}"))
             raise

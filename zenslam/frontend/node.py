@@ -353,6 +353,11 @@ class _MapUpdates:
         self.unanswered: dict[int, bytes] = {}  # keyframe id -> its message, sent and not answered yet
         self.resent = 0  # keyframes sent again to a restarted backend
         self._last_answered = -1  # the newest keyframe id answered
+        # Updates announced and not applied yet: the last answer announces its keyframe's
+        # local-mapping correction, which announces the loop corrections after it.
+        self.due = 0
+        self.frames_since_answer = 0  # frames tracked since the last answer (lockstep)
+        self._lag_one_frame = False  # the last answer's corrections may wait for the frame after next
         self._resend_due: float | None = None  # after a backend restart: when to send the unanswered again
         self._resend = resend
         self._backend = bus.Comebacks(session, session_name, "backend")
@@ -397,25 +402,32 @@ class _MapUpdates:
         while not self.ended and (update := self.inbox.get(timeout_s=0)) is not None:
             self._apply(node, update)
 
-    def wait_for(self, node: FrontendNode, keyframe_id: int, should_stop: Callable[[], bool]) -> None:
-        """Lockstep: apply updates until the one for ``keyframe_id`` and the corrections it announces
-        have been applied, the backend has ended its stream (``ended``: it was stopped) or ``should_stop()``."""
+    def wait_for_answer(self, node: FrontendNode, keyframe_id: int, should_stop: Callable[[], bool]) -> None:
+        """Lockstep: apply updates until the answer to ``keyframe_id`` and the corrections it
+        announces; those of an answer published before its local BA (``corrections_after_next_frame``)
+        stay ``due``, for ``wait_for_corrections`` before the frame after the next."""
+        self._wait(node, lambda: self._last_answered >= keyframe_id, f"keyframe {keyframe_id}", should_stop)
+        self.frames_since_answer = 0
+        if not self._lag_one_frame:
+            self.wait_for_corrections(node, should_stop)
+
+    def wait_for_corrections(self, node: FrontendNode, should_stop: Callable[[], bool]) -> None:
+        """Lockstep: apply updates until the last answer's corrections (``due``) have all been applied."""
+        self._wait(node, lambda: self.due == 0, f"the corrections of keyframe {self._last_answered}", should_stop)
+
+    def _wait(self, node: FrontendNode, done: Callable[[], bool], what: str, should_stop: Callable[[], bool]) -> None:
+        """Apply updates until ``done()``, the backend has ended its stream (``ended``: it was stopped)
+        or ``should_stop()``."""
         deadline = time.monotonic() + self.timeout_s
-        corrections_due = -1  # unknown until the answer arrives
-        while not should_stop() and not self.ended:
+        while not done() and not should_stop() and not self.ended:
             self.resend_to_a_restarted_backend()
             update = self.inbox.get(timeout_s=0.1)
             if update is not None:
                 self._apply(node, update)
-                if isinstance(update, MapUpdate) and update.answers_keyframe and update.keyframe_id >= keyframe_id:
-                    corrections_due = update.corrections_following
-                elif isinstance(update, MapUpdate) and corrections_due > 0:
-                    corrections_due -= 1
-                if corrections_due == 0:
-                    return
-            if update is None and time.monotonic() > deadline:
+                deadline = time.monotonic() + self.timeout_s
+            elif time.monotonic() > deadline:
                 raise bus.BusError(
-                    f"lockstep: no map update for keyframe {keyframe_id} from the backend within {self.timeout_s:.0f} s "
+                    f"lockstep: no map update for {what} from the backend within {self.timeout_s:.0f} s "
                     "(frontend.update_timeout_s); check the backend's log"
                 )
 
@@ -436,6 +448,12 @@ class _MapUpdates:
             self._last_answered = int(update.keyframe_id)
             self.unanswered.pop(int(update.keyframe_id), None)
             self._resend_due = None  # the restarted backend has its keyframes
+            self.due = update.corrections_following
+            self._lag_one_frame = update.corrections_after_next_frame
+        else:
+            # A correction: one of those announced (each may announce more after it), or one
+            # announced by none (a background global BA's, live or pipelined).
+            self.due = max(self.due - 1, 0) + update.corrections_following
         node.apply_map_update(update)
 
     def close(self) -> None:
@@ -495,6 +513,7 @@ def serve(
                         logger.warning("dropped %d frame message(s) that did not decode and refused %d", frames.rejected, node.refused)
                     if wait_for_updates:
                         logger.info("%d of %d frames built while waiting for the backend's map update", node.built_ahead, node.frames)
+                        updates.wait_for_corrections(node, should_stop)
                     if updates is not None:
                         updates.wait_for_a_restarted_backend(bus_config.start_timeout_s, should_stop)
                     ended = True
@@ -507,6 +526,10 @@ def serve(
                         # waits for an answer, and the newest state (of a later frame) is one.
                         outputs.send_last_state_again()
                     continue
+                if wait_for_updates and updates.due > 0 and updates.frames_since_answer > 0:
+                    # An answer published before its local BA: the frame after the keyframe was
+                    # tracked while the backend ran the BA; this one goes on the corrected map.
+                    updates.wait_for_corrections(node, should_stop)
                 try:
                     sent = node.handle(message)
                 except Exception as exc:
@@ -517,11 +540,13 @@ def serve(
                 if updates is not None:
                     updates.sent(sent)
                 node.log_last_frame()
+                if updates is not None:
+                    updates.frames_since_answer += 1
                 if wait_for_updates and sent.keyframe_id >= 0:
                     held = frames.get(timeout_s=0)
                     if isinstance(held, codec.FrameMessage):
                         node.prepare_ahead(held)
-                    updates.wait_for(node, sent.keyframe_id, should_stop)
+                    updates.wait_for_answer(node, sent.keyframe_id, should_stop)
                 status = codec.StageStatusMessage(STAGE, "running", node.frames, sent.step_ms, frames.depth, node.skipped)
                 outputs.send_status(status)
                 logger.debug("frame %d: %.1f ms, queue %d", message.frame.index, sent.step_ms, status.queue_depth)

@@ -593,6 +593,7 @@ def encode_map_update(update: MapUpdate) -> bytes:
     msg = pb.MapUpdate(
         keyframe_id=update.keyframe_id, stamp_ns=update.stamp_ns, num_points=len(update.point_ids),
         kind=_MAP_UPDATE_KIND_TO_PB[update.kind], corrections_following=update.corrections_following,
+        corrections_after_next_frame=update.corrections_after_next_frame,
     )
     for kf in update.keyframes:
         correction = msg.keyframes.add(id=kf.id, num_keypoints=len(kf.map_point_ids))
@@ -629,6 +630,7 @@ def decode_map_update(data: bytes) -> MapUpdate | EndOfStream:
     update = MapUpdate(
         kind=_MAP_UPDATE_KIND_FROM_PB[msg.kind],
         corrections_following=msg.corrections_following,
+        corrections_after_next_frame=msg.corrections_after_next_frame,
         keyframe_id=msg.keyframe_id,
         stamp_ns=msg.stamp_ns,
         keyframes=keyframes,

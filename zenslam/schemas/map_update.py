@@ -55,10 +55,15 @@ class MapUpdate:
     removed_point_ids: np.ndarray = field(default_factory=lambda: _empty((0,), np.int64))  # (R,)
     removed_keyframe_ids: np.ndarray = field(default_factory=lambda: _empty((0,), np.int64))  # (Q,)
     kind: MapUpdateKind = "keyframe"
-    # Corrections the backend publishes right after this answer (a loop found at this keyframe):
-    # in lockstep the frontend applies them too before its next frame, so where a correction
-    # lands in the stream does not depend on timing.
+    # Updates the backend publishes right after this one (each may announce more after it): an
+    # answer's local-mapping correction when it was published before its local BA, a loop's
+    # correction found at this keyframe. Lockstep applies them before its next frame, or, with
+    # ``corrections_after_next_frame``, before the frame after it, so where a correction lands in
+    # the stream does not depend on timing.
     corrections_following: int = 0
+    # An answer published before its keyframe's local BA (``backend.answer_before_local_ba``):
+    # lockstep tracks one frame on it while the backend runs the BA.
+    corrections_after_next_frame: bool = False
 
     @property
     def answers_keyframe(self) -> bool:

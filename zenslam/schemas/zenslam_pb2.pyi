@@ -231,7 +231,7 @@ class KeyframeCorrection(_message.Message):
     def __init__(self, id: _Optional[int] = ..., T_world_cam: _Optional[_Union[RigidTransform, _Mapping]] = ..., num_keypoints: _Optional[int] = ..., map_point_ids: _Optional[bytes] = ...) -> None: ...
 
 class MapUpdate(_message.Message):
-    __slots__ = ("keyframe_id", "stamp_ns", "keyframes", "num_points", "point_ids", "p_world", "descriptors", "normals", "min_distance_m", "max_distance_m", "removed_point_ids", "removed_keyframe_ids", "end_of_stream", "count", "kind", "corrections_following", "normals_f32", "min_distance_m_f32", "max_distance_m_f32")
+    __slots__ = ("keyframe_id", "stamp_ns", "keyframes", "num_points", "point_ids", "p_world", "descriptors", "normals", "min_distance_m", "max_distance_m", "removed_point_ids", "removed_keyframe_ids", "end_of_stream", "count", "kind", "corrections_following", "normals_f32", "min_distance_m_f32", "max_distance_m_f32", "corrections_after_next_frame")
     KEYFRAME_ID_FIELD_NUMBER: _ClassVar[int]
     STAMP_NS_FIELD_NUMBER: _ClassVar[int]
     KEYFRAMES_FIELD_NUMBER: _ClassVar[int]
@@ -251,6 +251,7 @@ class MapUpdate(_message.Message):
     NORMALS_F32_FIELD_NUMBER: _ClassVar[int]
     MIN_DISTANCE_M_F32_FIELD_NUMBER: _ClassVar[int]
     MAX_DISTANCE_M_F32_FIELD_NUMBER: _ClassVar[int]
+    CORRECTIONS_AFTER_NEXT_FRAME_FIELD_NUMBER: _ClassVar[int]
     keyframe_id: int
     stamp_ns: int
     keyframes: _containers.RepeatedCompositeFieldContainer[KeyframeCorrection]
@@ -270,7 +271,8 @@ class MapUpdate(_message.Message):
     normals_f32: bytes
     min_distance_m_f32: bytes
     max_distance_m_f32: bytes
-    def __init__(self, keyframe_id: _Optional[int] = ..., stamp_ns: _Optional[int] = ..., keyframes: _Optional[_Iterable[_Union[KeyframeCorrection, _Mapping]]] = ..., num_points: _Optional[int] = ..., point_ids: _Optional[bytes] = ..., p_world: _Optional[bytes] = ..., descriptors: _Optional[bytes] = ..., normals: _Optional[bytes] = ..., min_distance_m: _Optional[bytes] = ..., max_distance_m: _Optional[bytes] = ..., removed_point_ids: _Optional[bytes] = ..., removed_keyframe_ids: _Optional[bytes] = ..., end_of_stream: _Optional[bool] = ..., count: _Optional[int] = ..., kind: _Optional[_Union[MapUpdateKind, str]] = ..., corrections_following: _Optional[int] = ..., normals_f32: _Optional[bytes] = ..., min_distance_m_f32: _Optional[bytes] = ..., max_distance_m_f32: _Optional[bytes] = ...) -> None: ...
+    corrections_after_next_frame: bool
+    def __init__(self, keyframe_id: _Optional[int] = ..., stamp_ns: _Optional[int] = ..., keyframes: _Optional[_Iterable[_Union[KeyframeCorrection, _Mapping]]] = ..., num_points: _Optional[int] = ..., point_ids: _Optional[bytes] = ..., p_world: _Optional[bytes] = ..., descriptors: _Optional[bytes] = ..., normals: _Optional[bytes] = ..., min_distance_m: _Optional[bytes] = ..., max_distance_m: _Optional[bytes] = ..., removed_point_ids: _Optional[bytes] = ..., removed_keyframe_ids: _Optional[bytes] = ..., end_of_stream: _Optional[bool] = ..., count: _Optional[int] = ..., kind: _Optional[_Union[MapUpdateKind, str]] = ..., corrections_following: _Optional[int] = ..., normals_f32: _Optional[bytes] = ..., min_distance_m_f32: _Optional[bytes] = ..., max_distance_m_f32: _Optional[bytes] = ..., corrections_after_next_frame: _Optional[bool] = ...) -> None: ...
 
 class Loop(_message.Message):
     __slots__ = ("keyframe_id", "stamp_ns", "loop_keyframe_id", "loop_stamp_ns", "accepted", "reason", "T_cur_loop", "scale", "inliers", "T_world_cur_before", "T_world_cur_after", "T_world_loop")
