@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 
@@ -327,3 +328,42 @@ def test_a_restarted_backend_rebuilds_its_map_from_the_journal_and_answers_what_
     entries = read_journal(journal)
     assert [e.keyframe_id for e in entries if isinstance(e, Answered)] == [0, 1, 2, 3, 4, 5, 6]
     assert sum(isinstance(e, JournaledKeyframe) for e in entries) == 7  # keyframe 5 is not journaled twice
+
+
+def test_a_keyframe_answered_before_its_local_ba_leaves_the_map_step_leaves():
+    """``begin`` then ``finish`` (``backend.answer_before_local_ba``) make the map ``step`` makes, bit
+    for bit: the answer carries insertion, new points and fusion and announces one correction after
+    it, which carries local BA and keyframe culling; replayed in order they leave what step's one
+    update leaves."""
+    from zenslam.backend.local_ba import LocalBAConfig, LocalBundleAdjuster
+
+    def node() -> BackendNode:
+        config = LocalMappingConfig()
+        return BackendNode(LocalMapper(new_backend_map(config), config, LocalBundleAdjuster(LocalBAConfig())))
+
+    rng = np.random.default_rng(3)
+    world_a, world_b = World(), World()
+    whole, halves = node(), node()
+    for k in range(8):
+        noise = make_T(np.eye(3), rng.normal(0.0, 0.02, 3))  # BA has something to correct
+        kf_a, kf_b = world_a.keyframe(k), world_b.keyframe(k)
+        kf_a = dataclasses.replace(kf_a, T_world_cam=noise @ kf_a.T_world_cam)
+        kf_b = dataclasses.replace(kf_b, T_world_cam=noise @ kf_b.T_world_cam)
+        merged = whole.step(kf_a).updates
+        answer = halves.begin(kf_b).updates
+        corrections = halves.finish().updates
+        assert len(merged) == 1 and merged[0].answers_keyframe and not merged[0].corrections_after_next_frame
+        assert len(answer) == 1 and answer[0].answers_keyframe and answer[0].keyframe_id == k
+        assert answer[0].corrections_following == 1 and answer[0].corrections_after_next_frame
+        assert [(u.kind, u.keyframe_id, u.corrections_following) for u in corrections] == [("correction", k, 0)]
+        assert whole.last_timings_ms.keys() == halves.last_timings_ms.keys()
+    moved = [c.id for c in corrections[0].keyframes]
+    assert moved, "local BA moved no keyframe: the test would not see a correction"
+    assert sorted(whole.map.keyframes) == sorted(halves.map.keyframes)
+    for kf_id in whole.map.keyframes:
+        assert np.array_equal(whole.map.keyframe(kf_id).T_world_cam, halves.map.keyframe(kf_id).T_world_cam)
+    ids = sorted(whole.map.points)
+    assert ids == sorted(halves.map.points)
+    assert np.array_equal(whole.map.positions(np.array(ids)), halves.map.positions(np.array(ids)))
+    with pytest.raises(RuntimeError, match="without a keyframe begun"):
+        halves.finish()

@@ -300,3 +300,66 @@ def test_a_restarted_frontend_applies_no_answer_to_its_predecessors_keyframes():
         finally:
             updates.close()
     assert applied == [correction, own]
+
+
+class _LoggedStub(StubPipeline):
+    """Logs each frame tracked and each map update applied, in order, to ``log``."""
+
+    log: list[tuple] = []
+
+    def step(self, index, *args, **kwargs):
+        self.log.append(("frame", index, kwargs.get("keyframes_in_flight")))
+        return super().step(index, *args, **kwargs)
+
+    def apply_map_update(self, update) -> None:
+        self.log.append((update.kind, update.keyframe_id))
+
+
+def test_an_answer_before_local_ba_lets_one_frame_be_tracked_before_its_correction():
+    """Lockstep with ``backend.answer_before_local_ba``: the frame after a keyframe is tracked on its
+    answer, with local mapping busy (the BA runs); the frame after that waits for the correction
+    and the loop correction it announces, whenever they come, so the run is the same every time."""
+    from zenslam.frontend.config import FrontendConfig
+    from zenslam.schemas.map_update import MapUpdate
+
+    session_name, log = "answer-before-ba", []
+    _LoggedStub.log = log
+    with bus.open_session(bus.BusConfig()) as session:
+        frames = bus.declare_publisher(session, keys.sensor_frame(session_name), codec.SENSOR_FRAME, "lossless")
+        updates = bus.declare_publisher(session, keys.backend_map_update(session_name), codec.MAP_UPDATE, "lossless")
+        keyframes = bus.subscribe(session, keys.frontend_keyframe(session_name), codec.decode_keyframe, "lossless", 64)
+        states = bus.subscribe(session, keys.frontend_state(session_name), codec.decode_tracking_state, "lossless", 64)
+        result = {}
+        config = FrontendConfig(update_timeout_s=30.0)
+        frontend = threading.Thread(target=lambda: result.setdefault(
+            "ended", serve(session, session_name, FrontendNode(_LoggedStub), "lockstep", bus.BusConfig(), lambda: False, map_updates=config)))
+        frontend.start()
+        assert bus.wait_for_alive(session, session_name, ["frontend"], timeout_s=10.0) == set()
+        for frame in _frames(5):
+            frames.put(codec.encode_sensor_frame(frame, CAL, "stereo"))
+        frames.put(codec.encode_end_of_stream(codec.SENSOR_FRAME, 5))
+        assert keyframes.get(timeout_s=10.0).id == 0  # frame 0
+        updates.put(codec.encode_map_update(MapUpdate(keyframe_id=0, stamp_ns=0, corrections_following=1, corrections_after_next_frame=True)))
+        assert [states.get(timeout_s=10.0).index for _ in range(2)] == [0, 1]  # frame 1 on the answer alone
+        assert states.get(timeout_s=0.5) is None  # frame 2 waits for keyframe 0's corrections
+        updates.put(codec.encode_map_update(MapUpdate(keyframe_id=0, stamp_ns=0, kind="correction", corrections_following=1)))
+        assert states.get(timeout_s=0.5) is None  # and for the loop correction the BA's announces
+        updates.put(codec.encode_map_update(MapUpdate(keyframe_id=0, stamp_ns=0, kind="correction")))
+        assert states.get(timeout_s=10.0).index == 2
+        assert keyframes.get(timeout_s=10.0).id == 1  # frame 2; answered the old way, corrections before the next frame
+        updates.put(codec.encode_map_update(MapUpdate(keyframe_id=1, stamp_ns=0, corrections_following=1)))
+        assert states.get(timeout_s=0.5) is None
+        updates.put(codec.encode_map_update(MapUpdate(keyframe_id=1, stamp_ns=0, kind="correction")))
+        assert [states.get(timeout_s=10.0).index for _ in range(2)] == [3, 4]
+        assert keyframes.get(timeout_s=10.0).id == 2  # frame 4; its corrections are waited for before the end
+        updates.put(codec.encode_map_update(MapUpdate(keyframe_id=2, stamp_ns=0, corrections_following=1, corrections_after_next_frame=True)))
+        updates.put(codec.encode_map_update(MapUpdate(keyframe_id=2, stamp_ns=0, kind="correction")))
+        frontend.join(timeout=10.0)
+        assert not frontend.is_alive() and result["ended"] is True
+        for inbox in (keyframes, states):
+            inbox.close()
+    assert log == [
+        ("frame", 0, 0), ("keyframe", 0), ("frame", 1, 1), ("correction", 0), ("correction", 0),
+        ("frame", 2, 0), ("keyframe", 1), ("correction", 1), ("frame", 3, 0),
+        ("frame", 4, 0), ("keyframe", 2), ("correction", 2),
+    ]

@@ -139,6 +139,9 @@ class FrontendNode:
         self.updates_applied = 0  # backend map updates applied to the pipeline's map
         self.answers_applied = 0  # of those, answers to this frontend's keyframes (corrections are not)
         self.tracks_backend = False  # set by ``serve`` when the backend's map updates are applied
+        # Set by ``serve``: the last keyframe was answered before its local BA, whose correction
+        # is not applied yet (lockstep with backend.answer_before_local_ba): local mapping is busy.
+        self.local_ba_running = False
         self.backend_gone = False  # set by ``serve``: the backend crashed and is not back yet
         self.candidates: CandidateSource | None = None  # set by ``serve``: asks the backend where a lost frame is
         self.refused = 0  # frames refused by ``refusal`` (never tracked)
@@ -244,11 +247,14 @@ class FrontendNode:
     def keyframes_in_flight(self) -> int:
         """Keyframes sent whose answer has not been applied (each keyframe gets one answer; a
         correction, such as a loop's, answers none). Without a backend's updates (``serve`` without
-        ``backend``) this is 0: nothing to wait for.
+        ``backend``) this is 0: nothing to wait for. The last keyframe counts until its correction is
+        applied when it was answered before its local BA (``local_ba_running``): the BA still runs.
         While the backend is gone (crashed, not restarted yet) it is 0 too: tracking makes keyframes
         as it needs them, on its own stereo or depth points, and they go to the restarted backend;
         held back they would leave tracking without points to track as the camera moves on."""
-        return self.keyframes - self.answers_applied if self.tracks_backend and not self.backend_gone else 0
+        if not self.tracks_backend or self.backend_gone:
+            return 0
+        return self.keyframes - self.answers_applied + int(self.local_ba_running)
 
     def log_last_frame(self) -> None:
         """Log the last handled frame to rerun: called after its messages are sent, so the ~1 ms of
@@ -530,6 +536,9 @@ def serve(
                     # An answer published before its local BA: the frame after the keyframe was
                     # tracked while the backend ran the BA; this one goes on the corrected map.
                     updates.wait_for_corrections(node, should_stop)
+                # ORB-SLAM's tracking runs beside local mapping: while the BA of an answered
+                # keyframe runs, local mapping is not idle to the keyframe decision.
+                node.local_ba_running = wait_for_updates and updates.due > 0
                 try:
                     sent = node.handle(message)
                 except Exception as exc:
