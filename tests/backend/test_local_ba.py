@@ -330,9 +330,9 @@ def test_a_one_step_refinement_on_the_robust_passs_huber_factors_takes_the_kerne
     reused = run(problem)
     inner, kernels = local_ba._run_pass, []
 
-    def kernel_free_refinement(window, state, active, robust, iterations, config):
+    def kernel_free_refinement(window, state, active, robust, iterations, config, keep_graph=False):
         kernels.append(robust)
-        inner(window, state, active, robust and len(kernels) == 1, iterations, config)
+        inner(window, state, active, robust and len(kernels) == 1, iterations, config, keep_graph)
 
     monkeypatch.setattr(local_ba, "_run_pass", kernel_free_refinement)
     rebuilt = run(problem)
@@ -341,3 +341,30 @@ def test_a_one_step_refinement_on_the_robust_passs_huber_factors_takes_the_kerne
     np.testing.assert_allclose(reused.T_world_cam, rebuilt.T_world_cam, rtol=0, atol=1e-9)
     np.testing.assert_allclose(reused.p_world, rebuilt.p_world, rtol=0, atol=1e-9)
     np.testing.assert_array_equal(reused.inlier_obs, rebuilt.inlier_obs)
+
+
+def test_the_refinement_on_the_robust_passs_graph_less_its_outliers_is_the_refinement_on_a_graph_built_anew(monkeypatch):
+    """The one-step refinement takes the robust pass's graph and result, less the outliers' factors and
+    the points left without one, instead of a graph and values built anew: the same factors in the
+    same order at the same values, so the same result bit for bit."""
+    problem, _, _, outlier = make_window(10, outlier_fraction=0.05)
+    removed = []
+    remove = gtsam.NonlinearFactorGraph.remove
+
+    class Counting(gtsam.NonlinearFactorGraph):
+        def remove(self, index):
+            removed.append(index)
+            remove(self, index)
+
+    monkeypatch.setattr(local_ba.gtsam, "NonlinearFactorGraph", Counting)
+    shrunk = run(problem)
+    assert removed and shrunk.stats["passes"] == 2 and not shrunk.inlier_obs[outlier].any()
+    inner = local_ba._run_pass
+    monkeypatch.setattr(local_ba, "_run_pass", lambda *args: inner(*args[:6], keep_graph=False))
+    removed.clear()
+    rebuilt = run(problem)
+    assert not removed  # built anew
+    np.testing.assert_array_equal(shrunk.T_world_cam, rebuilt.T_world_cam)
+    np.testing.assert_array_equal(shrunk.p_world, rebuilt.p_world)
+    np.testing.assert_array_equal(shrunk.inlier_obs, rebuilt.inlier_obs)
+    assert shrunk.stats["final_error"] == rebuilt.stats["final_error"]

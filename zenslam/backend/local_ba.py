@@ -91,7 +91,7 @@ class LocalBundleAdjuster:
             if iterations <= 0:
                 continue
             kernel = robust or reuse
-            _run_pass(window, state, active & ~state.dropped_points[problem.obs_point], kernel, iterations, config)
+            _run_pass(window, state, active & ~state.dropped_points[problem.obs_point], kernel, iterations, config, robust and reuse)
             if not (robust and reuse):
                 state.factors[kernel].clear()  # no pass needs these factors again
             active = window.classify(state) & ~state.dropped_points[problem.obs_point]
@@ -122,6 +122,9 @@ class _State:
     # Factors with (True) and without (False) the Huber kernel, by observation row: built once per
     # window, reused by a retried pass.
     factors: dict = field(default_factory=lambda: {True: {}, False: {}})
+    # The last robust pass's graph and result, kept when the refinement runs on its factors: the
+    # refinement takes them less its outliers instead of a graph and values built anew.
+    last_graph: _PassGraph | None = None
 
     def __post_init__(self) -> None:
         self.dropped_points = np.zeros(len(self.p_world), dtype=bool)
@@ -141,6 +144,20 @@ class _State:
             "retries": self.retries,
             "failure": self.failure,
         }
+
+
+@dataclass(frozen=True)
+class _PassGraph:
+    """A pass's factor graph (observation factors in row order, then the fixed poses' equality
+    factors) and its result values, for the next pass to shrink rather than build anew."""
+
+    graph: gtsam.NonlinearFactorGraph
+    values: gtsam.Values
+    rows: np.ndarray  # (F,) observation row of each observation factor, in factor order
+    pose_rows: np.ndarray  # (K,) keyframe rows with a value
+    point_rows: np.ndarray  # (L,) point rows with a value, in key order
+    equality_index: dict[int, int]  # fixed keyframe row -> index of its equality factor
+    robust: bool  # its factors carry the Huber kernel
 
 
 @dataclass(frozen=True)
@@ -218,14 +235,17 @@ class _Window:
 
 
 def _run_pass(
-    window: _Window, state: _State, active: np.ndarray, robust: bool, iterations: int, config: LocalBAConfig
+    window: _Window, state: _State, active: np.ndarray, robust: bool, iterations: int, config: LocalBAConfig,
+    keep_graph: bool = False,
 ) -> None:
-    """One optimisation pass on the active observations, repairing what gtsam reports as degenerate."""
+    """One optimisation pass on the active observations, repairing what gtsam reports as degenerate;
+    ``keep_graph``: keep its graph and result for the next pass (``state.last_graph``)."""
     obs_point = window.problem.obs_point
     while True:
         active = active & ~state.dropped_points[obs_point]
-        graph, values, point_rows, pose_rows = _build_graph(window, state, active, robust, config)
-        if graph.size() == 0:
+        last, state.last_graph = state.last_graph, None  # a retry builds its graph anew
+        graph, values, point_rows, pose_rows, rows, equality = _build_graph(window, state, active, robust, config, last)
+        if len(rows) == 0:
             return
         try:
             ordering = _landmarks_first(window, point_rows, pose_rows) if config.ordering == "landmarks_first" else None
@@ -240,6 +260,8 @@ def _run_pass(
         state.iterations += int(optimizer.iterations())
         state.passes += 1
         _read_back(result, window, state, point_rows, pose_rows[~window.problem.fixed[pose_rows]])
+        if keep_graph:
+            state.last_graph = _PassGraph(graph, result, rows, pose_rows, point_rows, equality, robust)
         return
 
 
@@ -295,10 +317,33 @@ def _constrained_points(window: _Window, active: np.ndarray) -> np.ndarray:
     return (stereo_count > 0) | (view_count >= 2)
 
 
-def _build_graph(window: _Window, state: _State, active: np.ndarray, robust: bool, config: LocalBAConfig):
-    """The factor graph and initial values of one pass, its point rows (in key order) and pose rows."""
+def _build_graph(
+    window: _Window, state: _State, active: np.ndarray, robust: bool, config: LocalBAConfig, last: _PassGraph | None = None
+):
+    """The factor graph and initial values of one pass, its point rows (in key order), pose rows,
+    observation rows (in factor order) and the fixed poses' equality factor indices. With ``last``
+    (the previous pass's graph, on the same factors) holding every row of this pass, that graph
+    less the other rows' factors, and its result less the variables left without a factor: the
+    same factors in the same order (gtsam skips removed ones), at the same values."""
     p = window.problem
     rows = np.flatnonzero(active & _constrained_points(window, active)[p.obs_point])
+    pose_rows = np.unique(p.obs_keyframe[rows])
+    point_rows = np.unique(p.obs_point[rows])
+    # extractPoint3 returns points in key order; keep the rows in that order to read them back.
+    point_rows = point_rows[np.argsort(window.point_keys[point_rows], kind="stable")]
+    if last is not None and last.robust == robust and np.isin(rows, last.rows).all():
+        graph, values = last.graph, last.values
+        for index in np.flatnonzero(~np.isin(last.rows, rows)).tolist():
+            graph.remove(index)
+        for k in np.setdiff1d(last.pose_rows, pose_rows).tolist():
+            values.erase(window.pose_keys[k])
+            if k in last.equality_index:
+                graph.remove(last.equality_index[k])
+        for key in window.point_keys[np.setdiff1d(last.point_rows, point_rows)].tolist():
+            values.erase(key)
+        kept = set(pose_rows.tolist())
+        equality = {k: i for k, i in last.equality_index.items() if k in kept}
+        return graph, values, point_rows, pose_rows, last.rows, equality
     built = state.factors[robust]
     _build_factors(window, state, rows[[r not in built for r in rows.tolist()]], robust, config)
     graph = gtsam.NonlinearFactorGraph()
@@ -306,18 +351,16 @@ def _build_graph(window: _Window, state: _State, active: np.ndarray, robust: boo
         graph.add(built[r])
     values = gtsam.Values()
     pose_keys = window.pose_keys
-    pose_rows = np.unique(p.obs_keyframe[rows])
+    equality: dict[int, int] = {}
     for k in pose_rows.tolist():
         pose = gtsam.Pose3(state.T_world_cam[k])
         values.insert(pose_keys[k], pose)
         if p.fixed[k]:
+            equality[k] = int(graph.size())
             graph.add(gtsam.NonlinearEqualityPose3(pose_keys[k], pose))
-    point_rows = np.unique(p.obs_point[rows])
-    # extractPoint3 returns points in key order; keep the rows in that order to read them back.
-    point_rows = point_rows[np.argsort(window.point_keys[point_rows], kind="stable")]
     for key, p_world in zip(window.point_keys[point_rows].tolist(), state.p_world[point_rows]):
         values.insert(key, p_world)  # a Point3 is a numpy (3,) array in gtsam's Python wrapper
-    return graph, values, point_rows, pose_rows
+    return graph, values, point_rows, pose_rows, rows, equality
 
 
 def _build_factors(window: _Window, state: _State, rows: np.ndarray, robust: bool, config: LocalBAConfig) -> None:
