@@ -342,16 +342,19 @@ def test_a_keyframe_answered_before_its_local_ba_leaves_the_map_step_leaves():
         return BackendNode(LocalMapper(new_backend_map(config), config, LocalBundleAdjuster(LocalBAConfig())))
 
     rng = np.random.default_rng(3)
-    world_a, world_b = World(), World()
-    whole, halves = node(), node()
+    world_a, world_b, world_c = World(), World(), World()
+    whole, halves, stepped = node(), node(), node()
+    stepped.answer_before_local_ba = True  # its step is begin then finish: the worker's messages
     for k in range(8):
         noise = make_T(np.eye(3), rng.normal(0.0, 0.02, 3))  # BA has something to correct
-        kf_a, kf_b = world_a.keyframe(k), world_b.keyframe(k)
-        kf_a = dataclasses.replace(kf_a, T_world_cam=noise @ kf_a.T_world_cam)
-        kf_b = dataclasses.replace(kf_b, T_world_cam=noise @ kf_b.T_world_cam)
+        kf_a, kf_b, kf_c = (w.keyframe(k) for w in (world_a, world_b, world_c))  # a World's keyframe k only once
+        kf_a, kf_b, kf_c = (dataclasses.replace(kf, T_world_cam=noise @ kf.T_world_cam) for kf in (kf_a, kf_b, kf_c))
         merged = whole.step(kf_a).updates
         answer = halves.begin(kf_b).updates
         corrections = halves.finish().updates
+        assert [codec.encode_map_update(u) for u in stepped.step(kf_c).updates] == [
+            codec.encode_map_update(u) for u in (*answer, *corrections)
+        ]
         assert len(merged) == 1 and merged[0].answers_keyframe and not merged[0].corrections_after_next_frame
         assert len(answer) == 1 and answer[0].answers_keyframe and answer[0].keyframe_id == k
         assert answer[0].corrections_following == 1 and answer[0].corrections_after_next_frame

@@ -146,8 +146,13 @@ class BackendNode:
 
         ``queued``: keyframes waiting behind this one (0 in lockstep); see ``LocalMapper.process``.
         The answer says how many corrections follow it, so a lockstep frontend applies them before
-        its next frame.
+        its next frame. With ``answer_before_local_ba`` it is ``begin`` then ``finish``: the same
+        map, in the updates the worker publishes (a replay or a rebuild from the journal sends
+        the same messages as the run did).
         """
+        if self.answer_before_local_ba:
+            answer, rest = self.begin(keyframe, queued), self.finish()
+            return StepOutput([*answer.updates, *rest.updates], rest.loops)
         self._check_first(keyframe)
         update = self.mapper.process(keyframe, queued=queued)
         self._took(keyframe)

@@ -37,7 +37,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="play a dataset or synthetic scene onto zenoh as a camera driver would (for `zenslam run zenoh:KEY`)",
         description=__doc__.split("\n\n")[1].replace("\n", " "),
     )
-    parser.add_argument("source", help="kitti:<root>/sequences/NN | euroc:<folder> | tum:<folder> | synthetic[:<scene>[/<sensor>][,laps=N]] | mcap:<run.mcap>")
+    parser.add_argument("source", help="kitti:<root>/sequences/NN | euroc:<folder> | tum:<folder> | synthetic[:<scene>[/<sensor>][,laps=N][,seed=N]] | mcap:<run.mcap>")
     target = parser.add_mutually_exclusive_group(required=True)
     target.add_argument("--key", help="key prefix, e.g. cam/kitti (images on cam/kitti/left/image, ...)")
     target.add_argument(

@@ -94,7 +94,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "source", nargs="?", default=None,
-        help="kitti:<root>/sequences/NN | euroc:<folder> | tum:<folder> | synthetic[:<scene>[/<sensor>][,laps=N]] | mcap:<run.mcap> "
+        help="kitti:<root>/sequences/NN | euroc:<folder> | tum:<folder> | synthetic[:<scene>[/<sensor>][,laps=N][,seed=N]] | mcap:<run.mcap> "
         "| zenoh:<key> (frames another program publishes, e.g. `zenslam publish`) "
         "(default: source.spec of the config, which defaults to synthetic)",
     )

@@ -33,7 +33,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "idf weights. Written as DBoW2 text when OUTPUT ends in .txt or .txt.gz, else as zenslam's .npz.",
     )
     train.add_argument("sources", nargs="+", metavar="SOURCE",
-                       help="kitti:<root>/sequences/NN | euroc:<folder> | tum:<folder> | synthetic[:<scene>[/<sensor>][,laps=N]] "
+                       help="kitti:<root>/sequences/NN | euroc:<folder> | tum:<folder> | synthetic[:<scene>[/<sensor>][,laps=N][,seed=N]] "
                        "| mcap:<run.mcap>")
     train.add_argument("--output", type=Path, required=True, help="vocabulary file to write (.npz, .txt or .txt.gz)")
     train.add_argument("--branching", type=int, default=10, metavar="K", help="children per node (default 10)")

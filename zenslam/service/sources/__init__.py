@@ -5,7 +5,7 @@ Spec strings (what ``zenslam run SOURCE`` and ``zenslam inspect SOURCE`` take):
 ``synthetic`` (the loop scene) or ``synthetic:<scene>`` with scene one of loop, figure_eight, still,
 corridor, corridor_aliased, optionally followed by ``/<sensor>`` (stereo, rgbd, mono) and by
 ``,laps=N`` (N laps of the scene's path, each as long as one of the scene's own: long runs), e.g.
-``synthetic:figure_eight/rgbd`` or ``synthetic:figure_eight,laps=20``;
+``synthetic:figure_eight/rgbd`` or ``synthetic:figure_eight,laps=20`` (or ``,seed=3``: another draw of its textures and noise);
 ``mcap:<recording>`` replays the sensor frames of a run's ``run.mcap``;
 ``zenoh:<key>`` takes the frames another program publishes under that key (sources/zenoh_family.py
 states the keys and messages): a *bus source*, opened by the source process with ``open_bus_family``,
@@ -112,8 +112,14 @@ def _open_synthetic(argument: str, sensor_choice: SensorKind | None) -> Source:
     overrides: dict[str, object] = {"sensor": sensor} if sensor else {}
     for option in options:
         key, _, value = option.partition("=")
+        if key == "seed" and value.isdigit():
+            overrides["seed"] = int(value)  # another draw of the textures and of every noise
+            continue
         if key != "laps" or not value.isdigit() or int(value) < 1:
-            raise SourceSpecError(f"synthetic option {option!r} not understood: the one option is laps=N, N a whole number of laps >= 1")
+            raise SourceSpecError(
+                f"synthetic option {option!r} not understood: the options are laps=N (a whole number of laps >= 1) "
+                "and seed=N (a whole number)"
+            )
         preset = scene_config(scene)
         if preset.trajectory not in ("loop", "figure_eight", "corridor"):
             raise SourceSpecError(f"synthetic scene {scene!r} has no laps (a still camera): laps=N applies to a path")
