@@ -171,7 +171,10 @@ def _mode(r: dict) -> str:
 
 
 def print_run(r: dict) -> None:
-    span = f"{r['stream_span_s']:.2f} s ({r['stream_span_over_real_time']:.2f}x real time)" if r["stream_span_s"] else "n/a"
+    span = (
+        f"{r['stream_span_s']:.2f} s ({r['stream_span_over_real_time']:.2f} of the real time: "
+        f"{1.0 / r['stream_span_over_real_time']:.2f}x real time)" if r["stream_span_s"] else "n/a"
+    )
     mode = _mode(r)
     print(
         f"{r['name']} {mode}: real time {r['real_time_s']:.2f} s, command {r['command_wall_s']:.2f} s, stream {span}; "
