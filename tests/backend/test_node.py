@@ -282,16 +282,25 @@ def test_serve_stopped_early_still_ends_the_stream():
         updates.close()
 
 
-def test_a_restarted_backend_rebuilds_its_map_from_the_journal_and_answers_what_was_not_answered(tmp_path):
+@pytest.mark.parametrize("answer_before_local_ba", [False, True])
+def test_a_restarted_backend_rebuilds_its_map_from_the_journal_and_answers_what_was_not_answered(tmp_path, answer_before_local_ba):
     """The journal a backend leaves when it dies while mapping keyframe 5 (keyframes 0-4 answered):
     a restarted backend rebuilds the same map, publishes keyframe 5's answer (the one the dead one
     would have published), ignores keyframe 5 sent again by the frontend, and maps keyframe 6 as the
-    unharmed backend would."""
+    unharmed backend would. Answered before local BA, each keyframe's answer and correction are
+    published again the same way (the correction is what a frontend waiting after the answer needs)."""
     session_name = "backend-restart-test"
     world = World()
     messages = [codec.encode_keyframe(world.keyframe(k)) for k in range(7)]
-    unharmed = _node()
+
+    def node() -> BackendNode:
+        made = _node()
+        made.answer_before_local_ba = answer_before_local_ba
+        return made
+
+    unharmed = node()
     expected = [unharmed.step(codec.decode_keyframe(m)) for m in messages]
+    assert len(expected[5].updates) == (2 if answer_before_local_ba else 1)
     journal = tmp_path / "backend.journal"
     with JournalWriter(journal) as writer:
         for k, message in enumerate(messages[:6]):
@@ -302,7 +311,7 @@ def test_a_restarted_backend_rebuilds_its_map_from_the_journal_and_answers_what_
     with bus.open_session(bus.BusConfig(listen=(hub_endpoint,))) as hub, bus.open_session(bus.BusConfig(connect=(hub_endpoint,))) as peer:
         updates = bus.subscribe(hub, keys.backend_map_update(session_name), lambda b: b, "lossless", 64)
         publisher = bus.declare_publisher(hub, keys.frontend_keyframe(session_name), codec.KEYFRAME, "lossless")
-        restarted, stop, result = _node(), threading.Event(), {}
+        restarted, stop, result = node(), threading.Event(), {}
         worker = threading.Thread(
             target=lambda: result.setdefault("ended", serve(peer, session_name, restarted, BackendConfig(linger_s=0.0), stop.is_set, journal, rebuild=True))
         )
@@ -312,16 +321,16 @@ def test_a_restarted_backend_rebuilds_its_map_from_the_journal_and_answers_what_
             assert bus.wait_for_subscribers(publisher, timeout_s=10.0)
             for message in (messages[5], messages[6], codec.encode_end_of_stream(codec.KEYFRAME, 7)):
                 publisher.put(message)
-            received = [updates.get(timeout_s=20.0) for _ in range(3)]
+            published = [*expected[5].updates, *expected[6].updates]
+            received = [updates.get(timeout_s=20.0) for _ in range(len(published) + 1)]
             worker.join(timeout=20.0)
         finally:
             stop.set()
             worker.join(timeout=10.0)
         updates.close()
     assert result["ended"] is True
-    assert received[0] == codec.encode_map_update(expected[5].updates[0])
-    assert received[1] == codec.encode_map_update(expected[6].updates[0])
-    assert codec.decode_map_update(received[2]) == codec.EndOfStream(7)
+    assert received[:-1] == [codec.encode_map_update(update) for update in published]
+    assert codec.decode_map_update(received[-1]) == codec.EndOfStream(7)
     assert restarted.processed == unharmed.processed == 7
     unharmed.finished = True  # as serve marks it at the end of stream
     assert codec.encode_map_snapshot(restarted.snapshot()) == codec.encode_map_snapshot(unharmed.snapshot())
