@@ -75,7 +75,7 @@ def _open_dataset(spec: str, kind: str, argument: str) -> Source:
     if kind not in SOURCE_KINDS:
         raise SourceSpecError(
             f"unknown source {spec!r}: use one of kitti:<root>/sequences/NN, euroc:<folder>, tum:<folder>, "
-            "synthetic[:<scene>[/<sensor>][,laps=N]], mcap:<run.mcap>, zenoh:<key>"
+            "synthetic[:<scene>[/<sensor>][,laps=N][,seed=N]], mcap:<run.mcap>, zenoh:<key>"
         )
     if not argument:
         raise SourceSpecError(f"source {spec!r} needs a path after '{kind}:', e.g. {kind}:/data/{kind}/sequence")

@@ -20,7 +20,7 @@ DEFAULT_BUS_INPUT = "tcp/127.0.0.1:7447"
 class SourceConfig:
     """What the source process plays and how (the ``source`` section)."""
 
-    spec: str = "synthetic"  # kitti:<root>/sequences/NN | euroc:<folder> | tum:<folder> | synthetic[:<scene>[/<sensor>][,laps=N]] | zenoh:<key>
+    spec: str = "synthetic"  # kitti:<root>/sequences/NN | euroc:<folder> | tum:<folder> | synthetic[:<scene>[/<sensor>][,laps=N][,seed=N]] | zenoh:<key>
     # Play the source as this sensor (None: its own): mono runs a stereo or RGB-D dataset on its left
     # images; a synthetic scene renders any of mono, stereo, rgbd (``zenslam run --sensor``).
     sensor: SensorKind | None = None
