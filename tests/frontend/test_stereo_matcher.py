@@ -105,6 +105,19 @@ def test_min_depth_limits_the_disparity_search(extracted) -> None:
     assert np.mean(np.abs(disparity - DISPARITY_TOP_PX) < 1.0) > 0.95
 
 
+def test_a_disparity_offset_is_added_to_every_disparity(extracted, matched) -> None:
+    """``disparity_offset_px`` (Middlebury's doffs) shifts each matched right u by -offset, so the
+    disparity grows by it and the depth is bf over the corrected disparity; the matches are the same."""
+    f_left, p_left, f_right, p_right, _ = extracted
+    _, _, plain, _ = matched
+    shifted = match_stereo(f_left, f_right, p_left, p_right, CALIBRATION, StereoMatchConfig(disparity_offset_px=0.25))
+    ok = plain.depth_m > 0
+    np.testing.assert_array_equal(shifted.depth_m > 0, ok)
+    np.testing.assert_allclose(shifted.right_u[ok], plain.right_u[ok] - 0.25, atol=1e-4)
+    disparity = f_left.px[ok, 0] - shifted.right_u[ok]
+    np.testing.assert_allclose(shifted.depth_m[ok], CALIBRATION.bf / disparity, rtol=1e-4)
+
+
 def test_no_right_keypoints_gives_no_matches(matched) -> None:
     features, features_right, _, _ = matched
     pyramid = [np.zeros((480, 640), np.uint8)] * 8
@@ -120,6 +133,8 @@ def test_mono_calibration_and_bad_config_are_rejected(matched) -> None:
         match_stereo(features, features_right, [], [], mono)
     with pytest.raises(ConfigError, match="max_descriptor_distance"):
         StereoMatchConfig(max_descriptor_distance=0)
+    with pytest.raises(ConfigError, match="disparity_offset_px"):
+        StereoMatchConfig(disparity_offset_px=float("nan"))
 
 
 def _kitti_pair(kitti_root: Path, index: int) -> tuple[np.ndarray, np.ndarray]:

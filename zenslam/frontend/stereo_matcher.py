@@ -28,6 +28,9 @@ class StereoMatchConfig:
     sad_search_px: int = 5  # level pixels: the SAD window slides +-this around the ORB match
     max_subpixel_correction_px: float = 1.0  # level pixels: reject a parabola fit moving the minimum further
     outlier_sad_factor: float = 2.1  # reject matches whose SAD exceeds this times the median SAD (1.5 * 1.4)
+    # Added to every measured disparity, level-0 px (Middlebury's doffs): a principal-point offset
+    # between the rectified images that the calibration does not state. 0: the images as given.
+    disparity_offset_px: float = 0.0
 
     def __post_init__(self) -> None:
         problems = []
@@ -47,6 +50,8 @@ class StereoMatchConfig:
             problems.append(f"max_subpixel_correction_px={self.max_subpixel_correction_px} must be > 0")
         if not self.outlier_sad_factor > 0:
             problems.append(f"outlier_sad_factor={self.outlier_sad_factor} must be > 0")
+        if not math.isfinite(self.disparity_offset_px):
+            problems.append(f"disparity_offset_px={self.disparity_offset_px} must be a finite number of pixels")
         if problems:
             raise ConfigError("invalid StereoMatchConfig: " + "; ".join(problems))
 
@@ -103,6 +108,7 @@ def match_stereo(
     max_disparity = bf / min_depth
     i_left, i_right = _best_descriptor_matches(left, right, left_pyramid[0].shape[0], max_disparity, config)
     u_right, sad = _refine_by_sad(left, right, i_left, i_right, left_pyramid, right_pyramid, config)
+    u_right = u_right - config.disparity_offset_px  # the right u the offset's disparity implies
     disparity = left.px[i_left, 0].astype(np.float64) - u_right
     valid = np.isfinite(u_right) & (disparity >= 0) & (disparity < max_disparity)
     i_left, i_right, u_right, sad, disparity = (a[valid] for a in (i_left, i_right, u_right, sad, disparity))
