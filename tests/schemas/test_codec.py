@@ -362,6 +362,9 @@ def test_map_update_carries_the_corrections_that_follow_it():
     update = codec.decode_map_update(codec.encode_map_update(MapUpdate(keyframe_id=5, stamp_ns=9, corrections_following=1)))
     assert update.corrections_following == 1 and update.answers_keyframe
     assert codec.decode_map_update(codec.encode_map_update(MapUpdate(keyframe_id=5, stamp_ns=9))).corrections_following == 0
+    early = codec.decode_map_update(codec.encode_map_update(MapUpdate(keyframe_id=5, stamp_ns=9, corrections_following=1, corrections_after_next_frame=True)))
+    assert early.corrections_after_next_frame and early.corrections_following == 1
+    assert not codec.decode_map_update(codec.encode_map_update(MapUpdate(keyframe_id=5, stamp_ns=9))).corrections_after_next_frame
 
 
 def test_keyframe_trajectory_round_trips_its_culled_keyframes():
