@@ -42,7 +42,7 @@ class BackendConfig:
     # Publish each keyframe's answer (its insertion, new points and fusion) before its local BA, and
     # the BA's changes after it as a correction: a lockstep frontend tracks the next frame on the
     # answer while the BA runs, and applies the correction before the frame after (a lag of one
-    # frame, the same in every run). Faster (KITTI 06 clip: 1.11x real time against 0.81-0.90x),
+    # frame, the same in every run). Faster (KITTI 06 clip: 0.97-1.13x real time against 0.78-0.90x),
     # as accurate over eight draws of the synthetic rooms, but their default draws track 13-41%
     # worse: measured in benchmarks/README.md, "Local mapping".
     answer_before_local_ba: bool = False
