@@ -34,6 +34,8 @@ def _keyframe(index: int, stamp_ns: int, n: int = 5) -> SimpleNamespace:
 class StubPipeline:
     """Tracks every frame: a keyframe on even frames, lost on every frame whose index ends in 7."""
 
+    may_ask_backend = False  # a lost stub frame asks nobody
+
     def __init__(self, calibration: PinholeCalibration, sensor: str):
         self.calibration, self.sensor, self.seen, self.in_flight = calibration, sensor, [], []
         self.prepared, self.used_prepared = [], []
@@ -363,3 +365,66 @@ def test_an_answer_before_local_ba_lets_one_frame_be_tracked_before_its_correcti
         ("frame", 2, 0), ("keyframe", 1), ("correction", 1), ("frame", 3, 0),
         ("frame", 4, 0), ("keyframe", 2), ("correction", 2),
     ]
+
+
+class _LaggedStub(_LoggedStub):
+    """``_LoggedStub`` that may ask the backend where it is after a lost frame (as the tracker does)."""
+
+    def __init__(self, calibration: PinholeCalibration, sensor: str):
+        super().__init__(calibration, sensor)
+        self.may_ask_backend = False
+
+    def step(self, index, *args, **kwargs):
+        out = super().step(index, *args, **kwargs)
+        self.may_ask_backend = out.state == "lost"
+        return out
+
+
+def test_lockstep_lag_frames_apply_each_answer_at_its_frame_whatever_its_arrival():
+    """``frontend.lockstep_lag_frames: 3``: a keyframe made at frame f is answered before frame f + 3,
+    not before, even when its answer is already in the inbox, and not later; a frame after a lost
+    one (it may ask the backend where it is) first applies every answer to come, as does the end."""
+    from zenslam.frontend.config import FrontendConfig
+    from zenslam.schemas.map_update import MapUpdate
+
+    session_name, log = "lag-frames", []
+    _LaggedStub.log = log
+    with bus.open_session(bus.BusConfig()) as session:
+        frames = bus.declare_publisher(session, keys.sensor_frame(session_name), codec.SENSOR_FRAME, "lossless")
+        updates = bus.declare_publisher(session, keys.backend_map_update(session_name), codec.MAP_UPDATE, "lossless")
+        keyframes = bus.subscribe(session, keys.frontend_keyframe(session_name), codec.decode_keyframe, "lossless", 64)
+        result = {}
+        config = FrontendConfig(update_timeout_s=30.0, lockstep_lag_frames=3)
+        frontend = threading.Thread(target=lambda: result.setdefault(
+            "ended", serve(session, session_name, FrontendNode(_LaggedStub), "lockstep", bus.BusConfig(), lambda: False, map_updates=config)))
+        frontend.start()
+        assert bus.wait_for_alive(session, session_name, ["frontend"], timeout_s=10.0) == set()
+        sent = _frames(10)
+        frames.put(codec.encode_sensor_frame(sent[0], CAL, "stereo"))
+        assert keyframes.get(timeout_s=10.0).id == 0
+        # Keyframe 0's answer reaches the frontend before frames 1 and 2: it still waits for frame 3.
+        updates.put(codec.encode_map_update(MapUpdate(keyframe_id=0, stamp_ns=0)))
+        for frame in sent[1:]:
+            frames.put(codec.encode_sensor_frame(frame, CAL, "stereo"))
+        frames.put(codec.encode_end_of_stream(codec.SENSOR_FRAME, len(sent)))
+        for keyframe_id in range(1, 5):  # made at frames 2, 4, 6 and 8; answered as soon as they come
+            assert keyframes.get(timeout_s=10.0).id == keyframe_id
+            updates.put(codec.encode_map_update(MapUpdate(keyframe_id=keyframe_id, stamp_ns=0)))
+        frontend.join(timeout=10.0)
+        assert not frontend.is_alive() and result["ended"] is True
+        keyframes.close()
+    assert log == [
+        ("frame", 0, 0), ("frame", 1, 1), ("frame", 2, 1), ("keyframe", 0),
+        ("frame", 3, 1), ("frame", 4, 1), ("keyframe", 1),
+        ("frame", 5, 1), ("frame", 6, 1), ("keyframe", 2),
+        ("frame", 7, 1), ("keyframe", 3),  # frame 7 is lost: frame 8 may ask the backend, so first every answer
+        ("frame", 8, 0), ("frame", 9, 1), ("keyframe", 4),
+    ]
+
+
+def test_a_lockstep_lag_below_one_frame_is_refused():
+    from zenslam.errors import ConfigError
+    from zenslam.frontend.config import FrontendConfig
+
+    with pytest.raises(ConfigError, match="lockstep_lag_frames=0"):
+        FrontendConfig(lockstep_lag_frames=0)

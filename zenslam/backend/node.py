@@ -421,10 +421,12 @@ def serve(
     should_stop: Callable[[], bool],
     journal: Path | None = None,
     rebuild: bool = False,
+    lockstep: bool = False,
 ) -> bool:
     """Process keyframes until the end of stream (True) or ``should_stop()`` (False); the map-update
     stream is ended either way. After the end of stream, answer queries until ``config.linger_s``
-    seconds have passed or ``should_stop()``.
+    seconds have passed or ``should_stop()``. ``lockstep``: keyframes waiting in the inbox never
+    defer local mapping (``LocalMapper.process``), so the map does not depend on timing.
 
     ``journal``: the file every accepted keyframe is appended to before it is mapped (``journal``
     module); with ``rebuild`` (a restarted backend) the map is first rebuilt from it, and the answers
@@ -443,7 +445,7 @@ def serve(
     try:
         with bus.declare_alive(session, session_name, STAGE):
             rebuilt_upto = _rebuild(outputs, node, entries, writer, should_stop) if rebuild else None
-            ended = _process(outputs, inbox, queryables, node, should_stop, writer, rebuilt_upto)
+            ended = _process(outputs, inbox, queryables, node, should_stop, writer, rebuilt_upto, lockstep)
             _save_map(outputs, node, config, finish_global_ba=ended, journal=writer)  # stopped: the map as far as it got
             if ended:
                 _end_stream(outputs, node)
@@ -510,7 +512,7 @@ def _rebuild(
 
 def _process(
     outputs: _Outputs, inbox: bus.Inbox, queryables: _Queryables, node: BackendNode, should_stop,
-    journal: JournalWriter | None = None, rebuilt_upto: int | None = None,
+    journal: JournalWriter | None = None, rebuilt_upto: int | None = None, lockstep: bool = False,
 ) -> bool:
     """The worker loop: answer queries, take a keyframe, map it, publish; True at the end of stream.
     ``rebuilt_upto``: a restarted backend's newest keyframe from the journal; the frontend sends its
@@ -535,7 +537,9 @@ def _process(
         if node.processed == 0:
             log_cpu_times("at stream start")
         started = time.perf_counter()
-        queued = _newer_keyframes_waiting(inbox, int(message.id))
+        # Lockstep never defers local mapping: a backlog there depends on timing (a frontend with
+        # frontend.lockstep_lag_frames > 1 sends keyframes while one is mapped).
+        queued = 0 if lockstep else _newer_keyframes_waiting(inbox, int(message.id))
         if rebuilt_upto is not None and message.id <= rebuilt_upto:
             logger.info("keyframe %d sent again after the restart: mapped from the journal already", message.id)
             continue
@@ -640,7 +644,8 @@ def main(argv: list[str] | None = None) -> int:
         rerun_config = load_section(args.config, "rerun", rerun_log.RerunConfig)
         if config.nice:
             os.nice(config.nice)
-        node = BackendNode.from_config(config, global_ba_in_background=load_mode(args.config) != "lockstep")
+        lockstep = load_mode(args.config) == "lockstep"
+        node = BackendNode.from_config(config, global_ba_in_background=not lockstep)
         if stopped_before_joining(stop):
             return 0
 
@@ -659,7 +664,7 @@ def main(argv: list[str] | None = None) -> int:
                 if bus.wait_for_alive(session, args.session, ["frontend"], bus_config.start_timeout_s, stop.keep_going):
                     logger.warning("restart %d: no frontend within %.0f s; mapping on without it", args.restart, bus_config.start_timeout_s)
             try:
-                serve(session, args.session, node, config, stop, journal=journal, rebuild=args.restart > 0)
+                serve(session, args.session, node, config, stop, journal=journal, rebuild=args.restart > 0, lockstep=lockstep)
             finally:
                 node.close()
             if node.rerun is not None:

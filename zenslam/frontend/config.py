@@ -27,6 +27,13 @@ class FrontendConfig:
     # Map updates the frontend's inbox holds before the backend's send blocks (lossless: never dropped).
     map_update_queue: int = 256  # map updates
     update_timeout_s: float = 300.0  # lockstep: seconds the frontend waits for the backend's update of one keyframe
+    # Lockstep: the map updates of a keyframe made at frame n are applied before frame n + this
+    # (1: before the next frame, the backend idle while tracking runs). With more, tracking goes on
+    # for that many frames beside local mapping, as ORB-SLAM's tracking thread does beside its
+    # local-mapping thread; where each update is applied is still fixed by the frame count, not
+    # by time, so the run stays deterministic. Frames that may ask the backend for relocalisation
+    # candidates (tracking lost, a run entering or localising in a saved map) wait for every update.
+    lockstep_lag_frames: int = 1
     # The bag-of-words vocabulary a lost frame is relocalised with: a file (zenslam's format or DBoW2's
     # ORBvoc.txt), None for the one shipped with zenslam. Loaded at start when relocalisation is on.
     vocabulary: str | None = None
@@ -37,6 +44,8 @@ class FrontendConfig:
     def __post_init__(self) -> None:
         if self.map_update_queue < 1:
             raise ConfigError(f"frontend.map_update_queue={self.map_update_queue} must be at least 1 message")
+        if self.lockstep_lag_frames < 1:
+            raise ConfigError(f"frontend.lockstep_lag_frames={self.lockstep_lag_frames} must be at least 1 frame")
         if not self.update_timeout_s > 0:
             raise ConfigError(f"frontend.update_timeout_s={self.update_timeout_s} must be a positive number of seconds")
         if not self.relocalisation_timeout_s > 0:

@@ -32,6 +32,7 @@ import argparse
 import logging
 import sys
 import time
+from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
@@ -82,6 +83,11 @@ class Pipeline(Protocol):
     ) -> Any: ...
 
     def apply_map_update(self, update: MapUpdate) -> None: ...
+
+    @property
+    def may_ask_backend(self) -> bool:
+        """Whether the next ``step`` may call its ``candidates`` (tracking lost, or in a saved map)."""
+        ...
 
 
 PipelineFactory = Callable[[PinholeCalibration, SensorKind], Pipeline]
@@ -244,6 +250,13 @@ class FrontendNode:
         return FrontendMessages(keyframe_bytes, pose_bytes, codec.encode_tracking_state(state), step_ms, keyframe_id, made_ids)
 
     @property
+    def may_ask_backend(self) -> bool:
+        """Whether tracking the next frame may ask the backend for relocalisation candidates: a
+        lockstep frontend then applies every update first, so the backend answers from a map that
+        does not depend on timing."""
+        return self._pipeline is not None and self._pipeline.may_ask_backend
+
+    @property
     def keyframes_in_flight(self) -> int:
         """Keyframes sent whose answer has not been applied (each keyframe gets one answer; a
         correction, such as a loop's, answers none). Without a backend's updates (``serve`` without
@@ -362,8 +375,13 @@ class _MapUpdates:
         # Updates announced and not applied yet: the last answer announces its keyframe's
         # local-mapping correction, which announces the loop corrections after it.
         self.due = 0
-        self.frames_since_answer = 0  # frames tracked since the last answer (lockstep)
-        self._lag_one_frame = False  # the last answer's corrections may wait for the frame after next
+        # Lockstep's schedule, in frames handled: (keyframe id, the frame before which its answer is
+        # applied), oldest first; and the frame before which the last answer's corrections are
+        # applied when it was published before its local BA (None: with the answer).
+        self.lag_frames = config.lockstep_lag_frames
+        self._answers_due: deque[tuple[int, int]] = deque()
+        self._corrections_due: int | None = None
+        self._lag_one_frame = False  # the last answer's corrections may wait for the frame after the one it is applied before
         self._resend_due: float | None = None  # after a backend restart: when to send the unanswered again
         self._resend = resend
         self._backend = bus.Comebacks(session, session_name, "backend")
@@ -371,6 +389,31 @@ class _MapUpdates:
     def sent(self, messages: FrontendMessages) -> None:
         """Note the keyframes just sent: each waits for its answer."""
         self.unanswered.update(zip(messages.keyframe_ids, messages.keyframes, strict=True))
+
+    def schedule(self, messages: FrontendMessages, frames_handled: int) -> None:
+        """Lockstep: the keyframes just sent, made at the frame that brought the count of frames
+        handled to ``frames_handled``, are answered before frame ``frames_handled - 1 + lag_frames``."""
+        for keyframe_id in messages.keyframe_ids:
+            self._answers_due.append((keyframe_id, frames_handled - 1 + self.lag_frames))
+
+    def waits_before(self, frame: int, drain: bool) -> bool:
+        """Lockstep: whether updates are due before tracking frame ``frame`` (counted in frames
+        handled); with ``drain``, whether any is still to come."""
+        corrections = self.due > 0 and (drain or (self._corrections_due is not None and self._corrections_due <= frame))
+        return corrections or bool(self._answers_due and (drain or self._answers_due[0][1] <= frame))
+
+    def apply_due(self, node: FrontendNode, frame: int, drain: bool, should_stop: Callable[[], bool]) -> None:
+        """Lockstep: apply the updates due before frame ``frame`` (every update to come with
+        ``drain``), in the order the backend published them. An answer published before its local BA
+        (``corrections_after_next_frame``) leaves its corrections for the frame after."""
+        if self.due > 0 and (drain or (self._corrections_due is not None and self._corrections_due <= frame)):
+            self.wait_for_corrections(node, should_stop)
+        while self._answers_due and (drain or self._answers_due[0][1] <= frame) and not should_stop():
+            keyframe_id, _ = self._answers_due.popleft()
+            self._wait(node, lambda: self._last_answered >= keyframe_id, f"keyframe {keyframe_id}", should_stop)
+            self._corrections_due = frame + 1 if self._lag_one_frame and not drain else None
+            if self._corrections_due is None:
+                self.wait_for_corrections(node, should_stop)
 
     def resend_to_a_restarted_backend(self) -> None:
         """When the backend came back since the last call, send it every unanswered keyframe again,
@@ -407,15 +450,6 @@ class _MapUpdates:
         self.resend_to_a_restarted_backend()
         while not self.ended and (update := self.inbox.get(timeout_s=0)) is not None:
             self._apply(node, update)
-
-    def wait_for_answer(self, node: FrontendNode, keyframe_id: int, should_stop: Callable[[], bool]) -> None:
-        """Lockstep: apply updates until the answer to ``keyframe_id`` and the corrections it
-        announces; those of an answer published before its local BA (``corrections_after_next_frame``)
-        stay ``due``, for ``wait_for_corrections`` before the frame after the next."""
-        self._wait(node, lambda: self._last_answered >= keyframe_id, f"keyframe {keyframe_id}", should_stop)
-        self.frames_since_answer = 0
-        if not self._lag_one_frame:
-            self.wait_for_corrections(node, should_stop)
 
     def wait_for_corrections(self, node: FrontendNode, should_stop: Callable[[], bool]) -> None:
         """Lockstep: apply updates until the last answer's corrections (``due``) have all been applied."""
@@ -498,10 +532,8 @@ def serve(
     ended = False
     try:
         with bus.declare_alive(session, session_name, STAGE):
-            held = None  # a frame taken from the inbox early, to prepare it while waiting for the backend
             while not should_stop():
-                message = held if held is not None else frames.get(timeout_s=0.1)
-                held = None
+                message = frames.get(timeout_s=0.1)
                 if updates is not None:
                     node.backend_gone = updates.backend_gone()
                 if updates is not None and not wait_for_updates:
@@ -519,7 +551,7 @@ def serve(
                         logger.warning("dropped %d frame message(s) that did not decode and refused %d", frames.rejected, node.refused)
                     if wait_for_updates:
                         logger.info("%d of %d frames built while waiting for the backend's map update", node.built_ahead, node.frames)
-                        updates.wait_for_corrections(node, should_stop)
+                        updates.apply_due(node, node.frames, True, should_stop)
                     if updates is not None:
                         updates.wait_for_a_restarted_backend(bus_config.start_timeout_s, should_stop)
                     ended = True
@@ -532,10 +564,15 @@ def serve(
                         # waits for an answer, and the newest state (of a later frame) is one.
                         outputs.send_last_state_again()
                     continue
-                if wait_for_updates and updates.due > 0 and updates.frames_since_answer > 0:
-                    # An answer published before its local BA: the frame after the keyframe was
-                    # tracked while the backend ran the BA; this one goes on the corrected map.
-                    updates.wait_for_corrections(node, should_stop)
+                if wait_for_updates:
+                    # Lockstep: the updates due before this frame (all of them before a frame that
+                    # may ask the backend where it is), applied while this frame is built.
+                    drain = node.may_ask_backend
+                    if updates.waits_before(node.frames, drain):
+                        node.prepare_ahead(message)
+                        updates.apply_due(node, node.frames, drain, should_stop)
+                        if updates.ended:
+                            continue  # the backend was stopped while we waited: the run ends above
                 # ORB-SLAM's tracking runs beside local mapping: while the BA of an answered
                 # keyframe runs, local mapping is not idle to the keyframe decision.
                 node.local_ba_running = wait_for_updates and updates.due > 0
@@ -549,13 +586,8 @@ def serve(
                 if updates is not None:
                     updates.sent(sent)
                 node.log_last_frame()
-                if updates is not None:
-                    updates.frames_since_answer += 1
-                if wait_for_updates and sent.keyframe_id >= 0:
-                    held = frames.get(timeout_s=0)
-                    if isinstance(held, codec.FrameMessage):
-                        node.prepare_ahead(held)
-                    updates.wait_for_answer(node, sent.keyframe_id, should_stop)
+                if wait_for_updates:
+                    updates.schedule(sent, node.frames)
                 status = codec.StageStatusMessage(STAGE, "running", node.frames, sent.step_ms, frames.depth, node.skipped)
                 outputs.send_status(status)
                 logger.debug("frame %d: %.1f ms, queue %d", message.frame.index, sent.step_ms, status.queue_depth)

@@ -166,6 +166,11 @@ class FrontendPipeline:
             earlier_keyframes=result.earlier_keyframes,
         )
 
+    @property
+    def may_ask_backend(self) -> bool:
+        """Whether the next ``step`` may call its ``candidates`` (``Tracker.may_ask_backend``)."""
+        return self.tracker.may_ask_backend
+
     def apply_map_update(self, update: MapUpdate) -> None:
         """Apply the backend's map correction (replacement semantics) before the next ``step``."""
         self.tracker.apply_map_update(update)

@@ -202,6 +202,12 @@ class Tracker:
         reinit = self.config.reinit_after_lost_frames
         return bool(reinit and self._lost_streak >= reinit) and not self.config.localization
 
+    @property
+    def may_ask_backend(self) -> bool:
+        """Whether tracking the next frame may ask the backend for relocalisation candidates or a
+        tracking window: tracking is lost, or the run enters or localises in a saved map."""
+        return self._lost_streak > 0 or self.config.start_in_map or self.config.localization
+
     # ---- the per-frame entry point ----------------------------------------------------------------
     def track(self, frame: Frame, keyframes_in_flight: int = 0, candidates: CandidateSource | None = None) -> TrackResult:
         """Track one frame: its pose in the world, the inlier count, a keyframe when one is made, and
