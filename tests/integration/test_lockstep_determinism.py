@@ -26,3 +26,24 @@ def test_two_lockstep_runs_write_identical_trajectories(command_run, tracked_run
     assert metrics["keyframes"]["sent"] == metrics["keyframes"]["processed"] >= 3
     assert len((first / "keyframes.tum").read_text().splitlines()) >= 1 + 3  # header + keyframes kept
     assert {"local_ba", "triangulation", "total"} <= set(metrics["backend_timing"])
+
+
+@pytest.mark.extended  # CI runs it after the README's command
+@pytest.mark.slow(40)
+def test_a_lockstep_run_with_tracking_beside_local_mapping_replays_identically(tmp_path):
+    """``frontend.lockstep_lag_frames``: keyframe answers applied frames later, at frames fixed by
+    the stream, so a recording of such a run replays bit for bit through the whole pipeline."""
+    import subprocess
+    import sys
+
+    config = tmp_path / "lag.yaml"
+    config.write_text("frontend:\n  lockstep_lag_frames: 3\nrerun:\n  enabled: false\n")
+    run = [sys.executable, "-m", "zenslam.service.cli", "run", "synthetic", "--lockstep", "--max-frames", "30",
+           "--config", str(config), "--output", str(tmp_path), "--run-id", "lag", "--no-progress"]  # fmt: skip
+    result = subprocess.run(run, capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-3000:]
+    assert "lockstep_lag_frames: 3" in (tmp_path / "lag" / "config.yaml").read_text()
+    replay = [sys.executable, "-m", "zenslam.service.cli", "replay", str(tmp_path / "lag" / "run.mcap"),
+              "--output", str(tmp_path), "--run-id", "again", "--no-progress"]  # fmt: skip
+    result = subprocess.run(replay, capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    assert result.returncode == 0 and "identical" in result.stdout.splitlines(), result.stdout[-2000:] + result.stderr[-3000:]
