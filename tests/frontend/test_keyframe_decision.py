@@ -89,13 +89,13 @@ def test_close_point_counts() -> None:
 
 
 def test_busy_mapping_throttles_keyframes_by_queue_length() -> None:
-    """ORB-SLAM's rule: busy local mapping takes a due stereo/RGB-D keyframe only while < 3 are queued
-    (zenslam's default allows 1, measured better with its slower backend)."""
+    """ORB-SLAM's rule, zenslam's default: busy local mapping takes a due stereo/RGB-D keyframe only
+    while < 3 are queued; a smaller queue throttles sooner."""
     due = dict(frames_since_last_keyframe=1, n_inliers=100)  # weak tracking: c1c and c2 hold
-    orb_slam = dataclasses.replace(CONFIG, max_queued_keyframes=3)
+    assert KeyframeDecisionConfig().max_queued_keyframes == 3
 
     def decide(**changes) -> bool:
-        return need_new_keyframe(dataclasses.replace(STEADY, **changes), orb_slam)
+        return need_new_keyframe(dataclasses.replace(STEADY, **changes), KeyframeDecisionConfig())
 
     assert decide(**due, keyframes_in_flight=0)  # idle
     # In flight = queued + the one being mapped: 1..3 in flight leave 0..2 queued.
@@ -104,8 +104,7 @@ def test_busy_mapping_throttles_keyframes_by_queue_length() -> None:
     assert not decide(**due, keyframes_in_flight=4)  # 3 queued
     assert not decide(**due, keyframes_in_flight=9)
     assert decide(**due, sensor="rgbd", keyframes_in_flight=3)
-    config = KeyframeDecisionConfig()
-    assert config.max_queued_keyframes == 1
+    config = dataclasses.replace(KeyframeDecisionConfig(), max_queued_keyframes=1)
     assert need_new_keyframe(dataclasses.replace(STEADY, **due, keyframes_in_flight=1), config)
     assert not need_new_keyframe(dataclasses.replace(STEADY, **due, keyframes_in_flight=2), config)
 

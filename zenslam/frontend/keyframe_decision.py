@@ -24,10 +24,11 @@ class KeyframeDecisionConfig:
     untracked_close_min: int = 70  # ... and more untracked close points than this -> insert
     min_inliers: int = 15  # never make a keyframe from fewer inlier matches than this (exclusive)
     # keyframes; while local mapping is busy, stereo/RGB-D still insert a due keyframe only while
-    # fewer than this many wait in its queue; mono never does. ORB-SLAM allows 3; this backend maps
-    # a keyframe slower, so with 3 queued it defers nearly every local BA, which is what removes the
-    # stereo depths' bias; 1 measured better live on KITTI (benchmarks/README, frames from the bus).
-    max_queued_keyframes: int = 1
+    # fewer than this many wait in its queue; mono never does. ORB-SLAM's 3: where mapping falls
+    # behind tracking, fewer held back keyframes leave tracking on fewer and older points, which
+    # costs more (lost frames, runs several times less accurate) than the local BAs deferred for
+    # the queued ones (benchmarks/README, frames from the bus).
+    max_queued_keyframes: int = 3
 
 
 @dataclass(frozen=True)
