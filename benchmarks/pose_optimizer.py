@@ -4,7 +4,7 @@ Each solver runs ORB-SLAM2's schedule (4 rounds x 10 iterations, Huber in the fi
 chi-square outlier classification after each round) on synthetic stereo+mono scenes with 30%
 gross outliers, 1 px noise and an initial pose 10 cm / 5 degrees off. Variants:
 
-- ``numpy_lm``: ``zenslam.frontend.pose_optimizer.optimize_pose`` (the implementation kept).
+- ``numpy_lm``: ``zenslam.pose_optimizer.optimize_pose`` (the implementation kept).
 - ``gtsam_custom``: one Pose3 variable, one ``gtsam.CustomFactor`` per observation with analytic
   Jacobians in Python, Huber noise models, gtsam's LM (10 iterations per round).
 - ``gtsam_builtin``: C++ ``GenericProjectionFactorCal3_S2`` / ``GenericStereoFactor3D``, each map
@@ -26,7 +26,7 @@ import gtsam
 import numpy as np
 
 from zenslam.camera import PinholeCalibration
-from zenslam.frontend.pose_optimizer import PoseOptimizerConfig, optimize_pose
+from zenslam.pose_optimizer import PoseOptimizerConfig, optimize_pose
 from zenslam.geometry import invert_T, make_T, so3_exp, so3_log
 
 KITTI = PinholeCalibration(707.0912, 707.0912, 601.8873, 183.1104, 1226, 370, baseline_m=0.5372)

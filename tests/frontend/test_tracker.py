@@ -270,7 +270,7 @@ def test_localization_makes_no_keyframe_and_goes_on_by_visual_odometry() -> None
 
 def test_visual_odometry_alone_follows_the_camera() -> None:
     """``track_last_frame`` with no map point: the last frame's depth points give the motion."""
-    from zenslam.frontend.pose_optimizer import PoseOptimizerConfig
+    from zenslam.pose_optimizer import PoseOptimizerConfig
     from zenslam.frontend.visual_odometry import VisualOdometryConfig, last_frame_points, track_last_frame
 
     world = PointWorld(seed=7)
@@ -288,7 +288,7 @@ def test_visual_odometry_alone_follows_the_camera() -> None:
 def test_the_last_frames_near_points_steady_a_pose_on_few_biased_map_points() -> None:
     """``optimise_with_odometry``: 25 map points all off by 10 cm pull a map-only pose with them; with the
     odometry's VO matches added the pose stays much nearer the truth."""
-    from zenslam.frontend.pose_optimizer import PoseOptimizerConfig, optimize_pose
+    from zenslam.pose_optimizer import PoseOptimizerConfig, optimize_pose
     from zenslam.frontend.visual_odometry import VisualOdometryConfig, last_frame_points, optimise_with_odometry, track_last_frame
 
     world = PointWorld(seed=8)
@@ -355,7 +355,7 @@ def test_few_map_points_and_the_vo_points_place_the_frame() -> None:
     """A last frame left with 16 valid map points (the rest withheld): with its VO points the
     motion-model match finds the map points and places the frame within a centimetre; without them
     there are too few matches for a pose."""
-    from zenslam.frontend.pose_optimizer import PoseOptimizerConfig
+    from zenslam.pose_optimizer import PoseOptimizerConfig
     from zenslam.frontend.visual_odometry import last_frame_points, track_last_frame
 
     world = PointWorld(seed=10)

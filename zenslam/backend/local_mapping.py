@@ -22,6 +22,7 @@ import numpy as np
 
 from zenslam.backend.ba_problem import BAProblem, BAResult
 from zenslam.backend.keyframe_culling import KeyframeCullingConfig, cull_redundant_keyframes
+from zenslam.backend.keyframe_placement import PlacementConfig, placement
 from zenslam.backend.map import BackendKeyframe, BackendMap, MapChanges
 from zenslam.backend.monocular_map_start import baseline, is_monocular_map_start, rescale_about_first_keyframe
 from zenslam.backend.point_culling import PointCullingConfig, count_visibility, cull_recent_points
@@ -29,6 +30,7 @@ from zenslam.backend.point_fusion import FusionConfig, fuse_with_neighbours
 from zenslam.backend.triangulation import TriangulationConfig, create_new_points
 from zenslam.camera import PinholeCalibration
 from zenslam.errors import ConfigError
+from zenslam.geometry import transform_points
 from zenslam.schemas.codec import KeyframeMessage
 from zenslam.schemas.map_update import KeyframeCorrection, MapUpdate, MapUpdateKind
 
@@ -91,6 +93,9 @@ class LocalMappingConfig:
     # start the next BA far from its minimum. The gate is wide because a tight one also drops
     # stale-but-right associations (backend_quality --update-lag measures both).
     max_association_chi2: float = 400.0
+    # A keyframe whose fusion and local BA are deferred is first placed on the map by a pose-only
+    # optimisation (``keyframe_placement``): its BA would have moved it there.
+    placement: PlacementConfig = field(default_factory=PlacementConfig)
     point_culling: PointCullingConfig = field(default_factory=PointCullingConfig)
     triangulation: TriangulationConfig = field(default_factory=TriangulationConfig)
     fusion: FusionConfig = field(default_factory=FusionConfig)
@@ -125,6 +130,7 @@ class LocalMappingStats:
     points_removed_after_ba: int = 0  # points dropped by BA or left with too few observations
     keyframes_culled: int = 0
     deferred: int = 0  # 1 when fusion, local BA and keyframe culling waited for queued keyframes
+    placed: int = 0  # 1 when the (deferred) keyframe was placed on the map before its insertion
     ba_waited: int = 0  # 1 when local BA waited for ``ba_window.min_interval_s`` to pass
 
 
@@ -187,7 +193,7 @@ class LocalMapper:
         started = time.perf_counter()
         counts: dict[str, int] = {}
         with _timed(timings, "insertion"):
-            counts.update(self._insert(keyframe))
+            counts.update(self._insert(keyframe, place=deferred and self.config.placement.enabled))
         kf_id = int(keyframe.id)
         monocular = keyframe.sensor == "mono"
         with _timed(timings, "point_culling"):
@@ -237,8 +243,9 @@ class LocalMapper:
         return update
 
     # ---- steps ---------------------------------------------------------------------------------------
-    def _insert(self, msg: KeyframeMessage) -> dict[str, int]:
-        """Add the keyframe, its associations and its new points; count visibility of recent points."""
+    def _insert(self, msg: KeyframeMessage, place: bool = False) -> dict[str, int]:
+        """Add the keyframe, its associations and its new points; count visibility of recent points.
+        With ``place``, the keyframe and its new points are first placed on the map (``keyframe_placement``)."""
         kf = BackendKeyframe.from_message(msg)
         requested = np.asarray(msg.map_point_ids, dtype=np.int64)
         new_ids = {int(p) for p in np.asarray(msg.new_point_ids).tolist()}
@@ -256,6 +263,11 @@ class LocalMapper:
                 continue
             seen.add(live)
             kf.map_point_ids[keypoint] = live
+        new_world = np.asarray(msg.new_points_world, dtype=float).reshape(-1, 3)
+        correction = placement(self.map, kf, self.config.placement) if place else None
+        if correction is not None:
+            kf.T_world_cam = correction @ kf.T_world_cam
+            new_world = transform_points(correction, new_world)
         dropped += self._drop_far_associations(kf)
         self.map.add_keyframe(kf)
         received, rows, keypoints = [], [], []
@@ -267,12 +279,11 @@ class LocalMapper:
             received.append(int(point_id))
             rows.append(row)
             keypoints.append(keypoint)
-        new_world = np.asarray(msg.new_points_world, dtype=float).reshape(-1, 3)
         self.map.add_observed_points(received, new_world[rows], kf.id, keypoints)
         self.map.refresh_points()
         count_visibility(self.map, kf.id, self.recent_points, self.config.point_culling)
         self.recent_points.extend(received)
-        return {"associations_dropped": dropped, "points_received": len(received)}
+        return {"associations_dropped": dropped, "points_received": len(received), "placed": int(correction is not None)}
 
     def _drop_far_associations(self, kf: BackendKeyframe) -> int:
         """Unset the associations of ``kf`` (not yet in the map) to known points that reproject behind

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 from zenslam.errors import ConfigError
 from zenslam.frontend.keyframe_decision import KeyframeDecisionConfig
 from zenslam.frontend.orb_extractor import OrbConfig
-from zenslam.frontend.pose_optimizer import PoseOptimizerConfig
+from zenslam.pose_optimizer import PoseOptimizerConfig
 from zenslam.frontend.stereo_matcher import StereoMatchConfig
 from zenslam.frontend.tracker import TrackingConfig
 

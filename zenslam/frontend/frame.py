@@ -12,6 +12,7 @@ from zenslam.camera import PinholeCalibration
 from zenslam.errors import CalibrationError, ImageReadError, ZenslamError
 from zenslam.frontend.orb_extractor import Features, OrbExtractor
 from zenslam.frontend.stereo_matcher import StereoMatchConfig, match_stereo
+from zenslam.pose_optimizer import PoseOptimizerConfig, PoseResult, optimize_pose
 
 logger = logging.getLogger(__name__)
 
@@ -267,3 +268,17 @@ def _ranges(counts: np.ndarray) -> np.ndarray:
         return np.zeros(0, np.int64)
     ends = np.cumsum(counts)
     return np.arange(total, dtype=np.int64) - np.repeat(ends - counts, counts)
+
+
+def optimize_frame_pose(
+    frame: Frame, T_cam_world_init: np.ndarray, keypoints: np.ndarray, p_world: np.ndarray, config: PoseOptimizerConfig
+) -> PoseResult:
+    """``optimize_pose`` of ``frame`` from its keypoints ``keypoints`` (K,) observing the points
+    ``p_world`` (K, 3): their pixels, right-image coordinates where stereo matched, and their levels'
+    weights; inliers are over ``keypoints``."""
+    feats = frame.features
+    right = frame.right_u[keypoints].astype(float)
+    return optimize_pose(
+        T_cam_world_init, p_world, feats.px[keypoints].astype(float), np.where(right >= 0, right, np.nan),
+        feats.inv_level_sigma2[feats.level[keypoints]], frame.calibration, config,
+    )  # fmt: skip

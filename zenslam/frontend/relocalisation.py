@@ -24,12 +24,12 @@ import numpy as np
 
 from zenslam.errors import ConfigError
 from zenslam.frontend.feature_matcher import rotation_consistent, search_by_projection
-from zenslam.frontend.frame import Frame
+from zenslam.frontend.frame import Frame, optimize_frame_pose
 from zenslam.frontend.frustum import project_in_frustum
 from zenslam.frontend.keyframe import KeyFrame
 from zenslam.frontend.orb_extractor import Features
 from zenslam.frontend.pnp_ransac import PnpRansacConfig, pnp_ransac
-from zenslam.frontend.pose_optimizer import PoseOptimizerConfig, optimize_frame_pose
+from zenslam.pose_optimizer import PoseOptimizerConfig
 from zenslam.schemas.relocalisation import MapKeyframe, MapPoints, RelocalisationCandidates
 from zenslam.vocabulary.bow_matching import search_by_bow
 

@@ -38,7 +38,7 @@ import numpy as np
 from zenslam.camera import PinholeCalibration, SensorKind
 from zenslam.frontend.feature_matcher import match_by_descriptor, rotation_consistent, search_by_projection
 from zenslam.frontend.cache_eviction import CacheEviction
-from zenslam.frontend.frame import Frame
+from zenslam.frontend.frame import Frame, optimize_frame_pose
 from zenslam.frontend.keyframe import KeyFrame, select_new_point_keypoints, unproject_keypoints
 from zenslam.frontend.keyframe_decision import (
     KeyframeDecisionConfig,
@@ -51,7 +51,7 @@ from zenslam.frontend.frustum import project_in_frustum
 from zenslam.frontend.local_map import LocalMap, LocalMapConfig
 from zenslam.frontend.monocular_initialisation import InitialMap, MonocularInitialisationConfig, MonocularInitialiser
 from zenslam.frontend.motion_model import ConstantVelocityModel
-from zenslam.frontend.pose_optimizer import PoseOptimizerConfig, optimize_frame_pose
+from zenslam.pose_optimizer import PoseOptimizerConfig
 from zenslam.frontend.relocalisation import BowTransform, RelocalisationConfig, keyframes_to_restore, relocalise
 from zenslam.frontend.visual_odometry import (
     LastFrameSearch,

@@ -34,9 +34,9 @@ import numpy as np
 
 from zenslam.camera import PinholeCalibration
 from zenslam.frontend.feature_matcher import rotation_consistent, search_by_projection
-from zenslam.frontend.frame import Frame
+from zenslam.frontend.frame import Frame, optimize_frame_pose
 from zenslam.frontend.keyframe import unproject_keypoints
-from zenslam.frontend.pose_optimizer import PoseOptimizerConfig, optimize_frame_pose
+from zenslam.pose_optimizer import PoseOptimizerConfig
 from zenslam.geometry import invert_T
 
 

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-import zenslam.frontend.pose_optimizer as pose_optimizer
+import zenslam.pose_optimizer as pose_optimizer
 from zenslam.camera import PinholeCalibration
 from zenslam.errors import CalibrationError
-from zenslam.frontend.pose_optimizer import PoseOptimizerConfig, optimize_pose
+from zenslam.pose_optimizer import PoseOptimizerConfig, optimize_pose
 from zenslam.geometry import invert_T, make_T, so3_exp, so3_log
 from zenslam.config import from_mapping
 

@@ -1,5 +1,8 @@
 """Pose-only optimisation: one camera pose from fixed map points, with ORB-SLAM2's outlier rounds.
 
+Shared by the frontend (tracking, relocalisation, visual odometry: ``frontend.frame.optimize_frame_pose``)
+and the backend (placing a keyframe whose local BA waits: ``backend.keyframe_placement``).
+
 The camera pose ``T_cam_world`` maps world points into the camera frame (x right, y down,
 z forward). Observations are level-0 pixels ``(u, v)`` and, for stereo / RGB-D keypoints, the
 right-image coordinate ``u_right = u - bf / z``. This is ORB-SLAM2's ``Optimizer::PoseOptimization``
@@ -17,15 +20,10 @@ import dataclasses
 import logging
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
-
 import numpy as np
 
 from zenslam.camera import PinholeCalibration
 from zenslam.geometry import skew, so3_exp
-
-if TYPE_CHECKING:
-    from zenslam.frontend.frame import Frame
 
 logger = logging.getLogger(__name__)
 
@@ -145,20 +143,6 @@ def optimize_pose(
     n_inliers = int(active.sum())
     logger.debug("pose optimisation: %d/%d inliers after %d iterations", n_inliers, n, iterations)
     return PoseResult(T, active, n_inliers, chi2, iterations, rounds_run)
-
-
-def optimize_frame_pose(
-    frame: Frame, T_cam_world_init: np.ndarray, keypoints: np.ndarray, p_world: np.ndarray, config: PoseOptimizerConfig
-) -> PoseResult:
-    """``optimize_pose`` of ``frame`` from its keypoints ``keypoints`` (K,) observing the points
-    ``p_world`` (K, 3): their pixels, right-image coordinates where stereo matched, and their levels'
-    weights; inliers are over ``keypoints``."""
-    feats = frame.features
-    right = frame.right_u[keypoints].astype(float)
-    return optimize_pose(
-        T_cam_world_init, p_world, feats.px[keypoints].astype(float), np.where(right >= 0, right, np.nan),
-        feats.inv_level_sigma2[feats.level[keypoints]], frame.calibration, config,
-    )  # fmt: skip
 
 
 def _check_shapes(T, p_world, obs_px, obs_right_u, inv_sigma2):
