@@ -530,7 +530,11 @@ def _process(
         if isinstance(message, codec.EndOfStream):
             if message.count != node.processed:
                 logger.warning("the frontend sent %d keyframes but %d were processed", message.count, node.processed)
-            logger.info("end of stream: %d keyframes processed", node.processed)
+            totals = node.mapper.totals
+            logger.info(
+                "end of stream: %d keyframes processed; local mapping deferred fusion and BA on %d (keyframes "
+                "queued behind them), placing %d on the map", node.processed, totals["deferred"], totals["placed"],
+            )  # fmt: skip
             if inbox.rejected or node.refused:
                 logger.warning("dropped %d keyframe message(s) that did not decode and refused %d", inbox.rejected, node.refused)
             return True
