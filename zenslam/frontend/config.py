@@ -8,9 +8,9 @@ from dataclasses import dataclass, field
 from zenslam.errors import ConfigError
 from zenslam.frontend.keyframe_decision import KeyframeDecisionConfig
 from zenslam.frontend.orb_extractor import OrbConfig
-from zenslam.pose_optimizer import PoseOptimizerConfig
 from zenslam.frontend.stereo_matcher import StereoMatchConfig
 from zenslam.frontend.tracker import TrackingConfig
+from zenslam.pose_optimizer import PoseOptimizerConfig
 
 
 @dataclass(frozen=True)
@@ -31,7 +31,9 @@ class FrontendConfig:
     # (1: before the next frame, the backend idle while tracking runs). With more, tracking goes on
     # for that many frames beside local mapping, as ORB-SLAM's tracking thread does beside its
     # local-mapping thread; where each update is applied is still fixed by the frame count, not
-    # by time, so the run stays deterministic. Frames that may ask the backend for relocalisation
+    # by time, so the run stays deterministic. Local mapping counts as busy meanwhile, so fewer
+    # keyframes are made: faster, and less accurate where the map's accuracy comes from its
+    # keyframes (README, Configuration). Frames that may ask the backend for relocalisation
     # candidates (tracking lost, a run entering or localising in a saved map) wait for every update.
     lockstep_lag_frames: int = 1
     # The bag-of-words vocabulary a lost frame is relocalised with: a file (zenslam's format or DBoW2's
