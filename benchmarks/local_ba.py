@@ -33,6 +33,12 @@ Variants:
 
 Run: ``.venv/bin/python benchmarks/local_ba.py`` (writes benchmarks/results/local_ba.json);
 ``--quick`` runs one repeat of the smallest windows.
+
+``--stages`` instead times what one Levenberg-Marquardt iteration of the default solver is made
+of, on the cold windows (CPU time, medians over repeats): building the robust pass's graph,
+linearising it, eliminating the landmarks (the Schur complement onto the poses), eliminating the
+poses, and evaluating the nonlinear error; with the cost per landmark and per observation, and the
+whole default solve with its iteration count for scale (writes benchmarks/results/local_ba_stages.json).
 """
 
 from __future__ import annotations
@@ -51,13 +57,14 @@ import gtsam
 import numpy as np
 
 from zenslam.backend import gtsam_keys
-from zenslam.backend.local_ba import BAProblem, LocalBAConfig, LocalBundleAdjuster
+from zenslam.backend.local_ba import BAProblem, LocalBAConfig, LocalBundleAdjuster, first_pass_graph
 from zenslam.camera import PinholeCalibration
 from zenslam.geometry import make_T, so3_exp, so3_log
 
 KITTI = PinholeCalibration(707.0912, 707.0912, 601.8873, 183.1104, 1226, 370, baseline_m=0.5372)
 ROOM = PinholeCalibration(460.0, 460.0, 320.0, 240.0, 640, 480, baseline_m=0.10)
 RESULTS = Path(__file__).resolve().parent / "results" / "local_ba.json"
+STAGES = RESULTS.with_name("local_ba_stages.json")
 
 
 @dataclass(frozen=True)
@@ -323,6 +330,43 @@ def _isam2_factor(problem, row, is_stereo, point_key, cal_mono, cal_stereo):
     return gtsam.GenericProjectionFactorCal3_S2(np.array([u, v]), noise, x, point_key, cal_mono)
 
 
+def solver_stages(problem: BAProblem, config: LocalBAConfig) -> dict:
+    """CPU milliseconds of the stages of one linear solve of the robust pass's graph, and of the whole
+    solve with ``config`` (``LocalBundleAdjuster.optimize``) with its iteration count."""
+
+    def timed(run):
+        start = time.process_time()
+        out = run()
+        return out, 1e3 * (time.process_time() - start)
+
+    (graph, values, ordering), build_ms = timed(lambda: first_pass_graph(problem, config))
+    linear, linearize_ms = timed(lambda: graph.linearize(values))
+    landmark_keys = set(gtsam_keys.landmark_keys(problem.point_ids))
+    keys = [ordering.at(i) for i in range(ordering.size())]
+    landmarks, poses = gtsam.Ordering(), gtsam.Ordering()
+    for key in keys:
+        (landmarks if key in landmark_keys else poses).push_back(key)
+    n_landmarks = sum(key in landmark_keys for key in keys)
+    (_, on_poses), landmarks_ms = timed(lambda: linear.eliminatePartialSequential(landmarks))
+    _, poses_ms = timed(lambda: on_poses.eliminateSequential(poses))
+    _, error_ms = timed(lambda: graph.error(values))
+    result, solve_ms = timed(lambda: LocalBundleAdjuster(config).optimize(problem))
+    n_observations = int(graph.size()) - int(problem.fixed.sum())
+    return {
+        "build_ms": build_ms,
+        "linearize_ms": linearize_ms,
+        "eliminate_landmarks_ms": landmarks_ms,
+        "eliminate_poses_ms": poses_ms,
+        "error_ms": error_ms,
+        "landmarks": n_landmarks,
+        "observation_factors": n_observations,
+        "eliminate_us_per_landmark": 1e3 * landmarks_ms / max(n_landmarks, 1),
+        "linearize_us_per_observation": 1e3 * linearize_ms / max(n_observations, 1),
+        "solve_ms": solve_ms,
+        "solve_iterations": result.stats["iterations"],
+    }
+
+
 def summarise(runs: list[dict]) -> dict:
     """Median of every figure over the repeats that did not fail, and the number that failed."""
     ok = [r for r in runs if not r.get("failed")]
@@ -331,13 +375,41 @@ def summarise(runs: list[dict]) -> dict:
     return out
 
 
+def write_stages(specs: list[WindowSpec], repeats: int) -> None:
+    """Print and write the solver's stages on each spec's cold windows (``--stages``)."""
+    results: dict = {
+        "machine": {"python": platform.python_version(), "processor": platform.machine(), "load_avg_at_start": os.getloadavg()},
+        "units": "CPU milliseconds (microseconds where named); medians over repeats",
+        "windows": {},
+    }
+    for spec in specs:
+        runs = [solver_stages(make_window(spec, seed).problem, LocalBAConfig()) for seed in range(repeats)]
+        entry = summarise(runs)
+        results["windows"][spec.name] = entry
+        print(
+            f"{spec.name}: {entry['landmarks']:.0f} landmarks, {entry['observation_factors']:.0f} observations; per solve: "
+            f"build {entry['build_ms']:.1f} ms, linearize {entry['linearize_ms']:.1f}, "
+            f"landmarks {entry['eliminate_landmarks_ms']:.1f} ({entry['eliminate_us_per_landmark']:.1f} us each), "
+            f"poses {entry['eliminate_poses_ms']:.1f}, error {entry['error_ms']:.1f}; "
+            f"whole default solve {entry['solve_ms']:.1f} ms in {entry['solve_iterations']:.0f} iterations",
+            flush=True,
+        )
+    STAGES.parent.mkdir(parents=True, exist_ok=True)
+    STAGES.write_text(json.dumps(results, indent=2) + "\n")
+    print(f"wrote {STAGES}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--quick", action="store_true", help="one repeat of the smallest windows")
+    parser.add_argument("--stages", action="store_true", help="time the stages of one solve instead (see the module doc)")
     args = parser.parse_args()
     specs = [s for s in SPECS if s.name in ("kitti_10kf", "room_10kf")] if args.quick else list(SPECS)
     repeats = 1 if args.quick else args.repeats
+    if args.stages:
+        write_stages(specs, repeats)
+        return
     variants = {
         "batch_lm": LocalBAConfig(),  # the default
         # ORB-SLAM's fixed 5 + 10 iterations with gtsam's default damping schedule.

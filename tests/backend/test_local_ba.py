@@ -368,3 +368,21 @@ def test_the_refinement_on_the_robust_passs_graph_less_its_outliers_is_the_refin
     np.testing.assert_array_equal(shrunk.p_world, rebuilt.p_world)
     np.testing.assert_array_equal(shrunk.inlier_obs, rebuilt.inlier_obs)
     assert shrunk.stats["final_error"] == rebuilt.stats["final_error"]
+
+
+def test_first_pass_graph_is_the_robust_pass_the_adjuster_starts_from():
+    """One Huber-wrapped factor per usable observation, an equality per fixed pose, every key
+    valued, landmarks ordered before poses; one linear solve of it is LM's first step."""
+    problem, _, _, _ = make_window(3, n_keyframes=4, n_points=60)
+    graph, values, ordering = local_ba.first_pass_graph(problem, LocalBAConfig())
+    n_fixed = int(problem.fixed.sum())
+    assert graph.size() == len(problem.obs_point) + n_fixed
+    keys = [ordering.at(i) for i in range(ordering.size())]
+    landmarks = {landmark_key(int(p)) for p in problem.point_ids}
+    assert set(keys) == set(values.keys()) == landmarks | {pose_key(int(k)) for k in problem.keyframe_ids}
+    assert set(keys[: len(landmarks)]) == landmarks  # then the free poses, the fixed ones last
+    assert keys[-n_fixed:] == [pose_key(int(k)) for k in problem.keyframe_ids[problem.fixed]]
+    robust = [graph.at(i).noiseModel() for i in range(len(problem.obs_point))]
+    assert all(isinstance(m, gtsam.noiseModel.Robust) for m in robust)
+    step = graph.linearize(values).optimize(ordering)
+    assert np.isfinite(step.vector()).all() and np.linalg.norm(step.vector()) > 0

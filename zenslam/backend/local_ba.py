@@ -106,6 +106,16 @@ class LocalBundleAdjuster:
         return BAResult(T_world_cam, state.p_world, active, removed, stats)
 
 
+def first_pass_graph(problem: BAProblem, config: LocalBAConfig) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, gtsam.Ordering]:
+    """The robust pass's factor graph, its initial values and the elimination ordering (landmarks,
+    then free poses, then fixed ones), as ``LocalBundleAdjuster.optimize`` builds them for its
+    first pass: for timing the solver's stages (``benchmarks/local_ba.py --stages``)."""
+    window = _Window.of(problem, config)
+    state = _State(problem.T_world_cam.copy(), problem.p_world.copy())
+    graph, values, point_rows, pose_rows, _, _ = _build_graph(window, state, window.usable, True, config)
+    return graph, values, _landmarks_first(window, point_rows, pose_rows)
+
+
 @dataclass
 class _State:
     """The estimate as it evolves over passes and retries, plus bookkeeping for the stats."""
