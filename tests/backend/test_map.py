@@ -262,3 +262,65 @@ def test_batched_new_points_equal_one_by_one_insertion() -> None:
     assert batch.check_consistency() == [] and batch.take_changes().points == one.take_changes().points
     with pytest.raises(MapError, match="already"):
         batch.add_observed_points([52], p_world[:1], 1, [10])
+
+
+def map_state(bmap: BackendMap) -> dict[str, object]:
+    """Everything a saved map holds, the keyframes' point rows and the change log, for comparisons."""
+    from zenslam.backend.map_arrays import map_to_arrays
+
+    state: dict[str, object] = {k: v.tolist() for k, v in map_to_arrays(bmap, None).items()}
+    state["point_order"] = list(bmap.points)
+    state["map_point_rows"] = [kf.map_point_rows.tolist() for kf in bmap.keyframes.values()]
+    state["covisibility_order"] = [list(bmap.covisibility.weights(k)) for k in bmap.keyframes]
+    state["changes"] = vars(bmap.changes.copy())
+    return state
+
+
+def checkpoint_scene() -> BackendMap:
+    """Keyframes 0 and 1 share points 0-39; keyframe 2 (at x = 1) sees 40-59 as duplicates 100-119,
+    keyframe 3 sees 0-9 only; everything refreshed and the change log taken."""
+    bmap = BackendMap()
+    bmap.add_keyframe(keyframe(0, n=60))
+    for p in range(60):
+        bmap.add_point(p, [p * 0.1, 0.0, 5.0], 0)
+        bmap.add_observation(p, 0, p)
+    add_observing(bmap, 1, list(range(40)), x=0.2, stereo=True)
+    for p in range(100, 120):
+        bmap.add_point(p, [(p - 100) * 0.1, 0.0, 5.0], 1)
+    add_observing(bmap, 2, list(range(100, 120)), x=1.0)
+    add_observing(bmap, 3, list(range(10)), x=0.1)
+    bmap.take_changes()
+    return bmap
+
+
+def test_a_checkpoint_puts_back_merges_new_observations_poses_and_positions() -> None:
+    bmap = checkpoint_scene()
+    bmap.set_point_position(55, [9.0, 9.0, 9.0])  # a pending change outside the scope stays pending
+    before = map_state(bmap)
+    scope = [*range(40, 60), *range(100, 120)]
+    checkpoint = bmap.checkpoint(scope, [2])
+    for p in range(100, 110):
+        bmap.replace_point(p, p - 60)  # keyframe 2's duplicates merged into 40-49
+    bmap.replace_point(50, 110)
+    bmap.add_observation(59, 2, 30)
+    bmap.set_keyframe_pose(2, make_T(np.eye(3), [1.5, 0.0, 0.0]))
+    bmap.set_point_positions([111, 112], np.ones((2, 3)))
+    bmap.refresh_points()
+    assert map_state(bmap) != before
+    bmap.restore(checkpoint)
+    assert map_state(bmap) == before
+    assert bmap.check_consistency() == []
+    assert bmap.take_changes().points == {55}  # the refresh the checkpoint's own change was waiting for
+
+
+def test_a_checkpoint_refuses_changes_outside_its_scope_and_changes_taken_since() -> None:
+    bmap = checkpoint_scene()
+    checkpoint = bmap.checkpoint(range(100, 120), [2])
+    bmap.replace_point(5, 6)  # keyframes 0, 1 and 3 are outside the scope
+    with pytest.raises(MapError, match=r"points \[5\] and keyframes \[0, 1, 3\] changed outside"):
+        bmap.restore(checkpoint)
+    checkpoint = bmap.checkpoint(range(100, 120), [2])
+    bmap.replace_point(100, 40)
+    bmap.take_changes()
+    with pytest.raises(MapError, match="changes were taken or points added"):
+        bmap.restore(checkpoint)

@@ -97,6 +97,13 @@ class CovisibilityGraph:
         """Every keyframe sharing points with ``kf_id`` -> number shared (a copy)."""
         return dict(self._weights[kf_id])
 
+    def restore_weights(self, rows: Mapping[int, dict[int, int]]) -> None:
+        """Put back each keyframe's weights as ``weights`` returned them; every pair changed since
+        they were taken must have both ends among ``rows`` (``BackendMap.checkpoint`` sees to it)."""
+        for kf_id, links in rows.items():
+            self._weights[kf_id] = dict(links)
+        self._cache.clear()
+
     # ---- edges ---------------------------------------------------------------------------------------
     def _best(self, kf_id: int) -> int | None:
         links = self._weights[kf_id]

@@ -7,15 +7,15 @@ corrects the map (ORB-SLAM's ``CorrectLoop``):
 
 0. a check: the essential graph is optimised with the current keyframe's covisible
    neighbourhood tied to the loop keyframe; if its robust kernel rejects every such edge, the
-   loop is rejected and nothing in the map changes (a wrong loop's fused points could not be
-   separated again);
+   loop is rejected and nothing in the map changes;
 1. the neighbourhood is moved rigidly (with scale for monocular) to where the loop puts the
    current keyframe, with the points they observe;
 2. the loop's points replace the current neighbourhood's duplicates (matched points first, then
    every loop point projected into every neighbourhood keyframe);
 3. the essential graph (spanning tree, strong covisibility, loop edges, and the new links the
    fusion made across the loop) is optimised with the loop keyframe fixed, and every other point
-   follows its reference keyframe;
+   follows its reference keyframe; should the robust kernel now reject every new link, the loop
+   is rejected after all and the map is put back as it was before step 1 (``BackendMap.checkpoint``);
 4. the loop edge is recorded in the essential graph, so neither end is ever culled.
 
 Global bundle adjustment after the loop is the node's business (it decides when it runs and when
@@ -83,7 +83,7 @@ class LoopCloser:
         )
         if match is None:
             return LoopOutcome(detection, tuple(rejections))
-        fused, connections, stats = self._correct(match, with_scale)
+        fused, connections, stats = self.correct(match, with_scale)
         if stats.get("loop_rejected"):
             logger.warning("keyframe %d: loop to %d rejected by the pose graph (its edges disagree with the map)", kf_id, match.loop_keyframe_id)
             rejection = Rejection(match.loop_keyframe_id, "pose graph: every loop edge down-weighted")
@@ -98,9 +98,10 @@ class LoopCloser:
         return LoopOutcome(detection, tuple(rejections), match, fused, connections, stats)
 
     # ---- correction ----------------------------------------------------------------------------------
-    def _correct(self, match: LoopMatch, with_scale: bool) -> tuple[int, int, dict]:
-        """Correct the map for ``match``; (points fused, loop connections, pose-graph stats). When the
-        pose graph rejects the loop (``stats["loop_rejected"]``) the map is left as it was."""
+    def correct(self, match: LoopMatch, with_scale: bool) -> tuple[int, int, dict]:
+        """Correct the map for a verified ``match`` (ORB-SLAM's CorrectLoop, steps 0-3 above): points
+        fused, loop connections, pose-graph stats. When the pose graph rejects the loop
+        (``stats["loop_rejected"]``), before or after fusion, the map is left as it was."""
         bmap = self.map
         cur = match.keyframe_id
         poses_before = {k: kf.T_world_cam.copy() for k, kf in bmap.keyframes.items()}
@@ -108,17 +109,25 @@ class LoopCloser:
         correction = match.T_world_cur_corrected @ invert_T(poses_before[cur])  # world -> corrected world
         corrected = {k: correction @ poses_before[k] for k in neighbourhood}
         # The robust check first, with the neighbourhood tied to the loop keyframe, before anything in
-        # the map changes: fusing a wrong loop's points cannot be undone.
+        # the map changes: most wrong loops stop here, before points are fused (and put back).
         ties = [(min(k, match.loop_keyframe_id), max(k, match.loop_keyframe_id)) for k in neighbourhood]
         gate = self._optimize(poses_before, corrected, ties, match, with_scale)
         if gate.stats.get("loop_rejected"):
             return 0, 0, dict(gate.stats)
         neighbours_before = {k: set(bmap.covisibility.connected(k)) for k in neighbourhood}
+        # The optimisation after fusion judges the loop again, on the links fusion made: should it
+        # reject the loop then, the map goes back to this checkpoint (fused points and all).
+        touched = {p for k in neighbourhood for p in bmap.keyframe_point_ids(k).tolist()}
+        touched |= {*match.loop_point_ids.tolist(), *match.matched_point_ids.tolist()}
+        checkpoint = bmap.checkpoint(touched, neighbourhood)
         self._move_neighbourhood(corrected, correction)
         fused = self._fuse_loop_points(match, neighbourhood)
         # ORB-SLAM's loop connections; when fusion linked nothing new, the ties of the check hold the loop.
         connections = self._loop_connections(neighbourhood, neighbours_before) or ties
         result = self._optimize(poses_before, corrected, connections, match, with_scale)
+        if result.stats.get("loop_rejected"):
+            bmap.restore(checkpoint)
+            return 0, 0, dict(result.stats)
         correct_points_after_pose_graph(bmap, result)  # from the initial values: the corrected neighbourhood
         bmap.refresh_points()
         return fused, len(connections), dict(result.stats)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 from collections import Counter
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from itertools import chain
 
@@ -36,7 +37,7 @@ from zenslam.schemas.map_update import BACKEND_POINT_ID_BASE
 logger = logging.getLogger(__name__)
 
 __all__ = [
-    "BackendKeyframe", "BackendMap", "FrustumProjection", "IdAllocator", "MapChanges", "MapError", "MapPoint",
+    "BackendKeyframe", "BackendMap", "FrustumProjection", "IdAllocator", "MapChanges", "MapCheckpoint", "MapError", "MapPoint",
     "PointGeometry", "frustum_projection",
 ]  # fmt: skip
 
@@ -72,6 +73,30 @@ class MapChanges:
     created_points: set[int] = field(default_factory=set)  # created here with an allocated id
     removed_points: set[int] = field(default_factory=set)
     removed_keyframes: set[int] = field(default_factory=set)
+
+    def copy(self) -> MapChanges:
+        """A log with copies of these sets."""
+        return MapChanges(
+            set(self.keyframes), set(self.points), set(self.created_points), set(self.removed_points), set(self.removed_keyframes)
+        )
+
+
+@dataclass(frozen=True)
+class MapCheckpoint:
+    """The part of the map a tentative change may touch, as it was (``BackendMap.checkpoint``)."""
+
+    points: dict[int, MapPoint]  # the map's points then (membership and order)
+    point_state: tuple[tuple[MapPoint, dict[int, int], int, int, int], ...]  # point, observations, visible, found, weighted
+    store: PointStore
+    store_rows: int  # rows handed out then
+    rows: np.ndarray  # (R,) store rows copied: the scope's points and those waiting for a refresh
+    columns: tuple[np.ndarray, ...]  # their p_world, descriptor, normal, min and max distance
+    keyframes: tuple[tuple[BackendKeyframe, np.ndarray, np.ndarray, np.ndarray], ...]  # keyframe, pose, point ids, rows
+    covisibility: dict[int, dict[int, int]]  # the scope keyframes' weights
+    replaced: dict[int, int]
+    stale: tuple[frozenset[int], frozenset[int]]  # descriptor, geometry
+    changes: MapChanges  # a copy of the change log
+    changes_log: MapChanges  # the log itself: ``take_changes`` since would lose what to put back
 
 
 class BackendMap:
@@ -388,6 +413,66 @@ class BackendMap:
         self._stale_geometry.clear()
         return len(set(desc_ids) | set(geo_ids))
 
+    # ---- checkpoints ---------------------------------------------------------------------------------
+    def checkpoint(self, point_ids: Iterable[int], keyframe_ids: Iterable[int] = ()) -> MapCheckpoint:
+        """What ``restore`` needs to undo a change confined to ``point_ids``, their observers and
+        ``keyframe_ids``: observations added, moved or merged among them, their poses, positions and
+        refreshed attributes. Points may be merged away in between, none added."""
+        points = self.points
+        scope = sorted({int(p) for p in point_ids if p in points})
+        kf_ids = sorted({int(k) for k in keyframe_ids} | {k for p in scope for k in points[p].observations})
+        waiting = self._stale_descriptor | self._stale_geometry
+        rows = self.point_rows(sorted(set(scope) | waiting))
+        store = self.point_store
+        log = self.changes
+        return MapCheckpoint(
+            points=dict(points),
+            point_state=tuple(
+                (pt, dict(pt.observations), pt.n_visible, pt.n_found, pt.weighted_observations)
+                for pt in (points[p] for p in scope)
+            ),
+            store=store,
+            store_rows=store.n_rows,
+            rows=rows,
+            columns=tuple(np.take(c, rows, axis=0) for c in _columns(store)),
+            keyframes=tuple(
+                (kf, kf.T_world_cam.copy(), kf.map_point_ids.copy(), kf.map_point_rows.copy())
+                for kf in (self.keyframe(k) for k in kf_ids)
+            ),
+            covisibility={k: self.covisibility.weights(k) for k in kf_ids},
+            replaced=dict(self._replaced),
+            stale=(frozenset(self._stale_descriptor), frozenset(self._stale_geometry)),
+            changes=log.copy(),
+            changes_log=log,
+        )
+
+    def restore(self, checkpoint: MapCheckpoint) -> None:
+        """Put the map back as it was at ``checkpoint``; MapError when something outside its scope
+        changed since, points were added, or the changes were taken in between (nothing restored)."""
+        log, cp = self.changes, checkpoint
+        if log is not cp.changes_log or self.point_store is not cp.store or cp.store.n_rows != cp.store_rows:
+            raise MapError("the map cannot go back to this checkpoint: changes were taken or points added since")
+        in_scope = {pt.id for pt, *_ in cp.point_state} | cp.stale[0] | cp.stale[1]
+        points = (log.points | log.removed_points) - cp.changes.points - cp.changes.removed_points - in_scope
+        keyframes = log.keyframes - cp.changes.keyframes - {kf.id for kf, *_ in cp.keyframes}
+        if points or keyframes:
+            raise MapError(
+                f"points {sorted(points)[:10]} and keyframes {sorted(keyframes)[:10]} changed outside the checkpoint's "
+                "scope: widen it to every point and keyframe the change touches"
+            )
+        self.points.clear()
+        self.points.update(cp.points)
+        for pt, observations, visible, found, weighted in cp.point_state:
+            pt.observations, pt.n_visible, pt.n_found, pt.weighted_observations = dict(observations), visible, found, weighted
+        for column, saved in zip(_columns(cp.store), cp.columns):
+            column[cp.rows] = saved
+        for kf, T_world_cam, point_ids, rows in cp.keyframes:
+            kf.T_world_cam, kf.map_point_ids[:], kf.map_point_rows[:] = T_world_cam.copy(), point_ids, rows
+        self.covisibility.restore_weights(cp.covisibility)
+        self._replaced = dict(cp.replaced)
+        self._stale_descriptor, self._stale_geometry = set(cp.stale[0]), set(cp.stale[1])
+        self.changes = cp.changes.copy()
+
     # ---- change log and checks -----------------------------------------------------------------------
     def take_changes(self) -> MapChanges:
         """What changed since the last call (pending refreshes are applied first); resets the log."""
@@ -398,3 +483,8 @@ class BackendMap:
     def check_consistency(self) -> list[str]:
         """Every broken invariant, described (empty when the map is consistent)."""
         return consistency_problems(self)
+
+
+def _columns(store: PointStore) -> tuple[np.ndarray, ...]:
+    """The store's per-point columns, in ``MapCheckpoint.columns``' order."""
+    return store.p_world, store.descriptor, store.normal, store.min_distance_m, store.max_distance_m
