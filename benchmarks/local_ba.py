@@ -346,7 +346,7 @@ def solver_stages(problem: BAProblem, config: LocalBAConfig) -> dict:
     landmarks, poses = gtsam.Ordering(), gtsam.Ordering()
     for key in keys:
         (landmarks if key in landmark_keys else poses).push_back(key)
-    n_landmarks = sum(key in landmark_keys for key in keys)
+    n_landmarks = landmarks.size()
     (_, on_poses), landmarks_ms = timed(lambda: linear.eliminatePartialSequential(landmarks))
     _, poses_ms = timed(lambda: on_poses.eliminateSequential(poses))
     _, error_ms = timed(lambda: graph.error(values))

@@ -310,7 +310,7 @@ def test_a_checkpoint_puts_back_merges_new_observations_poses_and_positions() ->
     bmap.restore(checkpoint)
     assert map_state(bmap) == before
     assert bmap.check_consistency() == []
-    assert bmap.take_changes().points == {55}  # the refresh the checkpoint's own change was waiting for
+    assert bmap.take_changes().points == {55}  # the change made before the checkpoint is still pending
 
 
 def test_a_checkpoint_refuses_changes_outside_its_scope_and_changes_taken_since() -> None:

@@ -29,7 +29,7 @@ from zenslam.backend.keyframe import BackendKeyframe
 from zenslam.backend.map_consistency import consistency_problems
 from zenslam.backend.map_point import FrustumProjection, MapPoint, PointGeometry, frustum_projection
 from zenslam.backend.point_refresh import refresh_points
-from zenslam.backend.point_store import PointStore
+from zenslam.backend.point_store import COLUMNS, PointStore
 from zenslam.backend.spanning_tree import SpanningTree, choose_parent
 from zenslam.errors import ZenslamError
 from zenslam.schemas.map_update import BACKEND_POINT_ID_BASE
@@ -90,7 +90,7 @@ class MapCheckpoint:
     store: PointStore
     store_rows: int  # rows handed out then
     rows: np.ndarray  # (R,) store rows copied: the scope's points and those waiting for a refresh
-    columns: tuple[np.ndarray, ...]  # their p_world, descriptor, normal, min and max distance
+    columns: dict[str, np.ndarray]  # the store's columns (``point_store.COLUMNS``) at those rows
     keyframes: tuple[tuple[BackendKeyframe, np.ndarray, np.ndarray, np.ndarray], ...]  # keyframe, pose, point ids, rows
     covisibility: dict[int, dict[int, int]]  # the scope keyframes' weights
     replaced: dict[int, int]
@@ -434,7 +434,7 @@ class BackendMap:
             store=store,
             store_rows=store.n_rows,
             rows=rows,
-            columns=tuple(np.take(c, rows, axis=0) for c in _columns(store)),
+            columns={name: np.take(getattr(store, name), rows, axis=0) for name in COLUMNS},
             keyframes=tuple(
                 (kf, kf.T_world_cam.copy(), kf.map_point_ids.copy(), kf.map_point_rows.copy())
                 for kf in (self.keyframe(k) for k in kf_ids)
@@ -464,8 +464,8 @@ class BackendMap:
         self.points.update(cp.points)
         for pt, observations, visible, found, weighted in cp.point_state:
             pt.observations, pt.n_visible, pt.n_found, pt.weighted_observations = dict(observations), visible, found, weighted
-        for column, saved in zip(_columns(cp.store), cp.columns):
-            column[cp.rows] = saved
+        for name, saved in cp.columns.items():
+            getattr(cp.store, name)[cp.rows] = saved
         for kf, T_world_cam, point_ids, rows in cp.keyframes:
             kf.T_world_cam, kf.map_point_ids[:], kf.map_point_rows[:] = T_world_cam.copy(), point_ids, rows
         self.covisibility.restore_weights(cp.covisibility)
@@ -483,8 +483,3 @@ class BackendMap:
     def check_consistency(self) -> list[str]:
         """Every broken invariant, described (empty when the map is consistent)."""
         return consistency_problems(self)
-
-
-def _columns(store: PointStore) -> tuple[np.ndarray, ...]:
-    """The store's per-point columns, in ``MapCheckpoint.columns``' order."""
-    return store.p_world, store.descriptor, store.normal, store.min_distance_m, store.max_distance_m
