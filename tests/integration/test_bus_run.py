@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from importlib import metadata
 
 import pytest
 
@@ -49,4 +50,5 @@ def test_every_published_frame_is_tracked(tmp_path, fmt):
     assert metrics["frames"] + metrics["dropped_frames"]["total"] == FRAMES
     assert metrics["tracked_ok"] == metrics["frames"] >= FRAMES - 2
     assert metrics["run"]["completed"] and metrics["run"]["mode"] == "pipelined"
+    assert metrics["run"]["environment"]["libraries"]["gtsam"] == metadata.version("gtsam")
     assert metrics["ate"]["rmse_m"] < 0.02  # the synthetic loop's frames, scored against its ground truth

@@ -35,7 +35,7 @@ from zenslam.backend.journal import JOURNAL_NAME
 from zenslam.backend.queries import query_trajectory
 from zenslam.config import load_yaml
 from zenslam.errors import ConfigError, ProcessError
-from zenslam.runtime import bus
+from zenslam.runtime import bus, environment
 from zenslam.runtime.session_file import SessionInfo, write_session_file
 from zenslam.runtime.stage import log_cpu_times
 from zenslam.runtime.stop import EXIT_FAILED, EXIT_INTERRUPTED, StopFlag
@@ -674,6 +674,7 @@ def _run(args: argparse.Namespace, stop: StopFlag) -> int:
         "run_id": run_id, "source": config.source.spec, "mode": config.mode, "completed": completed, **log.stream_timing(),
         "failures": [] if failure is None else failure.stages,
         "restarts": len(log.restarts), "restart_events": log.restart_events(),
+        "environment": environment.describe(),
     }}
     sensor = given.sensor or recorded_sensor(recording) or "stereo"  # a bus source's sensor: what was recorded
     evaluation_config = evaluation_config_for(config.evaluation, sensor)

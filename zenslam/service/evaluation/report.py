@@ -36,7 +36,9 @@ Format (a UTF-8 JSON object; keys are stable, new keys may be added, none rename
       "run": {"run_id": str, "source": str, "mode": str, "completed": bool,      # zenslam run
               "stream_s": float,          # first frame sent to the last map update received (s)
               "data_duration_s": float,   # the frames' stamp span plus one period (s)
-              "realtime_factor": float},  # data_duration_s / stream_s (> 1: faster than the camera)
+              "realtime_factor": float,   # data_duration_s / stream_s (> 1: faster than the camera)
+              "environment": {"python": str, "machine": str, "platform": str, "cpu_count": int,
+                              "libraries": {str: str}}},  # installed versions (zenslam.runtime.environment)
       ...                             # extra top-level sections from the caller, e.g. zenslam run's
                                       # "timing", "frames", "lost_frames"
     }
