@@ -48,7 +48,7 @@ from zenslam.backend.essential_graph import EssentialEdge
 from zenslam.backend.global_ba import GlobalBAConfig, apply_global_ba, global_ba_problem, run_global_ba
 from zenslam.backend.local_mapping import BAWindowConfig
 from zenslam.backend.map import BackendKeyframe, BackendMap
-from zenslam.backend.pose_graph import PoseGraphConfig, optimize_essential_graph
+from zenslam.backend.pose_graph import PoseGraphConfig, correction_and_path, optimize_essential_graph
 from zenslam.backend.similarity import (
     SimilarityMatches,
     SimilarityOptimizationConfig,
@@ -116,16 +116,25 @@ def drifting_loop(n: int, seed: int, yaw_bias_rad: float, scale_drift: float = 0
     }  # fmt: skip
 
 
-def pose_graph_case(n, seed, yaw_bias_rad, scale_drift, bogus_shift, config) -> dict:
+def pose_graph_case(n, seed, yaw_bias_rad, scale_drift, bogus_shift, variant: tuple[PoseGraphConfig, float | None]) -> dict:
+    """One problem through the pose graph; with a drift budget (loop closing's ``drift_budget``) a
+    loop moving the current keyframe by more than that fraction of the path is rejected first."""
+    config, drift_budget = variant
     problem = drifting_loop(n, seed, yaw_bias_rad, scale_drift, bogus_shift)
     with_scale = scale_drift > 0
+    truth, before, cur = problem["truth"], problem["before"], problem["current"]
+    (loop,) = problem["fixed"]
+    moved, path = correction_and_path(problem["poses_before"], loop, cur, problem["corrected"][cur])
     cpu = time.process_time()
     result = optimize_essential_graph(
         problem["poses_before"], problem["corrected"], problem["edges"], problem["new_loop_edges"],
         problem["fixed"], with_scale, config,
     )  # fmt: skip
     cpu_ms = 1e3 * (time.process_time() - cpu)
-    truth, before, cur = problem["truth"], problem["before"], problem["current"]
+    if drift_budget is not None and moved > drift_budget * path:  # rejected before the pose graph: poses as before
+        result = dataclasses.replace(
+            result, T_world_cam={k: problem["poses_before"][k] for k in range(n)}, stats={**result.stats, "loop_rejected": True}
+        )
     after = np.array([result.T_world_cam[k][:3, 3] for k in range(n)])
     weights = list(result.loop_edge_weights.values())
     return {
@@ -138,19 +147,23 @@ def pose_graph_case(n, seed, yaw_bias_rad, scale_drift, bogus_shift, config) -> 
         "loop_weight_min": float(min(weights)),
         "loop_weight_max": float(max(weights)),
         "accepted": 0.0 if result.stats["loop_rejected"] else 1.0,
+        "correction_of_path": moved / path,
         "time_ms": result.stats["time_ms"],
         "cpu_ms": cpu_ms,
     }
 
 
-POSE_GRAPH_VARIANTS = {
-    "cauchy": PoseGraphConfig(),
-    "cauchy_k10": PoseGraphConfig(cauchy_k=10.0),
-    "cauchy_keep_rejected": PoseGraphConfig(reject_below_weight=0.0),
-    "gnc_tls": PoseGraphConfig(robust="gnc", gnc_loss="tls"),
-    "gnc_tls_keep_rejected": PoseGraphConfig(robust="gnc", gnc_loss="tls", reject_below_weight=0.0),
-    "gnc_gm": PoseGraphConfig(robust="gnc", gnc_loss="gm"),
-    "none": PoseGraphConfig(robust="none"),
+POSE_GRAPH_VARIANTS = {  # name -> (pose-graph settings, loop closing's drift budget)
+    "cauchy": (PoseGraphConfig(), None),
+    "cauchy_k10": (PoseGraphConfig(cauchy_k=10.0), None),
+    "cauchy_keep_rejected": (PoseGraphConfig(reject_below_weight=0.0), None),
+    "cauchy_shared": (PoseGraphConfig(covisibility_information="shared"), None),
+    "cauchy_shared_budget5": (PoseGraphConfig(covisibility_information="shared"), 0.05),
+    "cauchy_budget5": (PoseGraphConfig(), 0.05),
+    "gnc_tls": (PoseGraphConfig(robust="gnc", gnc_loss="tls"), None),
+    "gnc_tls_keep_rejected": (PoseGraphConfig(robust="gnc", gnc_loss="tls", reject_below_weight=0.0), None),
+    "gnc_gm": (PoseGraphConfig(robust="gnc", gnc_loss="gm"), None),
+    "none": (PoseGraphConfig(robust="none"), None),
 }
 
 
@@ -178,7 +191,7 @@ def bench_pose_graph(sizes, seeds, variants) -> list[dict]:
                 print(
                     f"pose graph {n:4d} kf {name:23s} {variant:21s} accepted {row['accepted']:.1f} end {row['end_error_before_m']:6.2f} -> "
                     f"{row['end_error_after_m']:6.2f} m, mean {row['mean_error_before_m']:5.2f} -> {row['mean_error_after_m']:5.2f} m, "
-                    f"moved <= {row['max_move_from_before_m']:7.2f} m, loop w [{row['loop_weight_min']:.2f}, "
+                    f"moved <= {row['max_move_from_before_m']:7.2f} m, correction {100 * row['correction_of_path']:5.1f}% of path, loop w [{row['loop_weight_min']:.2f}, "
                     f"{row['loop_weight_max']:.2f}], {row['cpu_ms']:5.0f} ms cpu (max {row['cpu_ms_max']:.0f})",
                     flush=True,
                 )
@@ -338,12 +351,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="smaller sizes, one seed")
     parser.add_argument("--only", choices=["pose_graph", "sim3", "global_ba"], action="append", help="run only these parts")
+    parser.add_argument("--variants", choices=list(POSE_GRAPH_VARIANTS), action="append", help="pose-graph variants (default all)")
+    parser.add_argument("--sizes", type=int, nargs="+", help="pose-graph keyframe counts (default 500; --quick 200)")
     args = parser.parse_args()
     parts = args.only or ["pose_graph", "sim3", "global_ba"]
     out: dict = {"machine": platform.processor() or platform.machine(), "quick": args.quick}
     if "pose_graph" in parts:
         sizes, seeds = ((200,), (0,)) if args.quick else ((500,), (0, 1, 2))
-        out["pose_graph"] = bench_pose_graph(sizes, seeds, list(POSE_GRAPH_VARIANTS))
+        out["pose_graph"] = bench_pose_graph(args.sizes or sizes, seeds, args.variants or list(POSE_GRAPH_VARIANTS))
     if "sim3" in parts:
         out["sim3"] = bench_sim3((100,) if args.quick else (100, 200, 400), range(5 if args.quick else 20))
     if "global_ba" in parts:

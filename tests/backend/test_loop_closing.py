@@ -91,3 +91,13 @@ def test_a_loop_rejected_after_fusion_leaves_the_map_as_it_was() -> None:
     assert stats["loop_rejected"] and (fused, connections) == (0, 0)
     assert map_state(bmap) == before
     assert bmap.check_consistency() == []
+
+
+def test_a_loop_moving_the_keyframe_beyond_the_drift_budget_is_refused() -> None:
+    """The revisit moves keyframe 4 by |DRIFT| = 1.1 cm over the keyframes' 0.59 m path (1.9%)."""
+    bmap, match = revisit()
+    moved, path = np.linalg.norm(DRIFT), 0.3 + np.linalg.norm(DRIFT - [0.3, 0.0, 0.0])
+    assert LoopCloser(bmap, None, LoopClosingConfig(drift_budget=0.05)).drift_budget_exceeded(match) is None
+    assert LoopCloser(bmap, None, LoopClosingConfig()).drift_budget_exceeded(match) is None  # no limit
+    why = LoopCloser(bmap, None, LoopClosingConfig(drift_budget=0.01)).drift_budget_exceeded(match)
+    assert why is not None and f"{moved:.3f} m" in why and f"{path:.2f} m path" in why and "budget 1%" in why

@@ -11,6 +11,7 @@ from zenslam.backend.pose_graph import (
     PoseGraphError,
     PoseGraphResult,
     correct_points_after_pose_graph,
+    correction_and_path,
     optimize_essential_graph,
 )
 from zenslam.camera import PinholeCalibration
@@ -111,6 +112,35 @@ def test_sim3_wrong_loop_has_no_effect():
     assert result.stats["loop_rejected"]
     assert np.abs(positions(result.T_world_cam) - positions(before)).max() < 1e-9
     assert all(s == pytest.approx(1.0) for s in result.scale.values())
+
+
+def test_shared_covisibility_information_lets_a_dense_chain_take_a_true_loop():
+    """Four covisibility edges per keyframe, all at the spanning tree's sigmas, make the chain too stiff
+    for 0.6 m of true drift; sharing their information (sigmas x sqrt(4)) accepts and removes it,
+    and still rejects a wrong loop 20 m along the lap."""
+    truth, before, corrected, _, new_loop, fixed = drifting_loop()
+    dense = [EssentialEdge(i - 1, i, "spanning_tree") for i in range(1, N)]
+    dense += [EssentialEdge(i - d, i, "covisibility") for d in range(2, 6) for i in range(d, N)]
+    full = optimize_essential_graph(before, corrected, sorted(dense), new_loop, fixed, False, PoseGraphConfig())
+    assert full.stats["loop_rejected"]
+    shared = optimize_essential_graph(before, corrected, sorted(dense), new_loop, fixed, False, PoseGraphConfig(covisibility_information="shared"))
+    assert not shared.stats["loop_rejected"]
+    end_before = np.linalg.norm(before[N - 1][:3, 3] - truth[N - 1, :3, 3])
+    assert end_before > 0.5 and np.linalg.norm(shared.T_world_cam[N - 1][:3, 3] - truth[N - 1, :3, 3]) < end_before / 20
+    _, before, corrected, _, new_loop, fixed = drifting_loop(loop=REVISITED + 40)
+    wrong = optimize_essential_graph(before, corrected, sorted(dense), new_loop, fixed, False, PoseGraphConfig(covisibility_information="shared"))
+    assert wrong.stats["loop_rejected"]
+    with pytest.raises(PoseGraphError, match="covisibility_information"):
+        PoseGraphConfig(covisibility_information="half")
+
+
+def test_correction_and_path_measure_the_move_against_the_keyframes_path():
+    poses = {k: make_T(np.eye(3), [0.5 * k, 0.0, 0.0]) for k in range(10)}
+    poses[12] = make_T(np.eye(3), [4.5, 1.0, 0.0])  # ids need not be consecutive: 11 was culled
+    moved, path = correction_and_path(poses, 2, 12, make_T(np.eye(3), [4.5, 1.3, 0.4]))
+    assert moved == pytest.approx(0.5)
+    assert path == pytest.approx(7 * 0.5 + np.hypot(0.0, 1.0))  # keyframes 2..9, then 9 -> 12
+    assert correction_and_path(poses, 12, 2, make_T(np.eye(3), [1.0, 0.0, 0.0]))[1] == pytest.approx(path)
 
 
 def test_input_is_checked():

@@ -5,7 +5,10 @@ the node has indexed the keyframe already). For each keyframe local mapping has 
 detects consistent candidates, verifies them (``loop_verification``) and, for an accepted loop,
 corrects the map (ORB-SLAM's ``CorrectLoop``):
 
-0. a check: the essential graph is optimised with the current keyframe's covisible
+0. two checks before anything in the map changes: the drift budget (``drift_budget``: a loop may
+   move the current keyframe by at most that fraction of the keyframes' path from the loop
+   keyframe; a wrong place verification let through asks for far more than drift makes), then the
+   essential graph is optimised with the current keyframe's covisible
    neighbourhood tied to the loop keyframe; if its robust kernel rejects every such edge, the
    loop is rejected and nothing in the map changes;
 1. the neighbourhood is moved rigidly (with scale for monocular) to where the loop puts the
@@ -36,7 +39,7 @@ from zenslam.backend.loop_verification import LoopMatch, Rejection, verify_candi
 from zenslam.backend.map import BackendMap
 from zenslam.backend.place_recognition import PlaceRecognition
 from zenslam.backend.point_fusion import FusionConfig, fuse_into_keyframe
-from zenslam.backend.pose_graph import correct_points_after_pose_graph, optimize_essential_graph
+from zenslam.backend.pose_graph import correct_points_after_pose_graph, correction_and_path, optimize_essential_graph
 from zenslam.geometry import invert_T, transform_points
 
 logger = logging.getLogger(__name__)
@@ -83,6 +86,10 @@ class LoopCloser:
         )
         if match is None:
             return LoopOutcome(detection, tuple(rejections))
+        over_budget = self.drift_budget_exceeded(match)
+        if over_budget is not None:
+            logger.warning("keyframe %d: loop to %d rejected: %s", kf_id, match.loop_keyframe_id, over_budget)
+            return LoopOutcome(detection, (*rejections, Rejection(match.loop_keyframe_id, over_budget)))
         fused, connections, stats = self.correct(match, with_scale)
         if stats.get("loop_rejected"):
             logger.warning("keyframe %d: loop to %d rejected by the pose graph (its edges disagree with the map)", kf_id, match.loop_keyframe_id)
@@ -96,6 +103,17 @@ class LoopCloser:
             kf_id, match.loop_keyframe_id, match.inliers, fused, float(np.linalg.norm(kf.T_world_cam[:3, 3] - T_before[:3, 3])),
         )
         return LoopOutcome(detection, tuple(rejections), match, fused, connections, stats)
+
+    def drift_budget_exceeded(self, match: LoopMatch) -> str | None:
+        """Why ``match`` moves the current keyframe further than ``drift_budget`` allows, or None."""
+        budget = self.config.drift_budget
+        if budget is None:
+            return None
+        poses = {k: kf.T_world_cam for k, kf in self.map.keyframes.items()}
+        moved, path = correction_and_path(poses, match.loop_keyframe_id, match.keyframe_id, match.T_world_cur_corrected)
+        if moved <= budget * path:
+            return None
+        return f"drift budget: the loop moves the keyframe {moved:.3f} m, {100 * moved / max(path, 1e-12):.1f}% of the {path:.2f} m path (budget {100 * budget:g}%)"
 
     # ---- correction ----------------------------------------------------------------------------------
     def correct(self, match: LoopMatch, with_scale: bool) -> tuple[int, int, dict]:

@@ -12,8 +12,10 @@ corrected neighbourhood), plus the new loop edges between the corrected neighbou
 current keyframe and the loop keyframe's neighbourhood, measured from their corrected poses.
 Initial values are the corrected poses where given, the map's elsewhere; the loop keyframe is
 held fixed (edges to a fixed keyframe become priors on the other end). Every edge has the same
-diagonal noise (ORB-SLAM gives all edges identity information); loop edges -- new and old -- are
-the only ones that may be wrong and the only ones made robust. The gtsam side lives in
+diagonal noise (ORB-SLAM gives all edges identity information), or with
+``covisibility_information="shared"`` the covisibility edges' sigmas are scaled so that together
+they weigh what the other edges weigh; loop edges -- new and old -- are the only ones that may be
+wrong and the only ones made robust. The gtsam side lives in
 ``pose_graph_solver`` so that this module (configuration, result, point correction) loads without it.
 
 Robustness against a wrong loop: a Cauchy kernel on the loop edges, Levenberg-Marquardt from the
@@ -80,6 +82,12 @@ class PoseGraphConfig:
     gnc_inlier_probability: float = 0.99
     gnc_loss: Literal["tls", "gm"] = "tls"
     relative_error_tolerance: float = 1e-6  # LM stops when the error drops by less than this fraction
+    # Covisibility edges are relative poses of the same map poses the spanning tree already links, not
+    # independent measurements: given each the full information (ORB-SLAM's identity), a room's 13
+    # covisibility edges per keyframe make the chain so stiff that it rejects true loops of a few
+    # centimetres. "shared": their sigmas times sqrt(covisibility edges / other edges), so together
+    # they weigh what the spanning tree and loop edges weigh. "full": every edge at the sigmas above.
+    covisibility_information: Literal["full", "shared"] = "full"
 
     def __post_init__(self) -> None:
         sigmas = (self.sigma_rotation_rad, self.sigma_translation_m, self.sigma_log_scale, self.cauchy_k)
@@ -87,6 +95,8 @@ class PoseGraphConfig:
             raise PoseGraphError(f"pose graph sigmas and cauchy_k must be positive, got {sigmas}")
         if self.iterations < 1:
             raise PoseGraphError(f"pose_graph.iterations={self.iterations} must be at least 1")
+        if self.covisibility_information not in ("full", "shared"):
+            raise PoseGraphError(f"pose_graph.covisibility_information={self.covisibility_information!r} must be 'full' or 'shared'")
 
 
 @dataclass(frozen=True)
@@ -122,6 +132,18 @@ def similarity_parts(S: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]
         bad = S if S.ndim == 2 else S[np.flatnonzero(~ok)[0]]
         raise PoseGraphError(f"pose {bad.tolist()} is not a similarity [[s R, c], [0, 1]] with s > 0")
     return A / s[..., None, None], S[..., :3, 3].copy(), s
+
+
+def correction_and_path(poses: dict[int, np.ndarray], loop_kf: int, current_kf: int, S_current_corrected: np.ndarray) -> tuple[float, float]:
+    """How far a loop moves the current keyframe's camera centre, and the keyframes' path from the
+    loop keyframe to it (the distances between consecutive keyframes by id, both ends included), in
+    map units. ``poses``: camera -> world (rigid or similarities; the centre is the last column)."""
+    lo, hi = sorted((int(loop_kf), int(current_kf)))
+    ids = sorted(k for k in poses if lo <= k <= hi)
+    centres = np.array([np.asarray(poses[k], dtype=float)[:3, 3] for k in ids]).reshape(-1, 3)
+    path = float(np.linalg.norm(np.diff(centres, axis=0), axis=1).sum())
+    moved = float(np.linalg.norm(np.asarray(S_current_corrected, dtype=float)[:3, 3] - np.asarray(poses[current_kf], dtype=float)[:3, 3]))
+    return moved, path
 
 
 def optimize_essential_graph(

@@ -111,28 +111,40 @@ def _values(free: list[int], poses: dict, with_scale: bool) -> gtsam.Values:
     return values
 
 
-def _noise(with_scale: bool, config: PoseGraphConfig) -> gtsam.noiseModel.Base:
+def _noise(with_scale: bool, config: PoseGraphConfig, factor: float = 1.0) -> gtsam.noiseModel.Base:
     sigmas = [config.sigma_rotation_rad] * 3 + [config.sigma_translation_m] * 3
     if with_scale:
         sigmas.append(config.sigma_log_scale)  # Similarity3 tangent: rotation, translation, log scale
-    return gtsam.noiseModel.Diagonal.Sigmas(np.array(sigmas))
+    return gtsam.noiseModel.Diagonal.Sigmas(factor * np.array(sigmas))
+
+
+def covisibility_sigma_factor(edges: list[EssentialEdge], config: PoseGraphConfig) -> float:
+    """What the covisibility edges' sigmas are multiplied by: sqrt(covisibility / other edges), at
+    least 1, with ``covisibility_information="shared"``; 1 with "full"."""
+    if config.covisibility_information == "full":
+        return 1.0
+    n_covisibility = sum(1 for edge in edges if edge[2] == "covisibility")
+    return float(np.sqrt(max(1.0, n_covisibility / max(1, len(edges) - n_covisibility))))
 
 
 def _build_graph(before, initial, edges, new_loop_edges, fixed, with_scale, config) -> _Graph:
     """Between factors (priors where one end is fixed), in a fixed order: essential edges, then new loop edges."""
     plain = _noise(with_scale, config)
+    covisible = _noise(with_scale, config, covisibility_sigma_factor(edges, config))
     robust = plain
     if config.robust == "cauchy":
         robust = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy.Create(config.cauchy_k), plain)
     new_pairs = {(min(a, b), max(a, b)) for a, b in new_loop_edges}
-    measured: list[tuple[int, int, object, bool]] = []  # a, b, relative pose a -> b, is a loop edge
+    measured: list[tuple[int, int, object, str]] = []  # a, b, relative pose a -> b, edge kind
     for a, b, kind in sorted(edges):
         if (min(a, b), max(a, b)) not in new_pairs:
-            measured.append((a, b, before[a].between(before[b]), kind == "loop"))
+            measured.append((a, b, before[a].between(before[b]), kind))
     for a, b in sorted(new_pairs):
-        measured.append((a, b, initial[a].between(initial[b]), True))
+        measured.append((a, b, initial[a].between(initial[b]), "loop"))
+    noise = {"loop": robust, "covisibility": covisible, "spanning_tree": plain}
     out = _Graph(gtsam.NonlinearFactorGraph())
-    for a, b, z, is_loop in measured:
+    for a, b, z, kind in measured:
+        is_loop = kind == "loop"
         if a in fixed and b in fixed:
             continue
         if is_loop:
@@ -140,7 +152,7 @@ def _build_graph(before, initial, edges, new_loop_edges, fixed, with_scale, conf
             out.loops.append((pair, out.graph.size(), _edge_factor(a, b, z, plain, initial, fixed, with_scale)))
             if pair in new_pairs:
                 out.new_loop.add(pair)
-        out.graph.add(_edge_factor(a, b, z, robust if is_loop else plain, initial, fixed, with_scale))
+        out.graph.add(_edge_factor(a, b, z, noise[kind], initial, fixed, with_scale))
     return out
 
 
