@@ -5,12 +5,14 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import pytest
 
 from zenslam.backend.loop_closing import LoopCloser
 from zenslam.backend.loop_closing_config import LoopClosingConfig
 from zenslam.backend.loop_verification import LoopMatch
 from zenslam.backend.map import BackendKeyframe, BackendMap
 from zenslam.camera import PinholeCalibration
+from zenslam.errors import ConfigError
 from zenslam.geometry import invert_T, make_T, transform_points
 
 from test_map import map_state  # noqa: E402  (tests/backend is on the path under pytest)
@@ -97,7 +99,12 @@ def test_a_loop_moving_the_keyframe_beyond_the_drift_budget_is_refused() -> None
     """The revisit moves keyframe 4 by |DRIFT| = 1.1 cm over the keyframes' 0.59 m path (1.9%)."""
     bmap, match = revisit()
     moved, path = np.linalg.norm(DRIFT), 0.3 + np.linalg.norm(DRIFT - [0.3, 0.0, 0.0])
-    assert LoopCloser(bmap, None, LoopClosingConfig(drift_budget=0.05)).drift_budget_exceeded(match) is None
-    assert LoopCloser(bmap, None, LoopClosingConfig()).drift_budget_exceeded(match) is None  # no limit
-    why = LoopCloser(bmap, None, LoopClosingConfig(drift_budget=0.01)).drift_budget_exceeded(match)
+    assert LoopCloser(bmap, None, LoopClosingConfig()).drift_budget_exceeded(match) is None  # 5%
+    assert LoopCloser(bmap, None, LoopClosingConfig(drift_budget=None)).drift_budget_exceeded(match) is None  # no limit
+    tight = LoopClosingConfig(drift_budget=0.01)
+    why = LoopCloser(bmap, None, tight).drift_budget_exceeded(match)
     assert why is not None and f"{moved:.3f} m" in why and f"{path:.2f} m path" in why and "budget 1%" in why
+    assert LoopCloser(bmap, None, tight).drift_budget_exceeded(match, with_scale=True) is None  # monocular: no limit
+    assert LoopCloser(bmap, None, dataclasses.replace(tight, drift_budget_monocular=0.01)).drift_budget_exceeded(match, True) is not None
+    with pytest.raises(ConfigError, match="drift_budget_monocular=0"):
+        LoopClosingConfig(drift_budget_monocular=0.0)

@@ -5,10 +5,10 @@ the node has indexed the keyframe already). For each keyframe local mapping has 
 detects consistent candidates, verifies them (``loop_verification``) and, for an accepted loop,
 corrects the map (ORB-SLAM's ``CorrectLoop``):
 
-0. two checks before anything in the map changes: the drift budget (``drift_budget``: a loop may
-   move the current keyframe by at most that fraction of the keyframes' path from the loop
-   keyframe; a wrong place verification let through asks for far more than drift makes), then the
-   essential graph is optimised with the current keyframe's covisible
+0. two checks before anything in the map changes: the drift budget (``drift_budget``, 5% for
+   stereo / RGB-D maps: a loop may move the current keyframe by at most that fraction of the
+   keyframes' path from the loop keyframe; a wrong place verification let through asks for far more
+   than drift makes, and on a long path the chain alone would absorb it), then the essential graph is optimised with the current keyframe's covisible
    neighbourhood tied to the loop keyframe; if its robust kernel rejects every such edge, the
    loop is rejected and nothing in the map changes;
 1. the neighbourhood is moved rigidly (with scale for monocular) to where the loop puts the
@@ -86,7 +86,7 @@ class LoopCloser:
         )
         if match is None:
             return LoopOutcome(detection, tuple(rejections))
-        over_budget = self.drift_budget_exceeded(match)
+        over_budget = self.drift_budget_exceeded(match, with_scale)
         if over_budget is not None:
             logger.warning("keyframe %d: loop to %d rejected: %s", kf_id, match.loop_keyframe_id, over_budget)
             return LoopOutcome(detection, (*rejections, Rejection(match.loop_keyframe_id, over_budget)))
@@ -104,9 +104,10 @@ class LoopCloser:
         )
         return LoopOutcome(detection, tuple(rejections), match, fused, connections, stats)
 
-    def drift_budget_exceeded(self, match: LoopMatch) -> str | None:
-        """Why ``match`` moves the current keyframe further than ``drift_budget`` allows, or None."""
-        budget = self.config.drift_budget
+    def drift_budget_exceeded(self, match: LoopMatch, with_scale: bool = False) -> str | None:
+        """Why ``match`` moves the current keyframe further than the drift budget allows
+        (``drift_budget``, or ``drift_budget_monocular`` for a Sim(3) map), or None."""
+        budget = self.config.drift_budget_monocular if with_scale else self.config.drift_budget
         if budget is None:
             return None
         poses = {k: kf.T_world_cam for k, kf in self.map.keyframes.items()}

@@ -42,16 +42,23 @@ class LoopClosingConfig:
     verification: LoopVerificationConfig = field(default_factory=LoopVerificationConfig)
     fusion_radius_px: float = 4.0  # window for fusing loop points into the corrected neighbourhood (ORB-SLAM: 4)
     pose_graph: PoseGraphConfig = field(default_factory=PoseGraphConfig)
-    # The largest move of the current keyframe's position a loop may make, as a fraction of the
-    # keyframes' path from the loop keyframe to it (unitless; None: no limit, as ORB-SLAM). Measured:
-    # true loops need at most 0.5% (synthetic rooms, corridor), wrong ones verification let through
-    # ask 9.7% or more (corridor_aliased), and the pose graph's drifting 250 m test loops up to 4.4%.
-    drift_budget: float | None = None
+    # The largest move of the current keyframe's position a loop may make in a stereo / RGB-D map, as
+    # a fraction of the keyframes' path from the loop keyframe to it (unitless; None: no limit, as
+    # ORB-SLAM). Measured (benchmarks/README.md): true loops of the synthetic scenes need at most 0.5%,
+    # the wrong ones verification lets through ask 9.7% or more (corridor_aliased, RGB-D loop), and
+    # over 1,000 keyframes the pose graph alone accepts wrong loops at 7.3% of the path. A map that
+    # drifts more than 5% of its path (17 deg of heading over 500 m) loses its loops.
+    drift_budget: float | None = 0.05
+    # The same for monocular (Sim(3)) maps, whose scale drift makes true corrections larger (8.4% of
+    # the path for a 1,000-keyframe loop with 0.05% scale drift per keyframe): no limit by default.
+    drift_budget_monocular: float | None = None
     global_ba: GlobalBAConfig = field(default_factory=GlobalBAConfig)  # after each closed loop
     seed: int = 0  # seeds the verification's RANSAC (with the keyframe id, so each keyframe draws its own)
 
     def __post_init__(self) -> None:
-        if self.drift_budget is not None and not self.drift_budget > 0:
-            raise ConfigError(f"backend.loop_closing.drift_budget={self.drift_budget} must be positive (or null: no limit)")
+        for name in ("drift_budget", "drift_budget_monocular"):
+            value = getattr(self, name)
+            if value is not None and not value > 0:
+                raise ConfigError(f"backend.loop_closing.{name}={value} must be positive (or null: no limit)")
 
 

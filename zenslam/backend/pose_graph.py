@@ -87,6 +87,9 @@ class PoseGraphConfig:
     # covisibility edges per keyframe make the chain so stiff that it rejects true loops of a few
     # centimetres. "shared": their sigmas times sqrt(covisibility edges / other edges), so together
     # they weigh what the spanning tree and loop edges weigh. "full": every edge at the sigmas above.
+    # Not the default: "shared" closes the synthetic loop's true loop on every draw, but also lets
+    # corrections through that verification got centimetres wrong (the figure-eight's at keyframe 194,
+    # 6.7 cm off: as-tracked ATE 0.77 -> 2.48 cm); benchmarks/README.md, "Loop closing end to end".
     covisibility_information: Literal["full", "shared"] = "full"
 
     def __post_init__(self) -> None:
