@@ -121,14 +121,15 @@ def test_shared_covisibility_information_lets_a_dense_chain_take_a_true_loop():
     truth, before, corrected, _, new_loop, fixed = drifting_loop()
     dense = [EssentialEdge(i - 1, i, "spanning_tree") for i in range(1, N)]
     dense += [EssentialEdge(i - d, i, "covisibility") for d in range(2, 6) for i in range(d, N)]
-    full = optimize_essential_graph(before, corrected, sorted(dense), new_loop, fixed, False, PoseGraphConfig())
+    full = optimize_essential_graph(before, corrected, sorted(dense), new_loop, fixed, False, PoseGraphConfig(covisibility_information="full"))
     assert full.stats["loop_rejected"]
-    shared = optimize_essential_graph(before, corrected, sorted(dense), new_loop, fixed, False, PoseGraphConfig(covisibility_information="shared"))
+    shared_config = PoseGraphConfig(covisibility_information="shared")
+    shared = optimize_essential_graph(before, corrected, sorted(dense), new_loop, fixed, False, shared_config)
     assert not shared.stats["loop_rejected"]
     end_before = np.linalg.norm(before[N - 1][:3, 3] - truth[N - 1, :3, 3])
     assert end_before > 0.5 and np.linalg.norm(shared.T_world_cam[N - 1][:3, 3] - truth[N - 1, :3, 3]) < end_before / 20
     _, before, corrected, _, new_loop, fixed = drifting_loop(loop=REVISITED + 40)
-    wrong = optimize_essential_graph(before, corrected, sorted(dense), new_loop, fixed, False, PoseGraphConfig(covisibility_information="shared"))
+    wrong = optimize_essential_graph(before, corrected, sorted(dense), new_loop, fixed, False, shared_config)
     assert wrong.stats["loop_rejected"]
     with pytest.raises(PoseGraphError, match="covisibility_information"):
         PoseGraphConfig(covisibility_information="half")

@@ -8,9 +8,9 @@ corrects the map (ORB-SLAM's ``CorrectLoop``):
 0. two checks before anything in the map changes: the drift budget (``drift_budget``, 5% for
    stereo / RGB-D maps: a loop may move the current keyframe by at most that fraction of the
    keyframes' path from the loop keyframe; a wrong place verification let through asks for far more
-   than drift makes, and on a long path the chain alone would absorb it), then the essential graph is optimised with the current keyframe's covisible
-   neighbourhood tied to the loop keyframe; if its robust kernel rejects every such edge, the
-   loop is rejected and nothing in the map changes;
+   than drift makes, and on a long path the chain alone would absorb it), then the essential graph
+   optimised with the current keyframe's covisible neighbourhood tied to the loop keyframe; if its
+   robust kernel rejects every such edge, the loop is rejected; either way nothing in the map changes;
 1. the neighbourhood is moved rigidly (with scale for monocular) to where the loop puts the
    current keyframe, with the points they observe;
 2. the loop's points replace the current neighbourhood's duplicates (matched points first, then
@@ -114,7 +114,8 @@ class LoopCloser:
         moved, path = correction_and_path(poses, match.loop_keyframe_id, match.keyframe_id, match.T_world_cur_corrected)
         if moved <= budget * path:
             return None
-        return f"drift budget: the loop moves the keyframe {moved:.3f} m, {100 * moved / max(path, 1e-12):.1f}% of the {path:.2f} m path (budget {100 * budget:g}%)"
+        share = 100 * moved / max(path, 1e-12)
+        return f"drift budget: the loop moves the keyframe {moved:.3f} m, {share:.1f}% of the {path:.2f} m path (budget {100 * budget:g}%)"
 
     # ---- correction ----------------------------------------------------------------------------------
     def correct(self, match: LoopMatch, with_scale: bool) -> tuple[int, int, dict]:

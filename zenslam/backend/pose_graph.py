@@ -137,7 +137,9 @@ def similarity_parts(S: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     return A / s[..., None, None], S[..., :3, 3].copy(), s
 
 
-def correction_and_path(poses: dict[int, np.ndarray], loop_kf: int, current_kf: int, S_current_corrected: np.ndarray) -> tuple[float, float]:
+def correction_and_path(
+    poses: dict[int, np.ndarray], loop_kf: int, current_kf: int, S_current_corrected: np.ndarray
+) -> tuple[float, float]:
     """How far a loop moves the current keyframe's camera centre, and the keyframes' path from the
     loop keyframe to it (the distances between consecutive keyframes by id, both ends included), in
     map units. ``poses``: camera -> world (rigid or similarities; the centre is the last column)."""
@@ -145,8 +147,8 @@ def correction_and_path(poses: dict[int, np.ndarray], loop_kf: int, current_kf: 
     ids = sorted(k for k in poses if lo <= k <= hi)
     centres = np.array([np.asarray(poses[k], dtype=float)[:3, 3] for k in ids]).reshape(-1, 3)
     path = float(np.linalg.norm(np.diff(centres, axis=0), axis=1).sum())
-    moved = float(np.linalg.norm(np.asarray(S_current_corrected, dtype=float)[:3, 3] - np.asarray(poses[current_kf], dtype=float)[:3, 3]))
-    return moved, path
+    moved = np.asarray(S_current_corrected, dtype=float)[:3, 3] - np.asarray(poses[current_kf], dtype=float)[:3, 3]
+    return float(np.linalg.norm(moved)), path
 
 
 def optimize_essential_graph(
