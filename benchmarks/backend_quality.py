@@ -42,6 +42,7 @@ import numpy as np
 from zenslam.backend.node import BackendNode
 from zenslam.frontend.node import keyframe_message
 from zenslam.frontend.pipeline import FrontendConfig, FrontendPipeline
+from zenslam.runtime import environment
 from zenslam.schemas import codec
 from zenslam.service.evaluation.metrics import EvaluationConfig, evaluate
 from zenslam.backend.config import BackendConfig
@@ -274,6 +275,7 @@ def main() -> None:
         runs.append(run(name, source, args.backend_only, args.max_frames, args.update_lag, args.backend_frames, args.deferred_frames))
         print_run(runs[-1])
     report = {"machine": platform.platform(), "python": platform.python_version(), "cpu_count": os.cpu_count(),
+              "environment": environment.describe(),
               "config": "FrontendConfig(), BackendConfig() defaults", "runs": runs}  # fmt: skip
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
     RESULTS.write_text(json.dumps(report, indent=2) + "\n")

@@ -58,6 +58,7 @@ from zenslam.backend.similarity import (
 )
 from zenslam.camera import PinholeCalibration
 from zenslam.geometry import invert_T, make_T, so3_exp, transform_points
+from zenslam.runtime import environment
 
 RESULTS = Path(__file__).resolve().parent / "results" / "loop_geometry.json"
 ROOM = PinholeCalibration(460.0, 460.0, 320.0, 240.0, 640, 480, baseline_m=0.10)
@@ -355,7 +356,7 @@ def main() -> None:
     parser.add_argument("--sizes", type=int, nargs="+", help="pose-graph keyframe counts (default 500; --quick 200)")
     args = parser.parse_args()
     parts = args.only or ["pose_graph", "sim3", "global_ba"]
-    out: dict = {"machine": platform.processor() or platform.machine(), "quick": args.quick}
+    out: dict = {"machine": platform.processor() or platform.machine(), "environment": environment.describe(), "quick": args.quick}
     if "pose_graph" in parts:
         sizes, seeds = ((200,), (0,)) if args.quick else ((500,), (0, 1, 2))
         out["pose_graph"] = bench_pose_graph(args.sizes or sizes, seeds, args.variants or list(POSE_GRAPH_VARIANTS))

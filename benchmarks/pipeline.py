@@ -43,6 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from zenslam.errors import TrajectoryError
+from zenslam.runtime import environment
 from zenslam.service.evaluation.metrics import evaluate
 from zenslam.service.evaluation.trajectory_io import read_tum
 from zenslam.service.sources import open_source
@@ -240,6 +241,7 @@ def main() -> None:
         "machine": platform.platform(),
         "python": platform.python_version(),
         "cpu_count": os.cpu_count(),
+        "environment": environment.describe(),
         "config": f"{args.config or 'RunConfig() defaults'}; modes {args.modes}; live runs at rates {args.rates} x the recorded rate",
         "twice_real_time": twice_real_time(runs),
         "runs": runs,

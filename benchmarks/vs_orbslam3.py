@@ -59,6 +59,7 @@ import numpy as np
 from zenslam.camera import PinholeCalibration, SensorKind
 from zenslam.frontend.orb_extractor import OrbConfig
 from zenslam.geometry import quat_wxyz_to_R
+from zenslam.runtime import environment
 from zenslam.service.sources import Source, open_source
 from zenslam.trajectory import Trajectory
 
@@ -484,6 +485,7 @@ def main() -> None:
     commit = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
     report: dict = {
         "machine": platform.platform(), "cpus": os.cpu_count(), "load_1_5_15_before": os.getloadavg(),
+        "environment": environment.describe(),
         "commit": commit.stdout.strip(), "pyorbslam3": version, "orbslam3_unavailable": unavailable,
         "zenslam_mode": "pipelined" if args.pipelined else "lockstep", "orbslam3_rate": args.orbslam3_rate,
         "orbslam3_n_features": args.orbslam3_n_features or config.frontend.orb.n_features,
