@@ -14,10 +14,13 @@ Synthetic, with known truth:
   the correct answer is to leave the map's poses as they are. Figures: whether the loop was
   accepted, end error of keyframe N-1 and the mean position error against the truth, the largest
   move of any keyframe away from the map's poses, the loop edges' final weights and the time.
-  Variants: ``cauchy`` (the default: Cauchy on loop edges, LM from the corrected poses, a loop
-  whose edges all end below weight 0.5 rejected), ``cauchy_keep_rejected`` (the same without the
-  rejection rule), ``gnc_tls`` / ``gnc_tls_keep_rejected`` (gtsam's GNC with TLS, with and without
-  the rule), ``gnc_gm``, ``none``.
+  Variants: ``cauchy`` (the pose graph's default: Cauchy on loop edges, LM from the corrected poses,
+  a loop whose edges all end below weight 0.5 rejected), ``cauchy_keep_rejected`` (the same without
+  the rejection rule), ``cauchy_shared`` (covisibility edges sharing their information),
+  ``cauchy_budget5`` / ``cauchy_shared_budget5`` (loop closing's drift budget of 5% of the path
+  applied first, as stereo maps have it by default; here to Sim(3) cases too), ``gnc_tls`` /
+  ``gnc_tls_keep_rejected`` (gtsam's GNC with TLS, with and without the rule), ``gnc_gm``, ``none``.
+  Each case reports its correction as a fraction of the path (``correction_of_path``).
 - ``sim3_ransac``: ``find_similarity`` + ``optimize_similarity`` on 100-400 matches with 50% outliers.
 - ``global_ba``: a stereo BackendMap of K keyframes 0.4 m apart along a curving corridor with P
   points on its walls, floor and ceiling, each observed by every keyframe it projects into within
