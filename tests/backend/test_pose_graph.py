@@ -137,7 +137,7 @@ def test_shared_covisibility_information_lets_a_dense_chain_take_a_true_loop():
 
 def test_correction_and_path_measure_the_move_against_the_keyframes_path():
     poses = {k: make_T(np.eye(3), [0.5 * k, 0.0, 0.0]) for k in range(10)}
-    poses[12] = make_T(np.eye(3), [4.5, 1.0, 0.0])  # ids need not be consecutive: 11 was culled
+    poses[12] = make_T(np.eye(3), [4.5, 1.0, 0.0])  # ids need not be consecutive: 10 and 11 were culled
     moved, path = correction_and_path(poses, 2, 12, make_T(np.eye(3), [4.5, 1.3, 0.4]))
     assert moved == pytest.approx(0.5)
     assert path == pytest.approx(7 * 0.5 + np.hypot(0.0, 1.0))  # keyframes 2..9, then 9 -> 12
