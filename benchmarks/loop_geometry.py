@@ -14,12 +14,14 @@ Synthetic, with known truth:
   the correct answer is to leave the map's poses as they are. Figures: whether the loop was
   accepted, end error of keyframe N-1 and the mean position error against the truth, the largest
   move of any keyframe away from the map's poses, the loop edges' final weights and the time.
-  Variants: ``cauchy`` (the pose graph's default: Cauchy on loop edges, LM from the corrected poses,
-  a loop whose edges all end below weight 0.5 rejected), ``cauchy_keep_rejected`` (the same without
-  the rejection rule), ``cauchy_shared`` (covisibility edges sharing their information),
-  ``cauchy_budget5`` / ``cauchy_shared_budget5`` (loop closing's drift budget of 5% of the path
-  applied first, as stereo maps have it by default; here to Sim(3) cases too), ``gnc_tls`` /
-  ``gnc_tls_keep_rejected`` (gtsam's GNC with TLS, with and without the rule), ``gnc_gm``, ``none``.
+  Variants (loop closing's settings: the pose graph's and the drift budgets): ``default`` (what
+  zenslam ships), ``cauchy`` (Cauchy on loop edges, LM from the corrected poses, a loop whose edges
+  all end below weight 0.5 rejected; every edge at full information, no budget),
+  ``cauchy_keep_rejected`` (the same without the rejection rule), ``cauchy_shared`` (covisibility
+  edges sharing their information, SE(3) and Sim(3)), ``cauchy_budget5`` / ``cauchy_shared_budget5``
+  / ``cauchy_shared_budget10`` (a drift budget of 5% or 10% of the path applied first, here to SE(3)
+  and Sim(3) cases alike), ``gnc_tls`` / ``gnc_tls_keep_rejected`` (gtsam's GNC with TLS, with and
+  without the rule), ``gnc_gm``, ``none``.
   Each case reports its correction as a fraction of the path (``correction_of_path``).
 - ``sim3_ransac``: ``find_similarity`` + ``optimize_similarity`` on 100-400 matches with 50% outliers.
 - ``global_ba``: a stereo BackendMap of K keyframes 0.4 m apart along a curving corridor with P
@@ -48,6 +50,7 @@ from pathlib import Path
 import numpy as np
 
 from zenslam.backend.essential_graph import EssentialEdge
+from zenslam.backend.loop_closing_config import LoopClosingConfig
 from zenslam.backend.global_ba import GlobalBAConfig, apply_global_ba, global_ba_problem, run_global_ba
 from zenslam.backend.local_mapping import BAWindowConfig
 from zenslam.backend.map import BackendKeyframe, BackendMap
@@ -120,12 +123,14 @@ def drifting_loop(n: int, seed: int, yaw_bias_rad: float, scale_drift: float = 0
     }  # fmt: skip
 
 
-def pose_graph_case(n, seed, yaw_bias_rad, scale_drift, bogus_shift, variant: tuple[PoseGraphConfig, float | None]) -> dict:
-    """One problem through the pose graph; with a drift budget (loop closing's ``drift_budget``) a
-    loop moving the current keyframe by more than that fraction of the path is rejected first."""
-    config, drift_budget = variant
+def pose_graph_case(n, seed, yaw_bias_rad, scale_drift, bogus_shift, variant: LoopClosingConfig) -> dict:
+    """One problem through the pose graph (``variant.pose_graph``); with a drift budget (loop closing's
+    ``drift_budget``, or ``drift_budget_monocular`` for Sim(3)) a loop moving the current keyframe by
+    more than that fraction of the path is rejected first."""
+    config = variant.pose_graph
     problem = drifting_loop(n, seed, yaw_bias_rad, scale_drift, bogus_shift)
     with_scale = scale_drift > 0
+    drift_budget = variant.drift_budget_monocular if with_scale else variant.drift_budget
     truth, before, cur = problem["truth"], problem["before"], problem["current"]
     (loop,) = problem["fixed"]
     moved, path = correction_and_path(problem["poses_before"], loop, cur, problem["corrected"][cur])
@@ -159,17 +164,28 @@ def pose_graph_case(n, seed, yaw_bias_rad, scale_drift, bogus_shift, variant: tu
     }
 
 
-POSE_GRAPH_VARIANTS = {  # name -> (pose-graph settings, loop closing's drift budget)
-    "cauchy": (PoseGraphConfig(), None),
-    "cauchy_k10": (PoseGraphConfig(cauchy_k=10.0), None),
-    "cauchy_keep_rejected": (PoseGraphConfig(reject_below_weight=0.0), None),
-    "cauchy_shared": (PoseGraphConfig(covisibility_information="shared"), None),
-    "cauchy_shared_budget5": (PoseGraphConfig(covisibility_information="shared"), 0.05),
-    "cauchy_budget5": (PoseGraphConfig(), 0.05),
-    "gnc_tls": (PoseGraphConfig(robust="gnc", gnc_loss="tls"), None),
-    "gnc_tls_keep_rejected": (PoseGraphConfig(robust="gnc", gnc_loss="tls", reject_below_weight=0.0), None),
-    "gnc_gm": (PoseGraphConfig(robust="gnc", gnc_loss="gm"), None),
-    "none": (PoseGraphConfig(robust="none"), None),
+_FULL = {"covisibility_information": "full", "covisibility_information_monocular": "full"}
+_SHARED = {"covisibility_information": "shared", "covisibility_information_monocular": "shared"}
+
+
+def _variant(budget: float | None = None, budget_monocular: float | None = None, **pose_graph) -> LoopClosingConfig:
+    """Loop closing's settings with these pose-graph settings and drift budgets (SE(3), Sim(3))."""
+    return LoopClosingConfig(pose_graph=PoseGraphConfig(**pose_graph), drift_budget=budget, drift_budget_monocular=budget_monocular)
+
+
+POSE_GRAPH_VARIANTS = {  # name -> loop closing's settings: the pose graph's and the drift budgets
+    "default": LoopClosingConfig(),  # what zenslam ships
+    "cauchy": _variant(**_FULL),
+    "cauchy_k10": _variant(cauchy_k=10.0, **_FULL),
+    "cauchy_keep_rejected": _variant(reject_below_weight=0.0, **_FULL),
+    "cauchy_shared": _variant(**_SHARED),
+    "cauchy_shared_budget5": _variant(0.05, 0.05, **_SHARED),
+    "cauchy_budget5": _variant(0.05, 0.05, **_FULL),
+    "cauchy_shared_budget10": _variant(0.10, 0.10, **_SHARED),
+    "gnc_tls": _variant(robust="gnc", gnc_loss="tls", **_FULL),
+    "gnc_tls_keep_rejected": _variant(robust="gnc", gnc_loss="tls", reject_below_weight=0.0, **_FULL),
+    "gnc_gm": _variant(robust="gnc", gnc_loss="gm", **_FULL),
+    "none": _variant(robust="none", **_FULL),
 }
 
 

@@ -104,7 +104,8 @@ def test_a_loop_moving_the_keyframe_beyond_the_drift_budget_is_refused() -> None
     tight = LoopClosingConfig(drift_budget=0.01)
     why = LoopCloser(bmap, None, tight).drift_budget_exceeded(match)
     assert why is not None and f"{moved:.3f} m" in why and f"{path:.2f} m path" in why and "budget 1%" in why
-    assert LoopCloser(bmap, None, tight).drift_budget_exceeded(match, with_scale=True) is None  # monocular: no limit
+    assert LoopCloser(bmap, None, tight).drift_budget_exceeded(match, with_scale=True) is None  # monocular: its own 10%
+    assert LoopCloser(bmap, None, dataclasses.replace(tight, drift_budget_monocular=None)).drift_budget_exceeded(match, True) is None
     assert LoopCloser(bmap, None, dataclasses.replace(tight, drift_budget_monocular=0.01)).drift_budget_exceeded(match, True) is not None
     with pytest.raises(ConfigError, match="drift_budget_monocular=0"):
         LoopClosingConfig(drift_budget_monocular=0.0)

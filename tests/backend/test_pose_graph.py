@@ -135,6 +135,27 @@ def test_shared_covisibility_information_lets_a_dense_chain_take_a_true_loop():
         PoseGraphConfig(covisibility_information="half")
 
 
+def test_monocular_graphs_share_covisibility_information_by_default():
+    """A Sim(3) graph with four covisibility edges per keyframe and 0.2% scale drift per keyframe: the
+    default (monocular "shared") takes the true loop, "full" rejects it; the stereo setting does not
+    apply to Sim(3) graphs; a wrong loop is still rejected."""
+    truth, before, corrected, _, new_loop, fixed = drifting_loop(scale_drift=0.002)
+    dense = [EssentialEdge(i - 1, i, "spanning_tree") for i in range(1, N)]
+    dense += [EssentialEdge(i - d, i, "covisibility") for d in range(2, 6) for i in range(d, N)]
+    default = optimize_essential_graph(before, corrected, sorted(dense), new_loop, fixed, True, PoseGraphConfig())
+    assert not default.stats["loop_rejected"]
+    end_before = np.linalg.norm(before[N - 1][:3, 3] - truth[N - 1, :3, 3])
+    assert end_before > 1.5 and np.linalg.norm(default.T_world_cam[N - 1][:3, 3] - truth[N - 1, :3, 3]) < end_before / 20
+    stereo_shared_only = PoseGraphConfig(covisibility_information="shared", covisibility_information_monocular="full")
+    full = optimize_essential_graph(before, corrected, sorted(dense), new_loop, fixed, True, stereo_shared_only)
+    assert full.stats["loop_rejected"]
+    _, before, corrected, _, new_loop, fixed = drifting_loop(scale_drift=0.002, loop=REVISITED + 40)
+    wrong = optimize_essential_graph(before, corrected, sorted(dense), new_loop, fixed, True, PoseGraphConfig())
+    assert wrong.stats["loop_rejected"]
+    with pytest.raises(PoseGraphError, match="covisibility_information_monocular"):
+        PoseGraphConfig(covisibility_information_monocular="half")
+
+
 def test_correction_and_path_measure_the_move_against_the_keyframes_path():
     poses = {k: make_T(np.eye(3), [0.5 * k, 0.0, 0.0]) for k in range(10)}
     poses[12] = make_T(np.eye(3), [4.5, 1.0, 0.0])  # ids need not be consecutive: 10 and 11 were culled

@@ -12,9 +12,9 @@ corrected neighbourhood), plus the new loop edges between the corrected neighbou
 current keyframe and the loop keyframe's neighbourhood, measured from their corrected poses.
 Initial values are the corrected poses where given, the map's elsewhere; the loop keyframe is
 held fixed (edges to a fixed keyframe become priors on the other end). Every edge has the same
-diagonal noise (ORB-SLAM gives all edges identity information), or with
-``covisibility_information="shared"`` the covisibility edges' sigmas are scaled so that together
-they weigh what the other edges weigh; loop edges -- new and old -- are the only ones that may be
+diagonal noise (ORB-SLAM gives all edges identity information), or, where the graph's setting is
+"shared" (by default monocular Sim(3) graphs), the covisibility edges' sigmas are scaled so that
+together they weigh what the other edges weigh; loop edges -- new and old -- are the only ones that may be
 wrong and the only ones made robust. The gtsam side lives in
 ``pose_graph_solver`` so that this module (configuration, result, point correction) loads without it.
 
@@ -87,10 +87,13 @@ class PoseGraphConfig:
     # covisibility edges per keyframe make the chain so stiff that it rejects true loops of a few
     # centimetres. "shared": their sigmas times sqrt(covisibility edges / other edges), so together
     # they weigh what the spanning tree and loop edges weigh. "full": every edge at the sigmas above.
-    # Not the default: "shared" closes the synthetic loop's true loop on every draw, but also lets
-    # corrections through that verification got centimetres wrong (the figure-eight's at keyframe 194,
-    # 6.7 cm off: as-tracked ATE 0.77 -> 2.48 cm); benchmarks/README.md, "Loop closing end to end".
+    # Stereo / RGB-D (SE(3) graphs): "full". "shared" closes the synthetic loop's true loop on every
+    # draw, but also lets corrections through that verification got centimetres wrong (the
+    # figure-eight's at keyframe 194, 6.7 cm off: as-tracked ATE 0.77 -> 2.48 cm).
     covisibility_information: Literal["full", "shared"] = "full"
+    # Monocular (Sim(3) graphs): "shared". Their true loops carry scale drift as well, which the full
+    # chain rejected on most monocular synthetic loops; benchmarks/README.md, "Loop closing end to end".
+    covisibility_information_monocular: Literal["full", "shared"] = "shared"
 
     def __post_init__(self) -> None:
         sigmas = (self.sigma_rotation_rad, self.sigma_translation_m, self.sigma_log_scale, self.cauchy_k)
@@ -98,8 +101,9 @@ class PoseGraphConfig:
             raise PoseGraphError(f"pose graph sigmas and cauchy_k must be positive, got {sigmas}")
         if self.iterations < 1:
             raise PoseGraphError(f"pose_graph.iterations={self.iterations} must be at least 1")
-        if self.covisibility_information not in ("full", "shared"):
-            raise PoseGraphError(f"pose_graph.covisibility_information={self.covisibility_information!r} must be 'full' or 'shared'")
+        for name in ("covisibility_information", "covisibility_information_monocular"):
+            if getattr(self, name) not in ("full", "shared"):
+                raise PoseGraphError(f"pose_graph.{name}={getattr(self, name)!r} must be 'full' or 'shared'")
 
 
 @dataclass(frozen=True)

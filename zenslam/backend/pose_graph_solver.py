@@ -118,10 +118,12 @@ def _noise(with_scale: bool, config: PoseGraphConfig, factor: float = 1.0) -> gt
     return gtsam.noiseModel.Diagonal.Sigmas(factor * np.array(sigmas))
 
 
-def covisibility_sigma_factor(edges: list[EssentialEdge], config: PoseGraphConfig) -> float:
+def covisibility_sigma_factor(edges: list[EssentialEdge], config: PoseGraphConfig, with_scale: bool = False) -> float:
     """What the covisibility edges' sigmas are multiplied by: sqrt(covisibility / other edges), at
-    least 1, with ``covisibility_information="shared"``; 1 with "full"."""
-    if config.covisibility_information == "full":
+    least 1, where the graph's setting (``covisibility_information``, or ``..._monocular`` for a
+    Sim(3) graph) is "shared"; 1 where it is "full"."""
+    setting = config.covisibility_information_monocular if with_scale else config.covisibility_information
+    if setting == "full":
         return 1.0
     n_covisibility = sum(1 for edge in edges if edge[2] == "covisibility")
     return float(np.sqrt(max(1.0, n_covisibility / max(1, len(edges) - n_covisibility))))
@@ -130,7 +132,7 @@ def covisibility_sigma_factor(edges: list[EssentialEdge], config: PoseGraphConfi
 def _build_graph(before, initial, edges, new_loop_edges, fixed, with_scale, config) -> _Graph:
     """Between factors (priors where one end is fixed), in a fixed order: essential edges, then new loop edges."""
     plain = _noise(with_scale, config)
-    covisible = _noise(with_scale, config, covisibility_sigma_factor(edges, config))
+    covisible = _noise(with_scale, config, covisibility_sigma_factor(edges, config, with_scale))
     robust = plain
     if config.robust == "cauchy":
         robust = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy.Create(config.cauchy_k), plain)
