@@ -50,9 +50,9 @@ from pathlib import Path
 import numpy as np
 
 from zenslam.backend.essential_graph import EssentialEdge
-from zenslam.backend.loop_closing_config import LoopClosingConfig
 from zenslam.backend.global_ba import GlobalBAConfig, apply_global_ba, global_ba_problem, run_global_ba
 from zenslam.backend.local_mapping import BAWindowConfig
+from zenslam.backend.loop_closing_config import LoopClosingConfig
 from zenslam.backend.map import BackendKeyframe, BackendMap
 from zenslam.backend.pose_graph import PoseGraphConfig, correction_and_path, optimize_essential_graph
 from zenslam.backend.similarity import (
@@ -211,7 +211,7 @@ def bench_pose_graph(sizes, seeds, variants) -> list[dict]:
                 row["cpu_ms_max"] = max(r["cpu_ms"] for r in runs)
                 rows.append(row)
                 print(
-                    f"pose graph {n:4d} kf {name:23s} {variant:21s} accepted {row['accepted']:.1f} end {row['end_error_before_m']:6.2f} -> "
+                    f"pose graph {n:4d} kf {name:23s} {variant:22s} accepted {row['accepted']:.1f} end {row['end_error_before_m']:6.2f} -> "
                     f"{row['end_error_after_m']:6.2f} m, mean {row['mean_error_before_m']:5.2f} -> {row['mean_error_after_m']:5.2f} m, "
                     f"moved <= {row['max_move_from_before_m']:7.2f} m, correction {100 * row['correction_of_path']:5.1f}% of path, loop w [{row['loop_weight_min']:.2f}, "
                     f"{row['loop_weight_max']:.2f}], {row['cpu_ms']:5.0f} ms cpu (max {row['cpu_ms_max']:.0f})",

@@ -49,11 +49,10 @@ class LoopClosingConfig:
     # over 1,000 keyframes the pose graph alone accepts wrong loops at 7.3% of the path. A map that
     # drifts more than 5% of its path (17 deg of heading over 500 m) loses its loops.
     drift_budget: float | None = 0.05
-    # The same for monocular (Sim(3)) maps, whose scale drift makes true corrections larger: 0.5-1.5%
-    # of the path on the monocular synthetic loops, 8.4% for a 1,000-keyframe loop with 0.05% scale
-    # drift per keyframe, while wrong loops 25 m off ask 10.5-31%. Their pose graphs share the
-    # covisibility information (``pose_graph.covisibility_information_monocular``), which lets true
-    # loops through and wrong ones too: this budget is what refuses those (benchmarks/README.md).
+    # The same for monocular (Sim(3)) maps, larger because scale drift makes true corrections larger.
+    # Their pose graphs share the covisibility information
+    # (``pose_graph.covisibility_information_monocular``), which lets true loops through and wrong
+    # ones too: this budget is what refuses those (measured in benchmarks/README.md).
     drift_budget_monocular: float | None = 0.10
     global_ba: GlobalBAConfig = field(default_factory=GlobalBAConfig)  # after each closed loop
     seed: int = 0  # seeds the verification's RANSAC (with the keyframe id, so each keyframe draws its own)

@@ -87,12 +87,13 @@ class PoseGraphConfig:
     # covisibility edges per keyframe make the chain so stiff that it rejects true loops of a few
     # centimetres. "shared": their sigmas times sqrt(covisibility edges / other edges), so together
     # they weigh what the spanning tree and loop edges weigh. "full": every edge at the sigmas above.
-    # Stereo / RGB-D (SE(3) graphs): "full". "shared" closes the synthetic loop's true loop on every
-    # draw, but also lets corrections through that verification got centimetres wrong (the
-    # figure-eight's at keyframe 194, 6.7 cm off: as-tracked ATE 0.77 -> 2.48 cm).
+    # Stereo / RGB-D (SE(3) graphs): "full". The stiff chain costs some true loops, but it is also what
+    # stops a correction that verification got centimetres wrong, which with metric depth does more
+    # harm than a loop left open (benchmarks/README.md, "Loop closing end to end").
     covisibility_information: Literal["full", "shared"] = "full"
-    # Monocular (Sim(3) graphs): "shared". Their true loops carry scale drift as well, which the full
-    # chain rejected on most monocular synthetic loops; benchmarks/README.md, "Loop closing end to end".
+    # Monocular (Sim(3) graphs): "shared". Their true loops carry scale drift besides, which a stiff
+    # chain cannot take, so it rejects nearly every one; the wrong loops sharing lets through are
+    # refused first by loop closing's ``drift_budget_monocular``.
     covisibility_information_monocular: Literal["full", "shared"] = "shared"
 
     def __post_init__(self) -> None:

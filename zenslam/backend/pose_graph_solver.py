@@ -118,7 +118,7 @@ def _noise(with_scale: bool, config: PoseGraphConfig, factor: float = 1.0) -> gt
     return gtsam.noiseModel.Diagonal.Sigmas(factor * np.array(sigmas))
 
 
-def covisibility_sigma_factor(edges: list[EssentialEdge], config: PoseGraphConfig, with_scale: bool = False) -> float:
+def covisibility_sigma_factor(edges: list[EssentialEdge], config: PoseGraphConfig, with_scale: bool) -> float:
     """What the covisibility edges' sigmas are multiplied by: sqrt(covisibility / other edges), at
     least 1, where the graph's setting (``covisibility_information``, or ``..._monocular`` for a
     Sim(3) graph) is "shared"; 1 where it is "full"."""
