@@ -7,9 +7,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-from zenslam.backend.loop_closing import LoopCloser
+from zenslam.backend.loop_closing import LoopCloser, LoopOutcome
 from zenslam.backend.loop_closing_config import LoopClosingConfig
-from zenslam.backend.loop_verification import LoopMatch
+from zenslam.backend.loop_detection import Detection
+from zenslam.backend.loop_messages import loop_messages
+from zenslam.backend.loop_verification import LoopMatch, Rejection
 from zenslam.backend.map import BackendKeyframe, BackendMap
 from zenslam.camera import PinholeCalibration
 from zenslam.errors import ConfigError
@@ -109,3 +111,15 @@ def test_a_loop_moving_the_keyframe_beyond_the_drift_budget_is_refused() -> None
     assert LoopCloser(bmap, None, dataclasses.replace(tight, drift_budget_monocular=0.01)).drift_budget_exceeded(match, True) is not None
     with pytest.raises(ConfigError, match="drift_budget_monocular=0"):
         LoopClosingConfig(drift_budget_monocular=0.0)
+
+
+def test_a_loop_refused_after_verification_publishes_the_transform_it_asked_for() -> None:
+    bmap, match = revisit()
+    before = bmap.keyframe(4).T_world_cam.copy()
+    refused = Rejection(match.loop_keyframe_id, "drift budget: ...", match)
+    failed = Rejection(2, "12 BoW matches < 20")
+    detection = Detection(keyframe_id=4, min_score=0.1, candidates=(), consistent=(match.loop_keyframe_id, 2))
+    messages = loop_messages(bmap, LoopOutcome(detection, (refused, failed)), before)
+    assert [(m.loop_keyframe_id, m.accepted, m.inliers) for m in messages] == [(match.loop_keyframe_id, False, match.inliers), (2, False, 0)]
+    np.testing.assert_allclose(messages[0].T_cur_loop, match.T_cur_loop)
+    np.testing.assert_allclose(messages[1].T_cur_loop, np.eye(4))

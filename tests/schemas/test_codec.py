@@ -353,9 +353,15 @@ def test_loop_messages_round_trip_accepted_and_rejected():
     assert (back.keyframe_id, back.loop_keyframe_id, back.loop_stamp_ns, back.accepted, back.inliers) == (40, 3, 300, True, 87)
     np.testing.assert_allclose(back.T_cur_loop, T_b, atol=1e-12)
     np.testing.assert_allclose(back.T_world_cur_after, T_a, atol=1e-12)
-    rejected = codec.decode_loop(codec.encode_loop(dataclasses.replace(accepted, accepted=False, reason="12 BoW matches < 20")))
+    failed = dataclasses.replace(accepted, accepted=False, reason="12 BoW matches < 20", inliers=0)
+    rejected = codec.decode_loop(codec.encode_loop(failed))
     assert not rejected.accepted and rejected.reason == "12 BoW matches < 20"
     np.testing.assert_allclose(rejected.T_cur_loop, np.eye(4))
+    # refused after verification: the transform it asked for goes along, the pose after does not
+    refused = codec.decode_loop(codec.encode_loop(dataclasses.replace(accepted, accepted=False, reason="drift budget", scale=1.3)))
+    assert (refused.accepted, refused.inliers, refused.scale) == (False, 87, 1.3)
+    np.testing.assert_allclose(refused.T_cur_loop, T_b, atol=1e-12)
+    np.testing.assert_allclose(refused.T_world_cur_after, np.eye(4))
 
 
 def test_map_update_carries_the_corrections_that_follow_it():

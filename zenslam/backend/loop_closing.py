@@ -89,11 +89,11 @@ class LoopCloser:
         over_budget = self.drift_budget_exceeded(match, with_scale)
         if over_budget is not None:
             logger.warning("keyframe %d: loop to %d rejected: %s", kf_id, match.loop_keyframe_id, over_budget)
-            return LoopOutcome(detection, (*rejections, Rejection(match.loop_keyframe_id, over_budget)))
+            return LoopOutcome(detection, (*rejections, Rejection(match.loop_keyframe_id, over_budget, match)))
         fused, connections, stats = self.correct(match, with_scale)
         if stats.get("loop_rejected"):
             logger.warning("keyframe %d: loop to %d rejected by the pose graph (its edges disagree with the map)", kf_id, match.loop_keyframe_id)
-            rejection = Rejection(match.loop_keyframe_id, "pose graph: every loop edge down-weighted")
+            rejection = Rejection(match.loop_keyframe_id, "pose graph: every loop edge down-weighted", match)
             return LoopOutcome(detection, (*rejections, rejection), None, fused, connections, stats)
         self.map.essential_graph.add_loop_edge(kf_id, match.loop_keyframe_id)
         self.detector.loop_closed(kf.serial)

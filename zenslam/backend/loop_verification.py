@@ -49,6 +49,9 @@ class Rejection:
 
     loop_keyframe_id: int
     reason: str
+    # The verified match, when the candidate passed verification and was refused after it (by the
+    # drift budget or the pose graph): what the loop asked for.
+    match: LoopMatch | None = None
 
 
 def verify_candidates(

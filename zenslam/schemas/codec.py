@@ -224,6 +224,8 @@ class LoopMessage:
     reason: str  # why it was rejected; "" when accepted
     T_world_cur_before: np.ndarray  # (4, 4) the current keyframe's pose before any correction
     T_world_loop: np.ndarray  # (4, 4) the loop keyframe's pose
+    # The verified transform, for an accepted loop and for one refused after verification (drift
+    # budget, pose graph); identity with 0 inliers for a candidate that failed verification.
     T_cur_loop: np.ndarray = field(default_factory=lambda: np.eye(4))  # (4, 4) rigid part: loop camera -> current camera
     scale: float = 1.0  # the transform's scale (1 for stereo/RGB-D)
     inliers: int = 0
@@ -670,22 +672,25 @@ def encode_loop(loop: LoopMessage) -> bytes:
     )
     _transform_to_pb(loop.T_world_cur_before, msg.T_world_cur_before)
     _transform_to_pb(loop.T_world_loop, msg.T_world_loop)
-    if loop.accepted:
+    if loop.accepted or loop.inliers > 0:
         _transform_to_pb(loop.T_cur_loop, msg.T_cur_loop)
+    if loop.accepted:
         _transform_to_pb(loop.T_world_cur_after, msg.T_world_cur_after)
     return msg.SerializeToString()
 
 
 def decode_loop(data: bytes) -> LoopMessage:
-    """Decode a backend/loop message (an unaccepted loop's transforms after the correction are identities)."""
+    """Decode a backend/loop message (an unaccepted loop's pose after the correction is the identity,
+    and so is the transform of one that failed verification)."""
     msg = _parse(pb.Loop, data)
     accepted = bool(msg.accepted)
+    verified = accepted or msg.inliers > 0
     return LoopMessage(
         keyframe_id=msg.keyframe_id, stamp_ns=msg.stamp_ns, loop_keyframe_id=msg.loop_keyframe_id,
         loop_stamp_ns=msg.loop_stamp_ns, accepted=accepted, reason=msg.reason,
         T_world_cur_before=_transform_from_pb(msg.T_world_cur_before), T_world_loop=_transform_from_pb(msg.T_world_loop),
-        T_cur_loop=_transform_from_pb(msg.T_cur_loop) if accepted else np.eye(4),
-        scale=msg.scale if accepted else 1.0, inliers=msg.inliers,
+        T_cur_loop=_transform_from_pb(msg.T_cur_loop) if verified else np.eye(4),
+        scale=msg.scale if verified else 1.0, inliers=msg.inliers,
         T_world_cur_after=_transform_from_pb(msg.T_world_cur_after) if accepted else np.eye(4),
     )
 

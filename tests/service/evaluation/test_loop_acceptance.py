@@ -17,10 +17,11 @@ def truth() -> Trajectory:
     return Trajectory(np.arange(20, dtype=np.int64) * STEP_NS, np.stack(poses))
 
 
-def loop(cur: int, old: int, T_cur_loop: np.ndarray, accepted: bool = True) -> codec.LoopMessage:
+def loop(cur: int, old: int, T_cur_loop: np.ndarray, accepted: bool = True, reason: str = "too few inliers", inliers: int = 0) -> codec.LoopMessage:
     return codec.LoopMessage(
         keyframe_id=cur, stamp_ns=cur * STEP_NS, loop_keyframe_id=old, loop_stamp_ns=old * STEP_NS, accepted=accepted,
-        reason="" if accepted else "too few inliers", T_world_cur_before=np.eye(4), T_world_loop=np.eye(4), T_cur_loop=T_cur_loop,
+        reason="" if accepted else reason, T_world_cur_before=np.eye(4), T_world_loop=np.eye(4), T_cur_loop=T_cur_loop,
+        inliers=inliers,
     )
 
 
@@ -37,7 +38,22 @@ def test_a_loop_matching_the_truth_is_true_and_one_off_by_half_a_metre_is_false(
 
 
 def test_without_ground_truth_only_counts_are_reported() -> None:
-    assert acceptance_counts([loop(15, 2, np.eye(4))], None) == {"candidates": 1, "accepted": 1, "rejected": 0}
+    assert acceptance_counts([loop(15, 2, np.eye(4))], None) == {"candidates": 1, "accepted": 1, "rejected": 0, "refused": 0}
+
+
+def test_a_loop_refused_after_verification_is_judged_against_the_truth() -> None:
+    """The drift budget refused a loop 0.5 m off the truth (it kept a wrong loop out); a candidate that
+    failed verification (no inliers, no transform) is rejected but not judged."""
+    gt = truth()
+    off = invert_T(gt.T_world_cam[16]) @ gt.T_world_cam[3]
+    off[:3, 3] += [0.0, 0.5, 0.0]
+    budget = "drift budget: the loop moves the keyframe 1.200 m, 9.0% of the 13.00 m path (budget 5%)"
+    loops = [loop(16, 3, off, accepted=False, reason=budget, inliers=80), loop(17, 4, np.eye(4), accepted=False)]
+    section = acceptance_counts(loops, gt)
+    assert (section["rejected"], section["refused"], section["false_accepted"]) == (2, 1, 0)
+    (refused,) = section["refused_loops"]
+    assert (refused["keyframe_id"], refused["loop_keyframe_id"], refused["inliers"], refused["reason"]) == (16, 3, 80, budget)
+    assert abs(refused["error_m"] - 0.5) < 1e-9 and refused["error_deg"] < 1e-6
 
 
 def test_a_monocular_loop_is_judged_in_metres_through_the_maps_scale() -> None:

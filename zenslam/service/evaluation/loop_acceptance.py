@@ -3,6 +3,8 @@
 An accepted loop says where the current keyframe is relative to the loop keyframe
 (``T_cur_loop``). With ground truth at both keyframes' stamps, the loop is a false accept when
 that relative pose is off the truth's by more than ``max_translation_m`` or ``max_rotation_deg``.
+A loop refused after verification (drift budget, pose graph) carries the transform it asked for:
+its error against the truth says whether the refusal kept a wrong loop out or a true one.
 A monocular map has a scale of its own: its translations are taken to metres with the scale of the
 run's Sim(3) alignment to the ground truth (metres per map unit).
 """
@@ -31,7 +33,7 @@ def _pose_at(ground_truth: Trajectory, stamp_ns: int) -> np.ndarray | None:
 
 
 def loop_error(loop: codec.LoopMessage, ground_truth: Trajectory, metres_per_unit: float = 1.0) -> tuple[float, float] | None:
-    """(translation m, rotation deg) between an accepted loop's ``T_cur_loop`` (its translation times
+    """(translation m, rotation deg) between a verified loop's ``T_cur_loop`` (its translation times
     ``metres_per_unit``) and the truth's, or None without ground truth at both stamps."""
     T_world_cur = _pose_at(ground_truth, loop.stamp_ns)
     T_world_loop = _pose_at(ground_truth, loop.loop_stamp_ns)
@@ -47,24 +49,31 @@ def loop_error(loop: codec.LoopMessage, ground_truth: Trajectory, metres_per_uni
 def acceptance_counts(
     loops: list[codec.LoopMessage], ground_truth: Trajectory | None, metres_per_unit: float = 1.0
 ) -> dict[str, object]:
-    """Counts of verified candidates, accepted and rejected loops; with ground truth, the accepted
-    loops that are false (``false_accepted``) and each accepted loop's error (``metres_per_unit``:
+    """Counts of verified candidates, accepted and rejected loops, and those rejected after
+    verification (``refused``); with ground truth, the accepted loops that are false
+    (``false_accepted``), each accepted loop's error and each refused loop's (``metres_per_unit``:
     the map's scale, 1 for stereo/RGB-D)."""
     accepted = [loop for loop in loops if loop.accepted]
+    refused = [loop for loop in loops if not loop.accepted and loop.inliers > 0]
     section: dict[str, object] = {
         "candidates": len(loops),
         "accepted": len(accepted),
         "rejected": len(loops) - len(accepted),
+        "refused": len(refused),
     }
     if ground_truth is None:
         return section
-    errors = [(loop, loop_error(loop, ground_truth, metres_per_unit)) for loop in accepted]
-    judged = [(loop, e) for loop, e in errors if e is not None]
-    section["false_accepted"] = sum(1 for _, (t, r) in judged if t > MAX_TRANSLATION_M or r > MAX_ROTATION_DEG)
-    section["accepted_without_ground_truth"] = len(errors) - len(judged)
-    section["accepted_loops"] = [
-        {"keyframe_id": int(loop.keyframe_id), "loop_keyframe_id": int(loop.loop_keyframe_id),
-         "inliers": int(loop.inliers), "error_m": round(t, 4), "error_deg": round(r, 3)}
-        for loop, (t, r) in judged
-    ]  # fmt: skip
+    judged = [(loop, loop_error(loop, ground_truth, metres_per_unit)) for loop in accepted]
+    judged_accepted = [(loop, e) for loop, e in judged if e is not None]
+    section["false_accepted"] = sum(1 for _, (t, r) in judged_accepted if t > MAX_TRANSLATION_M or r > MAX_ROTATION_DEG)
+    section["accepted_without_ground_truth"] = len(judged) - len(judged_accepted)
+    section["accepted_loops"] = [_judged(loop, e) for loop, e in judged_accepted]
+    judged_refused = [(loop, loop_error(loop, ground_truth, metres_per_unit)) for loop in refused]
+    section["refused_loops"] = [_judged(loop, e) | {"reason": loop.reason} for loop, e in judged_refused if e is not None]
     return section
+
+
+def _judged(loop: codec.LoopMessage, error: tuple[float, float]) -> dict[str, object]:
+    t, r = error
+    return {"keyframe_id": int(loop.keyframe_id), "loop_keyframe_id": int(loop.loop_keyframe_id),
+            "inliers": int(loop.inliers), "error_m": round(t, 4), "error_deg": round(r, 3)}  # fmt: skip

@@ -29,7 +29,10 @@ Format (a UTF-8 JSON object; keys are stable, new keys may be added, none rename
         "candidates": int,            # zenslam run: loop candidates verified (backend/loop messages)
         "accepted": int,
         "rejected": int,
+        "refused": int,               # rejected after verification (drift budget, pose graph)
         "false_accepted": int,        # with ground truth: accepted loops off the truth by > 0.3 m or 5 deg
+        "accepted_loops": [...],      # with ground truth: each accepted loop's error against it
+        "refused_loops": [...],       # the same for each refused loop, with the reason
         ...                           # (see zenslam.service.evaluation.loop_acceptance)
       },
       "relocalisation": {"count": int, "frames_lost": int, "new_maps": int},   # zenslam run
