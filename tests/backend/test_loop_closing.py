@@ -15,7 +15,8 @@ from zenslam.backend.loop_verification import LoopMatch, Rejection
 from zenslam.backend.map import BackendKeyframe, BackendMap
 from zenslam.camera import PinholeCalibration
 from zenslam.errors import ConfigError
-from zenslam.geometry import invert_T, make_T, transform_points
+from zenslam.geometry import invert_T, make_T, so3_exp, transform_points
+from zenslam.schemas import codec
 
 from test_map import map_state  # noqa: E402  (tests/backend is on the path under pytest)
 
@@ -123,3 +124,17 @@ def test_a_loop_refused_after_verification_publishes_the_transform_it_asked_for(
     assert [(m.loop_keyframe_id, m.accepted, m.inliers) for m in messages] == [(match.loop_keyframe_id, False, match.inliers), (2, False, 0)]
     np.testing.assert_allclose(messages[0].T_cur_loop, match.T_cur_loop)
     np.testing.assert_allclose(messages[1].T_cur_loop, np.eye(4))
+
+
+def test_a_monocular_loop_message_carries_a_rotation_and_the_scale_apart() -> None:
+    """p_cur = s R p_loop + t: the message's T_cur_loop holds R and t (a rigid transform), ``scale`` s."""
+    bmap, match = revisit()
+    R = so3_exp(np.array([0.0, 0.2, 0.05]))
+    sim3 = dataclasses.replace(match, T_cur_loop=make_T(R, [0.1, 0.0, 0.3]), scale=1.4)
+    detection = Detection(keyframe_id=4, min_score=0.1, candidates=(), consistent=(match.loop_keyframe_id,))
+    refused = Rejection(match.loop_keyframe_id, "drift budget: ...", sim3)
+    (message,) = loop_messages(bmap, LoopOutcome(detection, (refused,)), bmap.keyframe(4).T_world_cam)
+    np.testing.assert_allclose(message.T_cur_loop[:3, :3], R, atol=1e-12)
+    assert message.scale == 1.4
+    back = codec.decode_loop(codec.encode_loop(message))
+    np.testing.assert_allclose(back.T_cur_loop, sim3.T_cur_loop, atol=1e-9)

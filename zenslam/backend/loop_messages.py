@@ -26,9 +26,7 @@ def _verified(match: LoopMatch | None) -> dict:
     """The LoopMessage fields of a verified match: its transform (rigid part and scale) and inliers."""
     if match is None:
         return {}
-    T_rigid = match.T_cur_loop.copy()
-    T_rigid[:3, :3] /= match.scale
-    return {"T_cur_loop": T_rigid, "scale": match.scale, "inliers": match.inliers}
+    return {"T_cur_loop": match.T_cur_loop.copy(), "scale": match.scale, "inliers": match.inliers}
 
 
 def loop_messages(bmap: BackendMap, outcome: LoopOutcome, T_world_cur_before: np.ndarray) -> list[codec.LoopMessage]:
