@@ -14,8 +14,8 @@ Initial values are the corrected poses where given, the map's elsewhere; the loo
 held fixed (edges to a fixed keyframe become priors on the other end). Every edge has the same
 diagonal noise (ORB-SLAM gives all edges identity information), or, where the graph's setting is
 "shared" (by default monocular Sim(3) graphs), the covisibility edges' sigmas are scaled so that
-together they weigh what the other edges weigh; loop edges -- new and old -- are the only ones that may be
-wrong and the only ones made robust. The gtsam side lives in
+together they weigh what the other edges weigh; loop edges -- new and old -- are the only ones that
+may be wrong and the only ones made robust. The gtsam side lives in
 ``pose_graph_solver`` so that this module (configuration, result, point correction) loads without it.
 
 Robustness against a wrong loop: a Cauchy kernel on the loop edges, Levenberg-Marquardt from the

@@ -17,7 +17,9 @@ def truth() -> Trajectory:
     return Trajectory(np.arange(20, dtype=np.int64) * STEP_NS, np.stack(poses))
 
 
-def loop(cur: int, old: int, T_cur_loop: np.ndarray, accepted: bool = True, reason: str = "too few inliers", inliers: int = 0) -> codec.LoopMessage:
+def loop(
+    cur: int, old: int, T_cur_loop: np.ndarray, accepted: bool = True, reason: str = "too few inliers", inliers: int = 0
+) -> codec.LoopMessage:
     return codec.LoopMessage(
         keyframe_id=cur, stamp_ns=cur * STEP_NS, loop_keyframe_id=old, loop_stamp_ns=old * STEP_NS, accepted=accepted,
         reason="" if accepted else reason, T_world_cur_before=np.eye(4), T_world_loop=np.eye(4), T_cur_loop=T_cur_loop,
