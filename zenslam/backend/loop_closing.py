@@ -9,9 +9,9 @@ corrects the map (ORB-SLAM's ``CorrectLoop``):
    stereo / RGB-D maps, ``drift_budget_monocular``, 10%, for monocular ones: a loop may move the
    current keyframe by at most that fraction of the keyframes' path from the loop keyframe; a wrong
    place verification let through asks for far more than drift makes, and on a long path the chain
-   alone would absorb it), then the essential graph
-   optimised with the current keyframe's covisible neighbourhood tied to the loop keyframe; if its
-   robust kernel rejects every such edge, the loop is rejected; either way nothing in the map changes;
+   alone would absorb it), then the essential graph optimised with the current keyframe's covisible
+   neighbourhood tied to the loop keyframe; if its robust kernel rejects every such edge, the loop
+   is rejected; either way nothing in the map changes;
 1. the neighbourhood is moved rigidly (with scale for monocular) to where the loop puts the
    current keyframe, with the points they observe;
 2. the loop's points replace the current neighbourhood's duplicates (matched points first, then
