@@ -1,8 +1,9 @@
 """Z-buffered rasteriser of textured planar tiles for a pinhole camera: grey image and exact per-pixel depth.
 
 Each tile facing the camera is clipped to the view frustum; inside the image bounding box of its
-projection the texture is resampled through the plane's homography (cv2.warpPerspective, bilinear,
-from a mip level chosen by the tile's texel-per-pixel footprint), and the plane's inverse depth,
+projection the texture is resampled through the plane's homography (bilinear, by
+``texture_sampling``, which gives the same bits on every CPU and OpenCV version, from a mip level
+chosen by the tile's texel-per-pixel footprint), and the plane's inverse depth,
 affine in pixel coordinates, drives the z-buffer. Pixel (u, v) is centred at integer coordinates.
 """
 
@@ -12,11 +13,11 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from zenslam.camera import PinholeCalibration
 from zenslam.service.sources.synthetic.scene import Tile
+from zenslam.service.sources.synthetic.texture_sampling import sample_bilinear
 
 
 @dataclass(frozen=True)
@@ -135,16 +136,10 @@ class Renderer:
         np.copyto(zb, iz, where=visible)
         level = self._mip_level(tile, self._homography(tile, 0, R_cw, t_cw), uv)
         H_img_tex = self._homography(tile, level, R_cw, t_cw)
-        shift = np.array([[1.0, 0.0, x0], [0.0, 1.0, y0], [0.0, 0.0, 1.0]])
-        M = np.linalg.inv(H_img_tex) @ shift  # ROI pixel -> texel of the chosen level
-        warped = cv2.warpPerspective(
-            tile.pyramid[level],
-            M,
-            (x1 - x0, y1 - y0),
-            flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-            borderMode=cv2.BORDER_REFLECT_101,
-        )
-        np.copyto(grey[y0:y1, x0:x1], warped, where=visible)
+        M = np.linalg.inv(H_img_tex)  # image pixel -> texel of the chosen level
+        cols = np.arange(x0, x1, dtype=np.float64)[None, :]
+        rows = np.arange(y0, y1, dtype=np.float64)[:, None]
+        grey[y0:y1, x0:x1][visible] = sample_bilinear(tile.pyramid[level], M, cols, rows, visible)
 
     def _inside_tile(
         self, tile: Tile, R_cw: np.ndarray, t_cw: np.ndarray, roi: tuple[int, int, int, int], visible: np.ndarray

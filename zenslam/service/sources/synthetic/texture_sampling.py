@@ -1,0 +1,69 @@
+"""Bilinear texture sampling through a homography, with the same bits on every CPU and OpenCV version.
+
+The renderer used ``cv2.warpPerspective`` for this, but its output is not a function of its input
+alone: OpenCV 4.14 quantises source coordinates to 1/32 texel, 5.0 does not, and 5.0's AVX2 path
+rounds differently from its baseline path (the same call gave other pixels with
+``OPENCV_CPU_DISABLE=AVX2``). A synthetic scene is the input of every synthetic test, golden replay
+and benchmark, so it must not change with the machine. Here every step is an IEEE-754 elementwise
+operation numpy rounds exactly (+, -, *, /, floor, rint; no matrix products, whose BLAS kernels
+differ by CPU), so a pixel is the exact bilinear interpolation at its exactly projected centre,
+rounded half to even.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def reflect_101(index: np.ndarray, size: int) -> np.ndarray:
+    """``index`` folded into [0, size) as OpenCV's BORDER_REFLECT_101 does (-1 -> 1, size -> size - 2)."""
+    if size == 1:
+        return np.zeros_like(index)
+    low, high = int(index.min(initial=0)), int(index.max(initial=0))
+    if low >= 0 and high < size:
+        return index  # the common case: every texel inside
+    if low > -size and high < 2 * size - 1:  # one fold at most on either side
+        index = np.abs(index)
+        return np.where(index >= size, 2 * size - 2 - index, index)
+    period = 2 * size - 2
+    index = np.mod(index, period)
+    return np.where(index >= size, period - index, index)
+
+
+def sample_bilinear(
+    texture: np.ndarray, M: np.ndarray, cols: np.ndarray, rows: np.ndarray, mask: np.ndarray | None = None
+) -> np.ndarray:
+    """Texture values (uint8) at pixels (``cols``, ``rows``), which ``M`` maps to texels.
+
+    ``texture`` is uint8 (H, W); ``M`` (3, 3) maps a pixel (column, row, 1) to a homogeneous texel
+    (column, row) with texel centres at integer coordinates, as ``cv2.warpPerspective`` with
+    ``WARP_INVERSE_MAP`` reads it. ``cols`` and ``rows`` are float64 arrays that broadcast together
+    (a row of columns and a column of rows give a block), and the result has their broadcast shape;
+    with ``mask`` (of that shape) only the masked pixels are sampled, returned in row-major order
+    (as ``block[mask]``). Texels past the border are reflected (BORDER_REFLECT_101).
+    """
+    w = (M[2, 0] * cols + M[2, 2]) + M[2, 1] * rows
+    x = ((M[0, 0] * cols + M[0, 2]) + M[0, 1] * rows) / w
+    y = ((M[1, 0] * cols + M[1, 2]) + M[1, 1] * rows) / w
+    if mask is not None:
+        x, y = x[mask], y[mask]
+    x_floor = np.floor(x)
+    y_floor = np.floor(y)
+    fx = (x - x_floor).astype(np.float32)
+    fy = (y - y_floor).astype(np.float32)
+    xi = x_floor.astype(np.int32)
+    yi = y_floor.astype(np.int32)
+    height, width = texture.shape
+    x0 = reflect_101(xi, width)
+    x1 = reflect_101(xi + 1, width)
+    row0 = reflect_101(yi, height) * width
+    row1 = reflect_101(yi + 1, height) * width
+    flat = texture.ravel()
+    top_left = flat[row0 + x0].astype(np.float32)
+    top_right = flat[row0 + x1].astype(np.float32)
+    bottom_left = flat[row1 + x0].astype(np.float32)
+    bottom_right = flat[row1 + x1].astype(np.float32)
+    top = top_left + fx * (top_right - top_left)
+    bottom = bottom_left + fx * (bottom_right - bottom_left)
+    value = top + fy * (bottom - top)
+    return np.rint(value).astype(np.uint8)  # a convex combination of uint8 values stays in [0, 255]
