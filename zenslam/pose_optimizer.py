@@ -145,6 +145,40 @@ def optimize_pose(
     return PoseResult(T, active, n_inliers, chi2, iterations, rounds_run)
 
 
+def position_sigma(
+    T_cam_world: np.ndarray,
+    p_world: np.ndarray,
+    obs_px: np.ndarray,
+    obs_right_u: np.ndarray,
+    inv_sigma2: np.ndarray,
+    calibration: PinholeCalibration,
+) -> float:
+    """Largest standard deviation (metres) of the camera centre of the pose ``T_cam_world`` given the
+    observations (``optimize_pose``'s arguments, inliers only), with the rotation marginalised out.
+
+    From the observations' information at that pose (the Gauss-Newton H = J^T W J, whose inverse is
+    the pose's covariance under the pixel noise the levels' sigmas state). The map points are taken as
+    exact, so it is a lower bound; what it shows is how well the observations' geometry pins the
+    camera down: points far away and on one plane trade sideways motion for rotation, and the sigma
+    along that direction grows. Infinite when the observations do not fix the pose.
+    """
+    T = np.asarray(T_cam_world, dtype=float)
+    p_world, obs_px, obs_right_u, inv_sigma2 = _check_shapes(T, p_world, obs_px, obs_right_u, inv_sigma2)
+    usable = np.isfinite(p_world).all(axis=1) & np.isfinite(obs_px).all(axis=1) & (inv_sigma2 > 0)
+    if int(usable.sum()) < 3:
+        return math.inf
+    problem = _make_problem(p_world, obs_px, obs_right_u, inv_sigma2, usable, calibration, PoseOptimizerConfig())
+    _, H, _ = _linearize(T, problem.subset(usable), robust=False, min_depth_m=PoseOptimizerConfig().min_depth_m)
+    try:
+        covariance = np.linalg.inv(H)
+    except np.linalg.LinAlgError:
+        return math.inf
+    # T <- exp(xi) T moves the centre by -R^T upsilon to first order: its covariance is upsilon's
+    # block rotated, with the same eigenvalues.
+    largest = float(np.linalg.eigvalsh(covariance[3:, 3:])[-1])
+    return math.sqrt(largest) if largest > 0 else math.inf
+
+
 def _check_shapes(T, p_world, obs_px, obs_right_u, inv_sigma2):
     """The inputs as float arrays of consistent shapes; ValueError names the offending argument."""
     if T.shape != (4, 4):

@@ -29,7 +29,7 @@ from zenslam.frontend.frustum import project_in_frustum
 from zenslam.frontend.keyframe import KeyFrame
 from zenslam.frontend.orb_extractor import Features
 from zenslam.frontend.pnp_ransac import PnpRansacConfig, pnp_ransac
-from zenslam.pose_optimizer import PoseOptimizerConfig
+from zenslam.pose_optimizer import PoseOptimizerConfig, position_sigma
 from zenslam.schemas.relocalisation import MapKeyframe, MapPoints, RelocalisationCandidates
 from zenslam.vocabulary.bow_matching import search_by_bow
 
@@ -61,6 +61,12 @@ class RelocalisationConfig:
     narrow_max_distance: int = 64  # Hamming bits, the narrow guided search
     narrow_min_inliers: int = 30  # more inliers than this (but fewer than min_inliers) try the narrow search
     min_inliers: int = 50  # inliers that accept a relocalisation
+    # Not ORB-SLAM's: a pose the inliers pin down this loosely is refused. The ratio is the camera
+    # centre's largest standard deviation (``pose_optimizer.position_sigma``: pixel noise only, the
+    # rotation marginalised) over the inliers' median depth. Views of far points on one surface
+    # trade sideways motion for rotation, and there a 50-inlier pose can be metres off
+    # (benchmarks/README.md, "Saved maps and localisation"). None: no such check.
+    max_position_sigma_ratio: float | None = None
     # For one second of frames after a relocalisation (ORB-SLAM's mMaxFrames = the camera rate),
     # local-map tracking needs this many inliers, as ORB-SLAM.
     min_local_map_inliers_after: int = 50
@@ -76,6 +82,8 @@ class RelocalisationConfig:
             for name in ("max_candidates", "min_bow_matches", "min_inliers", "min_pose_inliers")
             if getattr(self, name) < 1
         ]
+        if self.max_position_sigma_ratio is not None and not self.max_position_sigma_ratio > 0:
+            problems.append(f"max_position_sigma_ratio={self.max_position_sigma_ratio} must be > 0 (or null: no check)")
         if self.max_neighbours < 0:
             problems.append(f"max_neighbours={self.max_neighbours} must be >= 0")
         if problems:
@@ -186,9 +194,30 @@ def _try_keyframe(frame, fvec, keyframe: MapKeyframe, table: _PointTable, vocabu
                 if n_good + added >= config.min_inliers:
                     T, inliers, n_good = _optimise(frame, T, rows, points, pose_config)
             rows = np.where(inliers, rows, -1)  # matches added after the last optimisation go too
-    if n_good < config.min_inliers:
+    if n_good < config.min_inliers or not _pinned_down(frame, T, rows, points, config):
         return None
     return T, rows, n_good, n_bow
+
+
+def _pinned_down(frame: Frame, T: np.ndarray, rows: np.ndarray, points: MapPoints, config: RelocalisationConfig) -> bool:
+    """True when the pose ``T`` is fixed well enough by the inlier matches ``rows`` (-1 none) to be
+    accepted: ``config.max_position_sigma_ratio`` unset, or the centre's sigma within it."""
+    if config.max_position_sigma_ratio is None:
+        return True
+    kps = np.flatnonzero(rows >= 0)
+    p_world = points.p_world[rows[kps]]
+    feats = frame.features
+    right = frame.right_u[kps].astype(float)
+    sigma = position_sigma(
+        T, p_world, feats.px[kps].astype(float), np.where(right >= 0, right, np.nan),
+        feats.inv_level_sigma2[feats.level[kps]], frame.calibration,
+    )  # fmt: skip
+    depth = float(np.median(p_world @ T[2, :3] + T[2, 3]))
+    ratio = sigma / depth if depth > 0 else float("inf")
+    if ratio > config.max_position_sigma_ratio:
+        logger.debug("relocalisation refused: centre sigma %.3f m is %.2f%% of the median depth %.2f m", sigma, 100 * ratio, depth)
+        return False
+    return True
 
 
 def _optimise(frame: Frame, T_init: np.ndarray, rows: np.ndarray, points: MapPoints, pose_config: PoseOptimizerConfig):
