@@ -161,3 +161,46 @@ def test_analytic_jacobian_matches_finite_differences():
 def test_config_builds_from_a_mapping():
     config = from_mapping(PoseOptimizerConfig, {"rounds": 2, "chi2_mono": 6.0})
     assert config.rounds == 2 and config.chi2_mono == 6.0 and config.iterations_per_round == 10
+
+
+def _noisy_observations(T_true, p_world, calibration, rng, noise_px):
+    p_cam = p_world @ T_true[:3, :3].T + T_true[:3, 3]
+    u = calibration.fx * p_cam[:, 0] / p_cam[:, 2] + calibration.cx
+    v = calibration.fy * p_cam[:, 1] / p_cam[:, 2] + calibration.cy
+    right = u - calibration.bf / p_cam[:, 2]
+    n = len(p_world)
+    return np.stack([u, v], 1) + rng.normal(scale=noise_px, size=(n, 2)), right + rng.normal(scale=noise_px, size=n)
+
+
+def test_position_sigma_is_the_spread_of_the_centre_under_pixel_noise():
+    """Monte Carlo: the camera centres optimised from 300 draws of 1 px noise spread as position_sigma says."""
+    rng = np.random.default_rng(4)
+    T_true, _, p_world, _, _, _, _ = make_scene(150, 3, outlier_fraction=0.0)
+    inv_sigma2 = np.ones(len(p_world))
+    centres = []
+    for _ in range(300):
+        obs_px, right = _noisy_observations(T_true, p_world, STEREO, rng, 1.0)
+        result = optimize_pose(T_true, p_world, obs_px, right, inv_sigma2, STEREO, PoseOptimizerConfig(rounds=1, robust_rounds=0))
+        centres.append(invert_T(result.T_cam_world)[:3, 3])
+    largest_std = float(np.sqrt(np.linalg.eigvalsh(np.cov(np.array(centres).T))[-1]))
+    obs_px, right = _noisy_observations(T_true, p_world, STEREO, rng, 0.0)
+    sigma = pose_optimizer.position_sigma(T_true, p_world, obs_px, right, inv_sigma2, STEREO)
+    assert 0.85 < largest_std / sigma < 1.15, (largest_std, sigma)
+
+
+def test_position_sigma_grows_when_the_points_are_far_and_on_one_plane():
+    """Near points spread in depth pin the centre down; far points on one plane leave it loose
+    sideways (sideways motion and rotation look alike)."""
+    rng = np.random.default_rng(5)
+    u = rng.uniform(100, STEREO.width - 100, 200)
+    v = rng.uniform(50, STEREO.height - 50, 200)
+
+    def sigma_for(depth):
+        p_cam = np.stack([(u - STEREO.cx) * depth / STEREO.fx, (v - STEREO.cy) * depth / STEREO.fy, depth], 1)
+        obs_px, right = _noisy_observations(np.eye(4), p_cam, STEREO, rng, 0.0)
+        return pose_optimizer.position_sigma(np.eye(4), p_cam, obs_px, right, np.ones(200), STEREO)
+
+    near = sigma_for(rng.uniform(3.0, 12.0, 200))
+    far_plane = sigma_for(np.full(200, 60.0))
+    assert far_plane > 20 * near
+    assert pose_optimizer.position_sigma(np.eye(4), np.zeros((2, 3)), np.zeros((2, 2)), np.full(2, np.nan), np.ones(2), STEREO) == np.inf

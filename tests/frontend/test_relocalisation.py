@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from zenslam.camera import PinholeCalibration
+from zenslam.errors import ConfigError
 from zenslam.frontend.frame import Frame
 from zenslam.frontend.local_map import LocalMapConfig
 from zenslam.frontend.orb_extractor import Features
@@ -444,3 +445,15 @@ def test_visual_odometry_places_frames_on_an_anchor_so_one_frames_bad_depths_do_
         assert np.allclose(anchored[k], clean[k], atol=1e-4), (k, anchored[k] - clean[k])
     assert max(errors_mm(anchored, after)) < 15.0, errors_mm(anchored, after)
     assert min(errors_mm(chained, after)) > 18.0, errors_mm(chained, after)
+
+
+def test_a_pose_the_inliers_do_not_pin_down_is_refused_when_asked(place) -> None:
+    """max_position_sigma_ratio: the near frame's pose, accepted by default, is refused once the
+    allowed centre sigma is below what its inliers give; a loose bound keeps it."""
+    scene, keyframe, points = place
+    frame, _ = scene.view(T_NEAR, seed=2)
+    reply = RelocalisationCandidates(frame.stamp_ns, (RelocalisationCandidate(7, 0.5),), (keyframe,), points)
+    assert relocalise(frame, reply, VOCABULARY, RelocalisationConfig(max_position_sigma_ratio=0.05)) is not None
+    assert relocalise(frame, reply, VOCABULARY, RelocalisationConfig(max_position_sigma_ratio=1e-6)) is None
+    with pytest.raises(ConfigError, match="max_position_sigma_ratio"):
+        RelocalisationConfig(max_position_sigma_ratio=0.0)
