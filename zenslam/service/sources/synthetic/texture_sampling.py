@@ -54,15 +54,21 @@ def sample_bilinear(
     xi = x_floor.astype(np.int32)
     yi = y_floor.astype(np.int32)
     height, width = texture.shape
-    x0 = reflect_101(xi, width)
-    x1 = reflect_101(xi + 1, width)
-    row0 = reflect_101(yi, height) * width
-    row1 = reflect_101(yi + 1, height) * width
     flat = texture.ravel()
-    top_left = flat[row0 + x0].astype(np.float32)
-    top_right = flat[row0 + x1].astype(np.float32)
-    bottom_left = flat[row1 + x0].astype(np.float32)
-    bottom_right = flat[row1 + x1].astype(np.float32)
+    if xi.size and xi.min() >= 0 and xi.max() < width - 1 and yi.min() >= 0 and yi.max() < height - 1:
+        top_left_index = yi * width + xi  # the common case: all four texels inside, no border to fold
+        top_right_index = top_left_index + 1
+        bottom_left_index = top_left_index + width
+        bottom_right_index = bottom_left_index + 1
+    else:
+        x0, x1 = reflect_101(xi, width), reflect_101(xi + 1, width)
+        row0, row1 = reflect_101(yi, height) * width, reflect_101(yi + 1, height) * width
+        top_left_index, top_right_index = row0 + x0, row0 + x1
+        bottom_left_index, bottom_right_index = row1 + x0, row1 + x1
+    top_left = np.take(flat, top_left_index).astype(np.float32)
+    top_right = np.take(flat, top_right_index).astype(np.float32)
+    bottom_left = np.take(flat, bottom_left_index).astype(np.float32)
+    bottom_right = np.take(flat, bottom_right_index).astype(np.float32)
     top = top_left + fx * (top_right - top_left)
     bottom = bottom_left + fx * (bottom_right - bottom_left)
     value = top + fy * (bottom - top)
