@@ -3,11 +3,13 @@
 The renderer used ``cv2.warpPerspective`` for this, but its output is not a function of its input
 alone: OpenCV 4.14 quantises source coordinates to 1/32 texel, 5.0 does not, and 5.0's AVX2 path
 rounds differently from its baseline path (the same call gave other pixels with
-``OPENCV_CPU_DISABLE=AVX2``). A synthetic scene is the input of every synthetic test, golden replay
-and benchmark, so it must not change with the machine. Here every step is an IEEE-754 elementwise
-operation numpy rounds exactly (+, -, *, /, floor, rint; no matrix products, whose BLAS kernels
-differ by CPU), so a pixel is the exact bilinear interpolation at its exactly projected centre,
-rounded half to even.
+``OPENCV_CPU_DISABLE=AVX2``). A synthetic scene is the input of every synthetic test and benchmark,
+many of them run in process with the machine's own kernels, so it must not change with the machine.
+Every step here is an IEEE-754 elementwise operation that numpy rounds exactly (+, -, *, /, floor,
+rint), so a pixel is the exact bilinear interpolation at its projected centre, rounded half to even.
+The homography itself comes from 3x3 products and an inverse (the renderer's); the frames came out
+the same under every OpenBLAS core type and numpy dispatch tried (benchmarks/README.md, "Synthetic
+scenes"), and the stages pin those kernels anyway (``runtime.cpu_kernels``).
 """
 
 from __future__ import annotations
