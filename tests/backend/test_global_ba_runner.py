@@ -43,3 +43,19 @@ def test_in_place_and_in_a_helper_process_give_the_same_map():
     assert not np.array_equal(before[1], after[1])
     for a, b in zip(poses_and_points(in_place), after):
         np.testing.assert_array_equal(a, b)  # same kernels, same numbers
+
+
+def test_run_in_place_refines_the_map_as_it_is_now():
+    """The global BA before a map is saved: solved and applied before it returns, whatever the runner's mode."""
+    from test_global_ba import errors, perturbed_map as scene  # noqa: E402
+
+    bmap, poses, points = scene()
+    before = errors(bmap, poses, points)
+    runner = GlobalBARunner(bmap, GlobalBAConfig(), BAWindowConfig(), in_background=True)
+    try:
+        assert runner.run_in_place() is True and runner.applied == 1 and not runner.running
+    finally:
+        runner.close()
+    after = errors(bmap, poses, points)
+    assert after[0] < before[0] / 3 and after[2] < before[2] / 1.5  # as test_global_ba's bounds
+    assert bmap.take_changes().points

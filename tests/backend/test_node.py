@@ -379,3 +379,46 @@ def test_a_keyframe_answered_before_its_local_ba_leaves_the_map_step_leaves():
     assert np.array_equal(whole.map.positions(np.array(ids)), halves.map.positions(np.array(ids)))
     with pytest.raises(RuntimeError, match="without a keyframe begun"):
         halves.finish()
+
+
+def test_a_global_ba_refines_the_whole_map_before_it_is_saved(tmp_path):
+    """backend.global_ba_before_save: the map a localisation run will rely on gets one global BA at the end
+    of the run and its correction is published before the map is written; off, the map is written as is."""
+    from test_global_ba import perturbed_map  # noqa: E402  (tests/backend is on the path under pytest)
+
+    from zenslam.backend.global_ba import GlobalBAConfig
+    from zenslam.backend.global_ba_runner import GlobalBARunner
+    from zenslam.backend.local_mapping import BAWindowConfig
+    from zenslam.backend.node import _save_map
+
+    class Recorded:
+        def __init__(self):
+            self.update = self
+            self.sent: list[bytes] = []
+
+        def put(self, payload: bytes) -> None:
+            self.sent.append(payload)
+
+    for enabled in (True, False):
+        bmap, _, _ = perturbed_map()
+        runner = GlobalBARunner(bmap, GlobalBAConfig(), BAWindowConfig(), in_background=False)
+        node = BackendNode(LocalMapper(bmap, LocalMappingConfig(), IdentityAdjuster()), global_ba=runner)
+        node._newest = (max(bmap.keyframes), 0)  # as after mapping the last keyframe
+        written: list[tuple[str, np.ndarray]] = []
+        node.save_map = lambda path, node=node: written.append((path, np.stack([p.p_world for p in node.map.points.values()])))
+        before = np.stack([p.p_world for p in bmap.points.values()])
+        outputs = Recorded()
+        config = dataclasses.replace(BackendConfig(), save_map=str(tmp_path / "map.zmap"), global_ba_before_save=enabled)
+        _save_map(outputs, node, config, finish_global_ba=True)
+        assert [path for path, _ in written] == [config.save_map]
+        assert runner.applied == int(enabled) and len(outputs.sent) == int(enabled)
+        if enabled:
+            assert codec.decode_map_update(outputs.sent[0]).kind == "correction"
+            assert not np.array_equal(written[0][1], before)  # the saved points are the refined ones
+        else:
+            np.testing.assert_array_equal(written[0][1], before)
+    assert BackendNode(LocalMapper(new_backend_map(LocalMappingConfig()), LocalMappingConfig(), IdentityAdjuster())).global_ba_before_save() is None
+    bmap, _, _ = perturbed_map()  # loaded and saved again without a keyframe mapped: written as it was
+    runner = GlobalBARunner(bmap, GlobalBAConfig(), BAWindowConfig(), in_background=False)
+    assert BackendNode(LocalMapper(bmap, LocalMappingConfig(), IdentityAdjuster()), global_ba=runner).global_ba_before_save() is None
+    assert runner.runs == 0

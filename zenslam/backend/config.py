@@ -26,6 +26,9 @@ class BackendConfig:
     # Where the map is written when the keyframe stream ends (after a running global BA has
     # finished); empty = not written.
     save_map: str = ""  # path
+    # Before the map is saved at the end of a run, one global BA over all of it (when loop closing's
+    # global BA is enabled); its correction is published, so the run's final trajectory has it too.
+    global_ba_before_save: bool = True
     # Keyframes the backend's inbox holds; when full the frontend's send blocks (lossless: never dropped).
     keyframe_queue: int = 32  # keyframes
     # After its input's end of stream the backend keeps answering backend/map and backend/trajectory

@@ -63,6 +63,20 @@ class GlobalBARunner:
         self._running = (problem, self._executor().submit(run_global_ba, problem, self.config))
         return False
 
+    def run_in_place(self) -> bool:
+        """A global BA on the map as it is now, solved in this process and applied before this
+        returns (a running background one is dropped: this one starts from a later map). True when
+        the map changed."""
+        if self._running is not None:
+            self._running[1].cancel()
+            self._running = None
+        problem = global_ba_problem(self.map, self.window)
+        if problem is None:
+            return False
+        self.runs += 1
+        self._apply(problem, run_global_ba(problem, self.config))
+        return True
+
     def poll(self) -> bool:
         """Apply a finished background global BA to the map; True when the map changed."""
         if self._running is None or not self._running[1].done():
