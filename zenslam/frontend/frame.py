@@ -12,7 +12,7 @@ from zenslam.camera import PinholeCalibration
 from zenslam.errors import CalibrationError, ImageReadError, ZenslamError
 from zenslam.frontend.orb_extractor import Features, OrbExtractor
 from zenslam.frontend.stereo_matcher import StereoMatchConfig, match_stereo
-from zenslam.pose_optimizer import PoseOptimizerConfig, PoseResult, optimize_pose
+from zenslam.pose_optimizer import PoseOptimizerConfig, PoseResult, optimize_pose, position_sigma
 
 logger = logging.getLogger(__name__)
 
@@ -270,15 +270,24 @@ def _ranges(counts: np.ndarray) -> np.ndarray:
     return np.arange(total, dtype=np.int64) - np.repeat(ends - counts, counts)
 
 
+def _observations(frame: Frame, keypoints: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``optimize_pose``'s observation arrays for the frame's ``keypoints``: level-0 pixels, right-image
+    u (NaN where not stereo-matched) and the levels' weights."""
+    feats = frame.features
+    right = frame.right_u[keypoints].astype(float)
+    return feats.px[keypoints].astype(float), np.where(right >= 0, right, np.nan), feats.inv_level_sigma2[feats.level[keypoints]]
+
+
 def optimize_frame_pose(
     frame: Frame, T_cam_world_init: np.ndarray, keypoints: np.ndarray, p_world: np.ndarray, config: PoseOptimizerConfig
 ) -> PoseResult:
     """``optimize_pose`` of ``frame`` from its keypoints ``keypoints`` (K,) observing the points
     ``p_world`` (K, 3): their pixels, right-image coordinates where stereo matched, and their levels'
     weights; inliers are over ``keypoints``."""
-    feats = frame.features
-    right = frame.right_u[keypoints].astype(float)
-    return optimize_pose(
-        T_cam_world_init, p_world, feats.px[keypoints].astype(float), np.where(right >= 0, right, np.nan),
-        feats.inv_level_sigma2[feats.level[keypoints]], frame.calibration, config,
-    )  # fmt: skip
+    return optimize_pose(T_cam_world_init, p_world, *_observations(frame, keypoints), frame.calibration, config)
+
+
+def frame_position_sigma(frame: Frame, T_cam_world: np.ndarray, keypoints: np.ndarray, p_world: np.ndarray) -> float:
+    """``position_sigma`` of the pose ``T_cam_world`` of ``frame`` from its keypoints ``keypoints``
+    observing ``p_world``, weighed as ``optimize_frame_pose`` weighs them."""
+    return position_sigma(T_cam_world, p_world, *_observations(frame, keypoints), frame.calibration)

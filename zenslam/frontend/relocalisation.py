@@ -24,12 +24,12 @@ import numpy as np
 
 from zenslam.errors import ConfigError
 from zenslam.frontend.feature_matcher import rotation_consistent, search_by_projection
-from zenslam.frontend.frame import Frame, optimize_frame_pose
+from zenslam.frontend.frame import Frame, frame_position_sigma, optimize_frame_pose
 from zenslam.frontend.frustum import project_in_frustum
 from zenslam.frontend.keyframe import KeyFrame
 from zenslam.frontend.orb_extractor import Features
 from zenslam.frontend.pnp_ransac import PnpRansacConfig, pnp_ransac
-from zenslam.pose_optimizer import PoseOptimizerConfig, position_sigma
+from zenslam.pose_optimizer import PoseOptimizerConfig
 from zenslam.schemas.relocalisation import MapKeyframe, MapPoints, RelocalisationCandidates
 from zenslam.vocabulary.bow_matching import search_by_bow
 
@@ -206,12 +206,7 @@ def _pinned_down(frame: Frame, T: np.ndarray, rows: np.ndarray, points: MapPoint
         return True
     kps = np.flatnonzero(rows >= 0)
     p_world = points.p_world[rows[kps]]
-    feats = frame.features
-    right = frame.right_u[kps].astype(float)
-    sigma = position_sigma(
-        T, p_world, feats.px[kps].astype(float), np.where(right >= 0, right, np.nan),
-        feats.inv_level_sigma2[feats.level[kps]], frame.calibration,
-    )  # fmt: skip
+    sigma = frame_position_sigma(frame, T, kps, p_world)
     depth = float(np.median(p_world @ T[2, :3] + T[2, 3]))
     ratio = sigma / depth if depth > 0 else float("inf")
     if ratio > config.max_position_sigma_ratio:

@@ -23,10 +23,7 @@ def reflect_101(index: np.ndarray, size: int) -> np.ndarray:
         return np.zeros_like(index)
     low, high = int(index.min(initial=0)), int(index.max(initial=0))
     if low >= 0 and high < size:
-        return index  # the common case: every texel inside
-    if low > -size and high < 2 * size - 1:  # one fold at most on either side
-        index = np.abs(index)
-        return np.where(index >= size, 2 * size - 2 - index, index)
+        return index  # every texel inside
     period = 2 * size - 2
     index = np.mod(index, period)
     return np.where(index >= size, period - index, index)
