@@ -14,7 +14,7 @@ from zenslam.errors import ConfigError
 from zenslam.frontend.frame import Frame
 from zenslam.frontend.local_map import LocalMapConfig
 from zenslam.frontend.orb_extractor import Features
-from zenslam.frontend.relocalisation import RelocalisationConfig, as_keyframe, relocalise
+from zenslam.frontend.relocalisation import PosePrior, RelocalisationConfig, as_keyframe, pose_offset, relocalise
 from zenslam.frontend.tracker import Tracker, TrackingConfig
 from zenslam.frontend.visual_odometry import VisualOdometryConfig
 from zenslam.geometry import invert_T, make_T, so3_exp, so3_log
@@ -206,6 +206,26 @@ def test_relocalisation_is_deterministic(place) -> None:
     reply = RelocalisationCandidates(0, (RelocalisationCandidate(7, 0.5),), (keyframe,), points)
     a, b = relocalise(frame, reply, VOCABULARY), relocalise(frame, reply, VOCABULARY)
     assert np.array_equal(a.T_cam_world, b.T_cam_world) and np.array_equal(a.point_ids, b.point_ids)
+
+
+def test_pose_offset_is_the_distance_of_the_centres_and_the_angle_between_the_rotations() -> None:
+    T_a = invert_T(make_T(so3_exp(np.array([0.0, 0.3, 0.0])), np.array([1.0, 2.0, 3.0])))
+    T_b = invert_T(make_T(so3_exp(np.array([0.0, 0.3, 0.0])) @ so3_exp(np.array([0.1, 0.0, 0.0])), np.array([1.0, 2.0, 3.5])))
+    distance, angle = pose_offset(T_a, T_b)
+    assert distance == pytest.approx(0.5) and angle == pytest.approx(np.degrees(0.1))
+    assert pose_offset(T_a, T_a) == pytest.approx((0.0, 0.0), abs=1e-6)
+
+
+def test_a_prior_refuses_a_candidate_pose_far_from_it_and_admits_one_near_it(place) -> None:
+    scene, keyframe, points = place
+    frame, _ = scene.view(T_NEAR, seed=2)
+    reply = RelocalisationCandidates(frame.stamp_ns, (RelocalisationCandidate(7, 0.5),), (keyframe,), points)
+    T_cam_near = invert_T(T_NEAR)
+    near = invert_T(T_NEAR @ make_T(so3_exp(np.array([0.0, 0.05, 0.0])), np.array([0.2, 0.0, 0.0])))
+    assert relocalise(frame, reply, VOCABULARY, prior=PosePrior(near, 0.3, 5.0)) is not None
+    assert relocalise(frame, reply, VOCABULARY, prior=PosePrior(near, 0.1, 5.0)) is None  # 0.2 m away
+    assert relocalise(frame, reply, VOCABULARY, prior=PosePrior(near, 0.3, 2.0)) is None  # 2.9 degrees away
+    assert PosePrior(T_cam_near, 0.0, 0.0).admits(T_cam_near)
 
 
 def test_a_map_keyframe_becomes_a_cache_keyframe(place) -> None:
@@ -400,6 +420,36 @@ def test_localisation_leaves_visual_odometry_by_relocalising_and_says_so() -> No
     T0 = path_pose(0)
     t_err, r_err = pose_errors(invert_T(results[10].T_world_cam), invert_T(T0) @ path_pose(10))
     assert t_err < 0.02 and r_err < 0.2, (t_err, r_err)
+
+
+def _moved(reply: RelocalisationCandidates, shift: np.ndarray) -> RelocalisationCandidates:
+    """The backend's reply with its keyframes and points moved by ``shift`` (metres): a place that
+    looks like the frame's and lies elsewhere in the map."""
+    keyframes = tuple(dataclasses.replace(kf, T_world_cam=make_T(kf.T_world_cam[:3, :3], kf.T_world_cam[:3, 3] + shift)) for kf in reply.keyframes)
+    return dataclasses.replace(reply, keyframes=keyframes, points=dataclasses.replace(reply.points, p_world=reply.points.p_world + shift))
+
+
+@pytest.mark.parametrize("agreement_m", [0.3, None])
+def test_on_visual_odometry_a_relocalisation_far_from_the_odometry_pose_is_refused(agreement_m) -> None:
+    """Localisation mode, on visual odometry: the place a relocalisation finds lies 1.5 m from where
+    the odometry has the camera. Refused (the frame stays on odometry, near the truth) unless
+    ``vo_agreement_m`` is None; a relocalisation where the odometry has it is taken either way."""
+    tracker, backend, mapped = _tracker(localization=True, relocalisation=RelocalisationConfig(vo_agreement_m=agreement_m))
+    unmapped = Scene(seed=12, n_points=12000, ring=True)
+    both = _union(mapped, unmapped)
+    views = [mapped] * 4 + [both] * 2 + [unmapped] * 4
+    results = [_track(tracker, backend, scene.view(path_pose(k), seed=k, index=k)[0]) for k, scene in enumerate(views)]
+    assert all(r.state == "ok" for r in results) and all(r.n_tracked < 10 for r in results[6:])  # on visual odometry
+    shift = np.array([1.5, 0.0, 0.0])
+    moved = tracker.track(both.view(path_pose(10), seed=10, index=10)[0], candidates=lambda query: _moved(backend(query), shift))
+    t_err, _ = pose_errors(invert_T(moved.T_world_cam), invert_T(path_pose(0)) @ path_pose(10))
+    if agreement_m is None:
+        assert moved.relocalised and abs(t_err - 1.5) < 0.05, t_err
+        return
+    assert moved.state == "ok" and not moved.relocalised and t_err < 0.05, t_err
+    back = _track(tracker, backend, both.view(path_pose(11), seed=11, index=11)[0])
+    t_err, _ = pose_errors(invert_T(back.T_world_cam), invert_T(path_pose(0)) @ path_pose(11))
+    assert back.relocalised and t_err < 0.02, t_err
 
 
 def _bad_depths(frame: Frame, gain: float) -> Frame:

@@ -17,6 +17,7 @@ Plain numpy/OpenCV: no bus, no tracker state.
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -67,6 +68,17 @@ class RelocalisationConfig:
     # trade sideways motion for rotation, and there a 50-inlier pose can be metres off
     # (benchmarks/README.md, "Saved maps and localisation"). None: no such check.
     max_position_sigma_ratio: float | None = None
+    # Not ORB-SLAM's either, which takes any relocalisation: in localisation mode, a frame on visual
+    # odometry relocalises only near its odometry pose, within vo_agreement_m + vo_agreement_per_m x
+    # the path travelled on odometry since the map was last tracked, and within vo_agreement_deg +
+    # vo_agreement_deg_per_m x that path. Depth errors of far or grazing points that several
+    # keyframes share can put a 50-100-inlier relocalisation metres off, where stereo or RGB-D
+    # odometry drifts by a few percent of its path (benchmarks/README.md, "Saved maps and
+    # localisation"). A frame that lost its odometry too relocalises anywhere. None: no such check.
+    vo_agreement_m: float | None = 0.3  # metres
+    vo_agreement_per_m: float = 0.1  # metres per metre travelled on odometry
+    vo_agreement_deg: float = 10.0  # degrees
+    vo_agreement_deg_per_m: float = 2.0  # degrees per metre travelled on odometry
     # For one second of frames after a relocalisation (ORB-SLAM's mMaxFrames = the camera rate),
     # local-map tracking needs this many inliers, as ORB-SLAM.
     min_local_map_inliers_after: int = 50
@@ -86,8 +98,42 @@ class RelocalisationConfig:
             problems.append(f"max_position_sigma_ratio={self.max_position_sigma_ratio} must be > 0 (or null: no check)")
         if self.max_neighbours < 0:
             problems.append(f"max_neighbours={self.max_neighbours} must be >= 0")
+        if self.vo_agreement_m is not None and not self.vo_agreement_m >= 0:
+            problems.append(f"vo_agreement_m={self.vo_agreement_m} must be >= 0 metres (or null: no check)")
+        problems += [
+            f"{name}={getattr(self, name)} must be >= 0"
+            for name in ("vo_agreement_per_m", "vo_agreement_deg", "vo_agreement_deg_per_m")
+            if not getattr(self, name) >= 0
+        ]
         if problems:
             raise ConfigError("invalid frontend tracking.relocalisation configuration: " + "; ".join(problems))
+
+
+@dataclass(frozen=True)
+class PosePrior:
+    """Where an independent estimate (visual odometry) puts the frame, and how far from it a
+    relocalisation may lie to be believed."""
+
+    T_cam_world: np.ndarray  # (4, 4) maps world points into the camera frame
+    max_distance_m: float  # between the camera centres
+    max_angle_deg: float  # of the relative rotation
+
+    def offset(self, T_cam_world: np.ndarray) -> tuple[float, float]:
+        """(distance m, angle deg) of the pose ``T_cam_world`` from the prior's."""
+        return pose_offset(self.T_cam_world, T_cam_world)
+
+    def admits(self, T_cam_world: np.ndarray) -> bool:
+        distance, angle = self.offset(T_cam_world)
+        return distance <= self.max_distance_m and angle <= self.max_angle_deg
+
+
+def pose_offset(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
+    """Distance (m) between the camera centres of two T_cam_world poses and the angle (deg) of their
+    relative rotation."""
+    centre_a = -T_a[:3, :3].T @ T_a[:3, 3]
+    centre_b = -T_b[:3, :3].T @ T_b[:3, 3]
+    cos = (np.trace(T_a[:3, :3] @ T_b[:3, :3].T) - 1.0) / 2.0
+    return float(np.linalg.norm(centre_a - centre_b)), math.degrees(math.acos(min(1.0, max(-1.0, cos))))
 
 
 @dataclass(frozen=True)
@@ -129,11 +175,13 @@ def relocalise(
     config: RelocalisationConfig | None = None,
     pose_config: PoseOptimizerConfig | None = None,
     frame_feature_vector: Any = None,
+    prior: PosePrior | None = None,
 ) -> Relocalisation | None:
     """Place ``frame`` against ``candidates`` (tried best first); None when no candidate holds.
 
     ``frame_feature_vector``: the frame's ``FeatureVector`` from ``vocabulary.transform`` when the
     caller already has it (it computed the bag of words for the query).
+    ``prior``: a candidate's pose it does not admit is refused, and the next candidate tried.
     """
     config = config or RelocalisationConfig()
     pose_config = pose_config or PoseOptimizerConfig()
@@ -146,6 +194,13 @@ def relocalise(
         if keyframe is None:
             continue
         found = _try_keyframe(frame, fvec, keyframe, table, vocabulary, config, pose_config)
+        if found is not None and prior is not None and not prior.admits(found[0]):
+            distance, angle = prior.offset(found[0])
+            logger.info(
+                "relocalisation on keyframe %d refused: %.2f m and %.1f deg from the frame's odometry pose (allowed %.2f m, %.1f deg)",
+                keyframe.id, distance, angle, prior.max_distance_m, prior.max_angle_deg,
+            )  # fmt: skip
+            continue
         if found is not None:
             T, rows, n_inliers, n_bow = found
             point_ids = np.where(rows >= 0, np.asarray(candidates.points.ids, dtype=np.int64)[np.maximum(rows, 0)], -1)

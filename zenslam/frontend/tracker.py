@@ -21,6 +21,10 @@ reports ``ok`` with ``relocalised``. Without them, the next frame tries the refe
 the last good pose again. After ``reinit_after_lost_frames`` consecutive frames without a pose
 the tracker starts over from the current frame at the last good pose (a new keyframe with fresh
 points, not connected to the old ones), reported as ``initializing``.
+
+Localisation mode (``localization``): frames with few map matches go on by visual odometry and try
+to relocalise at every frame; a relocalisation is taken only near the odometry's pose
+(``relocalisation.vo_agreement_*``), unless the odometry failed too.
 """
 
 from __future__ import annotations
@@ -52,7 +56,7 @@ from zenslam.frontend.local_map import LocalMap, LocalMapConfig
 from zenslam.frontend.monocular_initialisation import InitialMap, MonocularInitialisationConfig, MonocularInitialiser
 from zenslam.frontend.motion_model import ConstantVelocityModel
 from zenslam.pose_optimizer import PoseOptimizerConfig
-from zenslam.frontend.relocalisation import BowTransform, RelocalisationConfig, keyframes_to_restore, relocalise
+from zenslam.frontend.relocalisation import BowTransform, PosePrior, RelocalisationConfig, keyframes_to_restore, pose_offset, relocalise
 from zenslam.frontend.visual_odometry import (
     LastFrameSearch,
     OdometryPose,
@@ -193,6 +197,7 @@ class Tracker:
         self._odometry_from_anchor = False
         self._window_of = -1  # the saved keyframe whose window was fetched last
         self.n_vo_frames = 0  # localisation mode: frames placed by visual odometry
+        self._vo_path_m = 0.0  # localisation mode: the camera's path on visual odometry since the map was last tracked
 
     @property
     def starting_map(self) -> bool:
@@ -287,6 +292,7 @@ class Tracker:
         self._lost_streak = 0
         self._on_vo = False
         self._vo_anchor = None
+        self._vo_path_m = 0.0
         if keyframe is not None:
             self._evict(keyframes_in_flight + 1)
         return TrackResult("ok", None, invert_T(T_cam_world), n_inliers, keyframe, dict(self._timers), relocalised=relocalised)
@@ -420,7 +426,7 @@ class Tracker:
         odometry = self._track_odometry(frame)
         self._add_time("motion_model_tracking", start, pose_ms)
         if self._on_vo and self._relocalises(candidates):
-            found, _ = self._relocalise(frame, candidates)
+            found, _ = self._relocalise(frame, candidates, self._odometry_prior(odometry))
             if found is not None:
                 return self._tracked(frame, *found, 0, relocalised=True)
         if odometry is None and not self._on_vo:
@@ -475,6 +481,7 @@ class Tracker:
         """A frame placed by visual odometry: the motion model goes on, the map is not touched."""
         self._on_vo = True
         self.n_vo_frames += 1
+        self._vo_path_m += pose_offset(self._last.T_cam_world, odometry.T_cam_world)[0]
         self._keep_or_move_anchor(frame, odometry)
         self.motion.update(self._last.T_cam_world, odometry.T_cam_world, self._frame_gap(frame), self._elapsed_ns(frame))
         self._last = _LastFrame(frame, odometry.rows, odometry.T_cam_world)
@@ -482,6 +489,18 @@ class Tracker:
         logger.debug("frame %d on visual odometry: %d map, %d total matches", frame.index, odometry.n_map, odometry.n_total)
         T_world_cam = invert_T(odometry.T_cam_world)
         return TrackResult("ok", None, T_world_cam, odometry.n_map, None, dict(self._timers))
+
+    def _odometry_prior(self, odometry: OdometryPose | None) -> PosePrior | None:
+        """Where this frame's odometry puts it, and how far a relocalisation may lie from that: the
+        configured allowance grown with the path on odometry up to this frame (None: no odometry
+        pose, or no check configured)."""
+        cfg = self.config.relocalisation
+        if odometry is None or cfg.vo_agreement_m is None:
+            return None
+        path = self._vo_path_m + pose_offset(self._last.T_cam_world, odometry.T_cam_world)[0]
+        return PosePrior(
+            odometry.T_cam_world, cfg.vo_agreement_m + cfg.vo_agreement_per_m * path, cfg.vo_agreement_deg + cfg.vo_agreement_deg_per_m * path
+        )
 
     def _keep_or_move_anchor(self, frame: Frame, odometry: OdometryPose) -> None:
         """The frame becomes the VO anchor unless it was matched to the anchor and kept enough of it."""
@@ -518,10 +537,10 @@ class Tracker:
     def _relocalises(self, candidates: CandidateSource | None) -> bool:
         return candidates is not None and self.vocabulary is not None and self.config.relocalisation.enabled
 
-    def _relocalise(self, frame: Frame, candidates: CandidateSource) -> tuple[tuple | None, str]:
+    def _relocalise(self, frame: Frame, candidates: CandidateSource, prior: PosePrior | None = None) -> tuple[tuple | None, str]:
         """ORB-SLAM2's ``Relocalization`` then ``TrackLocalMap``: ((T_cam_world, rows, inliers), "") on
         success, else (None, why not). The matched keyframe and its neighbours re-enter the cache
-        either way."""
+        either way. A candidate's pose that ``prior`` does not admit is refused."""
         cfg = self.config.relocalisation
         start, pose_ms = time.perf_counter(), self._timers["pose_optimization"]
         self._timers["relocalisation"] = 0.0
@@ -533,7 +552,7 @@ class Tracker:
             reply = candidates(query) if len(bow.word_ids) else None
             if reply is None or not reply.candidates:
                 return None, "relocalisation_no_candidates"
-            found = relocalise(frame, reply, self.vocabulary, cfg, self.pose_config, frame_feature_vector=fvec)
+            found = relocalise(frame, reply, self.vocabulary, cfg, self.pose_config, frame_feature_vector=fvec, prior=prior)
             if found is None:
                 return None, "relocalisation_no_candidate_matched"
             self.map.restore_keyframes(keyframes_to_restore(reply, found.keyframe_id), reply.points)
