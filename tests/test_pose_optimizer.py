@@ -204,3 +204,34 @@ def test_position_sigma_grows_when_the_points_are_far_and_on_one_plane():
     far_plane = sigma_for(np.full(200, 60.0))
     assert far_plane > 20 * near
     assert pose_optimizer.position_sigma(np.eye(4), np.zeros((2, 3)), np.zeros((2, 2)), np.full(2, np.nan), np.ones(2), STEREO) == np.inf
+
+
+def test_zero_point_covariance_is_the_plain_problem():
+    _, T_init, p_world, obs_px, obs_right_u, inv_sigma2, _ = make_scene(200, 8)
+    args = (T_init, p_world, obs_px, obs_right_u, inv_sigma2, STEREO, PoseOptimizerConfig())
+    plain, zero = optimize_pose(*args), optimize_pose(*args, point_covariance=np.zeros((200, 3, 3)))
+    assert np.array_equal(plain.T_cam_world, zero.T_cam_world) and np.array_equal(plain.inliers, zero.inliers)
+    with pytest.raises(ValueError, match="point_covariance"):
+        optimize_pose(*args, point_covariance=np.zeros((199, 3, 3)))
+
+
+@pytest.mark.parametrize("stereo_fraction", [0.0, 0.7])
+def test_a_point_covariance_takes_the_pull_of_points_known_only_roughly_along_it(stereo_fraction):
+    """Half the points are 0.4 m off along the camera's x axis (as far points mapped from the side
+    are off along their depth). Taken as exact they drag the pose sideways; with a covariance of
+    0.4 m along that axis they hardly do, and their chi-square no longer makes them outliers."""
+    calibration = MONO if stereo_fraction == 0.0 else STEREO
+    T_true, T_init, p_world, obs_px, obs_right_u, inv_sigma2, _ = make_scene(
+        300, 9, calibration=calibration, stereo_fraction=stereo_fraction, outlier_fraction=0.0, noise_px=0.3
+    )
+    off = np.arange(300) % 2 == 0
+    axis = T_true[0, :3]  # the camera's x axis in the world frame
+    moved = p_world + np.where(off[:, None], 0.4 * axis, 0.0)
+    covariance = np.where(off[:, None, None], 0.4**2 * np.outer(axis, axis), 0.0)
+    args = (T_init, moved, obs_px, obs_right_u, inv_sigma2, calibration, PoseOptimizerConfig())
+    plain = optimize_pose(*args)
+    weighed = optimize_pose(*args, point_covariance=covariance)
+    plain_error, _ = pose_errors(plain.T_cam_world, T_true)
+    weighed_error, _ = pose_errors(weighed.T_cam_world, T_true)
+    assert plain_error > 0.05 and weighed_error < 0.25 * plain_error, (plain_error, weighed_error)
+    assert weighed.inliers[off].mean() > 0.9 and weighed.inliers[~off].mean() > 0.9

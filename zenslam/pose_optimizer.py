@@ -72,6 +72,9 @@ class _Problem:
     cx: float
     cy: float
     bf: float
+    # (N, 3, 3) information of each observation's (u, v, u_right) residual, used instead of
+    # inv_sigma2 when the points' own uncertainty is counted (``point_covariance``); None: inv_sigma2.
+    information: np.ndarray | None = None
 
     def subset(self, rows: np.ndarray) -> _Problem:
         """The problem restricted to the observations selected by the boolean mask ``rows``."""
@@ -82,6 +85,7 @@ class _Problem:
             row_mask=self.row_mask[rows],
             inv_sigma2=self.inv_sigma2[rows],
             delta2=self.delta2[rows],
+            information=None if self.information is None else self.information[rows],
         )
 
 
@@ -93,6 +97,7 @@ def optimize_pose(
     inv_sigma2: np.ndarray,
     calibration: PinholeCalibration,
     config: PoseOptimizerConfig,
+    point_covariance: np.ndarray | None = None,
 ) -> PoseResult:
     """Optimise the camera pose from fixed world points and their observations.
 
@@ -102,6 +107,11 @@ def optimize_pose(
     obs_right_u: (N,) observed right-image u in pixels; NaN or negative for a mono observation.
     inv_sigma2: (N,) information of the observation, 1 / scale_factor**(2 * level) (1/px^2).
     Rows with a non-finite point or pixel are never used and never inliers.
+    point_covariance: (N, 3, 3) covariance of each point's position (m^2, world frame), zeros for a
+    point taken as exact; None: every point exact. An observation's residual covariance is then its
+    pixel noise plus the point's covariance projected into the image (at the initial pose), and its
+    information the inverse: a point known only roughly along some direction pulls the pose less
+    along it, and its chi-square (the outlier test) allows for it.
 
     Each round runs Levenberg-Marquardt on the current inliers (all usable observations in the
     first round), then re-classifies *every* observation by its chi-square at the new pose, so a
@@ -125,6 +135,8 @@ def optimize_pose(
         return PoseResult(T_init.copy(), np.zeros(n, dtype=bool), 0, chi2, 0, 0)
 
     problem = _make_problem(p_world, obs_px, obs_right_u, inv_sigma2, usable, calibration, config)
+    if point_covariance is not None:
+        problem = _with_point_covariance(problem, T_init, _checked_covariance(point_covariance, n, usable))
     T = T_init.copy()
     active = usable.copy()
     iterations = 0
@@ -220,6 +232,51 @@ def _make_problem(p_world, obs_px, obs_right_u, inv_sigma2, usable, calibration,
     )
 
 
+def _checked_covariance(point_covariance: np.ndarray, n: int, usable: np.ndarray) -> np.ndarray:
+    covariance = np.asarray(point_covariance, dtype=float)
+    if covariance.shape != (n, 3, 3):
+        raise ValueError(f"point_covariance has shape {covariance.shape}, expected {(n, 3, 3)} for {n} observations")
+    return np.where(usable[:, None, None] & np.isfinite(covariance), covariance, 0.0)
+
+
+def _with_point_covariance(problem: _Problem, T: np.ndarray, covariance: np.ndarray) -> _Problem:
+    """``problem`` with each observation's information inv(sigma^2 I + J C J^T) on its present rows,
+    J = d(u, v, u_right)/d(p_world) at pose T, C the point's covariance; unchanged when every C is 0."""
+    if not covariance.any():
+        return problem
+    J = point_jacobian(T, problem.p_world, problem.fx, problem.fy, problem.bf)
+    present = problem.row_mask[:, :, None] * problem.row_mask[:, None, :]
+    sigma2 = 1.0 / np.where(problem.inv_sigma2 > 0, problem.inv_sigma2, 1.0)
+    residual_cov = np.einsum("nij,njk,nlk->nil", J, covariance, J) * present + sigma2[:, None, None] * np.eye(3)
+    information = np.linalg.inv(residual_cov) * present  # absent rows are independent: inverting leaves them out
+    information *= (problem.inv_sigma2 > 0)[:, None, None]
+    return dataclasses.replace(problem, information=information)
+
+
+def point_jacobian(T_cam_world: np.ndarray, p_world: np.ndarray, fx: float, fy: float, bf: float) -> np.ndarray:
+    """(N, 3, 3) d(u, v, u_right)/d(p_world) of world points ``p_world`` (N, 3) seen by the camera
+    ``T_cam_world`` (u_right = u - bf / z; its row is meaningless for a mono observation). Points
+    nearer than 1 mm along the optical axis are taken at 1 mm."""
+    p_cam = p_world @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
+    x, y = p_cam[:, 0], p_cam[:, 1]
+    inv_z = 1.0 / np.maximum(p_cam[:, 2], 1e-3)
+    J = np.zeros((len(p_cam), 3, 3))
+    J[:, 0, 0] = fx * inv_z
+    J[:, 0, 2] = -fx * x * inv_z * inv_z
+    J[:, 1, 1] = fy * inv_z
+    J[:, 1, 2] = -fy * y * inv_z * inv_z
+    J[:, 2, 0] = J[:, 0, 0]
+    J[:, 2, 2] = J[:, 0, 2] + bf * inv_z * inv_z
+    return J @ T_cam_world[:3, :3]
+
+
+def _weighted_chi2(residual: np.ndarray, problem: _Problem) -> np.ndarray:
+    """Per-observation r^T W r: W the information matrix, or inv_sigma2 I."""
+    if problem.information is not None:
+        return np.einsum("nk,nkl,nl->n", residual, problem.information, residual)
+    return problem.inv_sigma2 * np.einsum("nk,nk->n", residual, residual)
+
+
 def _project(T: np.ndarray, problem: _Problem) -> tuple[np.ndarray, np.ndarray]:
     """Camera-frame points (N, 3) and residuals predicted - observed (N, 3), zero on absent rows."""
     p_cam = problem.p_world @ T[:3, :3].T + T[:3, 3]
@@ -236,7 +293,7 @@ def _chi2(T: np.ndarray, problem: _Problem, min_depth_m: float) -> tuple[np.ndar
     """Per-observation chi-square (inf behind the camera) and the in-front mask at pose T."""
     p_cam, residual = _project(T, problem)
     in_front = p_cam[:, 2] > min_depth_m
-    chi2 = problem.inv_sigma2 * np.einsum("nk,nk->n", residual, residual)
+    chi2 = _weighted_chi2(residual, problem)
     return np.where(in_front, chi2, np.inf), in_front
 
 
@@ -275,7 +332,10 @@ def _jacobian(p_cam: np.ndarray, problem: _Problem) -> np.ndarray:
 def _linearize(T: np.ndarray, problem: _Problem, robust: bool, min_depth_m: float):
     """Robust cost and normal equations (H, g) of the IRLS-weighted problem at T."""
     p_cam, residual = _project(T, problem)
-    chi2 = problem.inv_sigma2 * (residual * residual).sum(axis=1)
+    if problem.information is None:
+        chi2 = problem.inv_sigma2 * (residual * residual).sum(axis=1)
+    else:
+        chi2 = _weighted_chi2(residual, problem)
     delta2 = problem.delta2
     if robust:
         # Huber on the chi-square (as g2o): rho(s) = s inside, 2 delta sqrt(s) - delta^2 outside.
@@ -294,7 +354,10 @@ def _linearize(T: np.ndarray, problem: _Problem, robust: bool, min_depth_m: floa
         p_cam, residual, weight = p_cam[in_front], residual[in_front], weight[in_front]
         problem = problem.subset(in_front)
     J = _jacobian(p_cam, problem)
-    Jw = J * ((weight * problem.inv_sigma2)[:, None] * problem.row_mask)[:, :, None]
+    if problem.information is None:
+        Jw = J * ((weight * problem.inv_sigma2)[:, None] * problem.row_mask)[:, :, None]
+    else:
+        Jw = np.einsum("nkl,nlj->nkj", problem.information * weight[:, None, None], J * problem.row_mask[:, :, None])
     Jw = Jw.reshape(-1, 6)
     return cost, Jw.T @ J.reshape(-1, 6), Jw.T @ residual.reshape(-1)
 

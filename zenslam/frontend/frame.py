@@ -279,12 +279,16 @@ def _observations(frame: Frame, keypoints: np.ndarray) -> tuple[np.ndarray, np.n
 
 
 def optimize_frame_pose(
-    frame: Frame, T_cam_world_init: np.ndarray, keypoints: np.ndarray, p_world: np.ndarray, config: PoseOptimizerConfig
+    frame: Frame, T_cam_world_init: np.ndarray, keypoints: np.ndarray, p_world: np.ndarray, config: PoseOptimizerConfig,
+    point_covariance: np.ndarray | None = None,
 ) -> PoseResult:
     """``optimize_pose`` of ``frame`` from its keypoints ``keypoints`` (K,) observing the points
     ``p_world`` (K, 3): their pixels, right-image coordinates where stereo matched, and their levels'
-    weights; inliers are over ``keypoints``."""
-    return optimize_pose(T_cam_world_init, p_world, *_observations(frame, keypoints), frame.calibration, config)
+    weights; inliers are over ``keypoints``. ``point_covariance`` (K, 3, 3): the points' own
+    uncertainty (``optimize_pose``), None: exact."""
+    return optimize_pose(
+        T_cam_world_init, p_world, *_observations(frame, keypoints), frame.calibration, config, point_covariance=point_covariance
+    )
 
 
 def frame_position_sigma(frame: Frame, T_cam_world: np.ndarray, keypoints: np.ndarray, p_world: np.ndarray) -> float:

@@ -110,6 +110,7 @@ _POINT_ARRAYS = {
     "n_observations": ((), np.int64),
     "valid": ((), np.bool_),
     "created_serial": ((), np.int64),
+    "covariance": ((3, 3), np.float64),
 }
 _OBS_ARRAYS = {"row": ((), np.int64), "slot": ((), np.int64), "keypoint": ((), np.int64), "desc": ((32,), np.uint8)}
 
@@ -197,6 +198,9 @@ class LocalMap:
     n_found = property(lambda self: self._view("n_found"), doc="(M,) frames where the point was an inlier")
     n_observations = property(lambda self: self._view("n_observations"), doc="(M,) keyframes observing it")
     valid = property(lambda self: self._view("valid"), doc="(M,) False once culled or removed")
+    covariance = property(
+        lambda self: self._view("covariance"), doc="(M, 3, 3) position covariance, m^2; zeros where not estimated (``set_covariances``)"
+    )
 
     def keyframe(self, slot: int) -> KeyFrame | None:
         """The keyframe in ``slot``, None if the backend removed it."""
@@ -221,6 +225,17 @@ class LocalMap:
         slots = self._obs["slot"][: self._n_obs][mask]
         kps = self._obs["keypoint"][: self._n_obs][mask]
         return {self._keyframes[int(s)].id: int(k) for s, k in zip(slots, kps)}
+
+    def observation_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every observation the cache holds as (row, slot, keypoint) arrays (n_obs,) int64, read-only views."""
+        views = tuple(self._obs[name][: self._n_obs] for name in ("row", "slot", "keypoint"))
+        for view in views:
+            view.flags.writeable = False
+        return views
+
+    def set_covariances(self, rows: np.ndarray, covariance: np.ndarray) -> None:
+        """Set the position covariance (K, 3, 3) of the points in ``rows`` (K,)."""
+        self._pts["covariance"][np.asarray(rows, dtype=np.int64)] = covariance
 
     # ---- ids -------------------------------------------------------------------------------------
     def new_keyframe_id(self) -> int:

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 import time
 from collections import Counter
 from dataclasses import dataclass, field
@@ -40,6 +41,7 @@ from typing import Literal
 import numpy as np
 
 from zenslam.camera import PinholeCalibration, SensorKind
+from zenslam.errors import ConfigError
 from zenslam.frontend.feature_matcher import match_by_descriptor, rotation_consistent, search_by_projection
 from zenslam.frontend.cache_eviction import CacheEviction
 from zenslam.frontend.frame import Frame, optimize_frame_pose
@@ -55,6 +57,7 @@ from zenslam.frontend.frustum import project_in_frustum
 from zenslam.frontend.local_map import LocalMap, LocalMapConfig
 from zenslam.frontend.monocular_initialisation import InitialMap, MonocularInitialisationConfig, MonocularInitialiser
 from zenslam.frontend.motion_model import ConstantVelocityModel
+from zenslam.frontend.point_uncertainty import point_covariances
 from zenslam.pose_optimizer import PoseOptimizerConfig
 from zenslam.frontend.relocalisation import BowTransform, PosePrior, RelocalisationConfig, keyframes_to_restore, pose_offset, relocalise
 from zenslam.frontend.visual_odometry import (
@@ -121,10 +124,22 @@ class TrackingConfig:
     # placed in the backend's map; with few map matches they go on by visual odometry (see
     # visual_odometry) until a relocalisation finds the map again. Lost frames are never started over.
     localization: bool = False
+    # Localisation mode, not ORB-SLAM's: each map point is weighed by its position's covariance from
+    # the saved keyframes that observe it (frontend/point_uncertainty.py), bounded at this standard
+    # deviation (metres), so a far point's depth error, seen from the side, does not move the pose
+    # as if it were exact. None: every point exact, as ORB-SLAM.
+    localization_point_max_sigma_m: float | None = 10.0
     visual_odometry: VisualOdometryConfig = field(default_factory=VisualOdometryConfig)
     monocular: MonocularInitialisationConfig = field(default_factory=MonocularInitialisationConfig)
     local_map: LocalMapConfig = field(default_factory=LocalMapConfig)
     relocalisation: RelocalisationConfig = field(default_factory=RelocalisationConfig)
+
+    def __post_init__(self) -> None:
+        sigma = self.localization_point_max_sigma_m
+        if sigma is not None and not (math.isfinite(sigma) and sigma > 0):
+            raise ConfigError(
+                f"frontend tracking.localization_point_max_sigma_m={sigma} must be a finite distance > 0 m (or null: points exact)"
+            )
 
 
 @dataclass(frozen=True)
@@ -336,7 +351,9 @@ class Tracker:
         """Pose optimisation of ``frame`` matched to map rows (N,) -1 none; returns (T, inlier mask (N,))."""
         start = time.perf_counter()
         kps = np.flatnonzero(rows >= 0)
-        result = optimize_frame_pose(frame, T_cam_world, kps, self.map.p_world[rows[kps]], self.pose_config)
+        result = optimize_frame_pose(
+            frame, T_cam_world, kps, self.map.p_world[rows[kps]], self.pose_config, point_covariance=self._covariance(rows[kps])
+        )
         inliers = np.zeros(len(rows), dtype=bool)
         inliers[kps] = result.inliers
         self._timers["pose_optimization"] += (time.perf_counter() - start) * 1e3
@@ -471,7 +488,9 @@ class Tracker:
         """The local-map pose optimised again with the odometry's VO matches: (T, rows, map inliers)."""
         start = time.perf_counter()
         kps = np.flatnonzero(rows >= 0)
-        T_cam_world, inliers = optimise_with_odometry(frame, T_cam_world, kps, self.map.p_world[rows[kps]], odometry, self.pose_config)
+        T_cam_world, inliers = optimise_with_odometry(
+            frame, T_cam_world, kps, self.map.p_world[rows[kps]], odometry, self.pose_config, map_covariance=self._covariance(rows[kps])
+        )
         self._timers["pose_optimization"] += (time.perf_counter() - start) * 1e3
         rows = rows.copy()
         rows[kps[~inliers]] = -1
@@ -527,11 +546,28 @@ class Tracker:
         query = RelocalisationQuery(frame.stamp_ns, empty, empty.astype(float), 1, cfg.max_neighbours, window_keyframe_id=int(reference.id))
         reply = candidates(query)
         if reply is not None and reply.candidates:
-            self.map.restore_keyframes(keyframes_to_restore(reply, int(reference.id)), reply.points)
+            self._restore(keyframes_to_restore(reply, int(reference.id)), reply)
         limits = self.config.local_map
         if self.map.n_cached_keyframes > limits.cache_max_keyframes + limits.cache_min_keyframes_between_evictions:
             self._evict(unanswered, force=True)
         self._timers["map_window"] = (time.perf_counter() - started) * 1e3
+
+    def _restore(self, keyframes: list[KeyFrame], reply: RelocalisationCandidates) -> None:
+        """Bring the backend's ``keyframes`` (with the reply's points) into the cache; localising,
+        estimate the covariance of every point they observe."""
+        slots = self.map.restore_keyframes(keyframes, reply.points)
+        max_sigma = self.config.localization_point_max_sigma_m
+        if not self.config.localization or max_sigma is None or not slots:
+            return
+        rows = np.unique(np.concatenate([self.map.keyframe_point_rows(slot) for slot in slots]))
+        self.map.set_covariances(rows, point_covariances(self.map, rows, self.calibration, max_sigma))
+
+    def _covariance(self, rows: np.ndarray) -> np.ndarray | None:
+        """The position covariances (K, 3, 3) of map ``rows`` (K,) to weigh them by in pose
+        optimisation; None (points exact) outside localisation mode."""
+        if not self.config.localization or self.config.localization_point_max_sigma_m is None:
+            return None
+        return self.map.covariance[rows]
 
     # ---- relocalisation ------------------------------------------------------------------------------
     def _relocalises(self, candidates: CandidateSource | None) -> bool:
@@ -555,7 +591,7 @@ class Tracker:
             found = relocalise(frame, reply, self.vocabulary, cfg, self.pose_config, frame_feature_vector=fvec, prior=prior)
             if found is None:
                 return None, "relocalisation_no_candidate_matched"
-            self.map.restore_keyframes(keyframes_to_restore(reply, found.keyframe_id), reply.points)
+            self._restore(keyframes_to_restore(reply, found.keyframe_id), reply)
             rows = self.map.rows_of_ids(found.point_ids)
             T_cam_world, rows, n_inliers = self._track_local_map(frame, found.T_cam_world, rows)
         finally:
@@ -624,7 +660,12 @@ class Tracker:
         search = LastFrameSearch(
             cfg.motion_radius_px, cfg.motion_wide_factor, cfg.motion_min_matches, cfg.max_descriptor_distance, cfg.check_orientation
         )
-        return track_last_frame(frame, last.frame, points, T_predicted, search, self.pose_config)
+        on_map = points.rows >= 0
+        map_covariance, covariance = self._covariance(points.rows[on_map]), None
+        if map_covariance is not None:  # VO points, made from this camera's own depths, stay exact
+            covariance = np.zeros((len(on_map), 3, 3))
+            covariance[on_map] = map_covariance
+        return track_last_frame(frame, last.frame, points, T_predicted, search, self.pose_config, covariance)
 
     def _track_reference_keyframe(self, frame: Frame) -> OdometryPose | None:
         """Match the frame to the reference keyframe's points by descriptor; pose from the last frame.

@@ -128,18 +128,20 @@ class LastFrameSearch:
 
 def track_last_frame(
     frame: Frame, last: Frame, points: LastFramePoints, T_predicted: np.ndarray, search: LastFrameSearch,
-    pose_config: PoseOptimizerConfig,
+    pose_config: PoseOptimizerConfig, point_covariance: np.ndarray | None = None,
 ) -> OdometryPose | None:
     """Match ``points`` into ``frame`` around their projection with ``T_predicted`` (T_cam_world),
     optimise the pose and keep the inliers; None with fewer than ``search.min_matches`` matches.
-    The caller judges the inlier counts."""
+    The caller judges the inlier counts. ``point_covariance``: (M, 3, 3) of ``points``, to weigh
+    them by (``optimize_pose``); None: exact."""
     match = _match(frame, last, points, T_predicted, search.radius_px, search)
     if np.count_nonzero(match >= 0) < search.min_matches:
         match = _match(frame, last, points, T_predicted, search.wide_factor * search.radius_px, search)
     kps = np.flatnonzero(match >= 0)
     if len(kps) < search.min_matches:
         return None
-    result = optimize_frame_pose(frame, T_predicted, kps, points.p_world[match[kps]], pose_config)
+    covariance = None if point_covariance is None else point_covariance[match[kps]]
+    result = optimize_frame_pose(frame, T_predicted, kps, points.p_world[match[kps]], pose_config, point_covariance=covariance)
     inliers = kps[result.inliers]
     rows = np.full(len(frame.features), -1, dtype=np.int64)
     rows[inliers] = points.rows[match[inliers]]
@@ -151,14 +153,19 @@ def track_last_frame(
 
 def optimise_with_odometry(
     frame: Frame, T_init: np.ndarray, map_keypoints: np.ndarray, map_p_world: np.ndarray, odometry: OdometryPose,
-    pose_config: PoseOptimizerConfig,
+    pose_config: PoseOptimizerConfig, map_covariance: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The pose from the map matches (keypoints ``map_keypoints`` on points ``map_p_world``) and the
-    odometry's VO matches on other keypoints together: (T_cam_world, inlier mask over ``map_keypoints``)."""
+    odometry's VO matches on other keypoints together: (T_cam_world, inlier mask over ``map_keypoints``).
+    ``map_covariance``: (K, 3, 3) of the map points, to weigh them by; the VO points are exact."""
     free = ~np.isin(odometry.vo_keypoints, map_keypoints)
     kps = np.concatenate([map_keypoints, odometry.vo_keypoints[free]]).astype(np.int64)
     p_world = np.vstack([np.asarray(map_p_world).reshape(-1, 3), odometry.vo_p_world[free]])
-    result = optimize_frame_pose(frame, T_init, kps, p_world, pose_config)
+    covariance = None
+    if map_covariance is not None:
+        covariance = np.zeros((len(kps), 3, 3))
+        covariance[: len(map_keypoints)] = map_covariance
+    result = optimize_frame_pose(frame, T_init, kps, p_world, pose_config, point_covariance=covariance)
     return result.T_cam_world, np.asarray(result.inliers[: len(map_keypoints)], dtype=bool)
 
 

@@ -1,0 +1,53 @@
+"""How well the map knows each point's position: its covariance from the keyframes that observe it.
+
+Each observation of a point (a keyframe's keypoint: pixel (u, v), and u_right where stereo or
+RGB-D matched) informs its position by J^T J / sigma^2, with J the derivative of the projection
+into that keyframe with respect to the point and sigma^2 the keypoint level's pixel variance
+(ORB-SLAM's scale_factor^(2 level)). The covariance is the inverse of the summed information, the
+keyframes' poses taken as exact. A point seen from afar by keyframes that stand close together is
+known well across their rays and poorly along them (stereo depth error grows with the square of
+the distance); seen from elsewhere, that error is sideways and moves the point in the image.
+
+Localisation mode weighs each map point by it (``pose_optimizer.optimize_pose``'s
+``point_covariance``): the saved map's points are final, and a frame that sees them from another
+side than the keyframes that made them would otherwise take their depth errors as exact
+(benchmarks/README.md, "Saved maps and localisation").
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from zenslam.camera import PinholeCalibration
+from zenslam.frontend.local_map import LocalMap
+from zenslam.geometry import invert_T
+from zenslam.pose_optimizer import point_jacobian
+
+
+def point_covariances(
+    local_map: LocalMap, rows: np.ndarray, calibration: PinholeCalibration, max_sigma_m: float
+) -> np.ndarray:
+    """(K, 3, 3) covariance (m^2, world frame) of the points in ``rows`` (K,) from every observation
+    of them by the keyframes the cache holds. ``max_sigma_m`` bounds the standard deviation along
+    any direction (a point seen along one ray only, mono, is unbounded along it). A point no held
+    keyframe observes gets max_sigma_m^2 along every axis."""
+    rows = np.asarray(rows, dtype=np.int64)
+    bf = calibration.bf if calibration.baseline_m is not None else 0.0
+    information = np.zeros((len(rows), 3, 3))
+    obs_rows, obs_slots, obs_keypoints = local_map.observation_arrays()
+    position = np.full(local_map.n_points, -1, dtype=np.int64)
+    position[rows] = np.arange(len(rows))
+    of_rows = np.flatnonzero(position[obs_rows] >= 0)
+    slots, first = np.unique(obs_slots[of_rows], return_inverse=True)
+    for k, slot in enumerate(slots.tolist()):
+        keyframe = local_map.keyframe(slot)
+        if keyframe is None:
+            continue
+        these = of_rows[first == k]
+        keypoints = obs_keypoints[these]
+        stereo = keyframe.right_u[keypoints] >= 0
+        inv_sigma2 = keyframe.features.inv_level_sigma2[keyframe.features.level[keypoints]]
+        J = point_jacobian(invert_T(keyframe.T_world_cam), local_map.p_world[obs_rows[these]], calibration.fx, calibration.fy, bf)
+        J[:, 2, :] *= stereo[:, None]  # a mono observation has no u_right
+        np.add.at(information, position[obs_rows[these]], np.einsum("nji,njk->nik", J, J) * inv_sigma2[:, None, None])
+    return np.linalg.inv(information + np.eye(3) / max_sigma_m**2)
