@@ -49,5 +49,5 @@ def point_covariances(
         inv_sigma2 = keyframe.features.inv_level_sigma2[keyframe.features.level[keypoints]]
         J = point_jacobian(invert_T(keyframe.T_world_cam), local_map.p_world[obs_rows[these]], calibration.fx, calibration.fy, bf)
         J[:, 2, :] *= stereo[:, None]  # a mono observation has no u_right
-        np.add.at(information, position[obs_rows[these]], np.einsum("nji,njk->nik", J, J) * inv_sigma2[:, None, None])
+        np.add.at(information, position[obs_rows[these]], (J.transpose(0, 2, 1) @ J) * inv_sigma2[:, None, None])
     return np.linalg.inv(information + np.eye(3) / max_sigma_m**2)
