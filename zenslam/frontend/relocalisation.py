@@ -197,8 +197,8 @@ def relocalise(
         if found is not None and prior is not None and not prior.admits(found[0]):
             distance, angle = prior.offset(found[0])
             logger.info(
-                "relocalisation on keyframe %d refused: %.2f m and %.1f deg from the frame's odometry pose (allowed %.2f m, %.1f deg)",
-                keyframe.id, distance, angle, prior.max_distance_m, prior.max_angle_deg,
+                "frame %d: relocalisation on keyframe %d refused, %.2f m and %.1f deg from the frame's odometry pose (allowed %.2f m, %.1f deg)",
+                frame.index, keyframe.id, distance, angle, prior.max_distance_m, prior.max_angle_deg,
             )  # fmt: skip
             continue
         if found is not None:
