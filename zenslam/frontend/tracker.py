@@ -24,7 +24,8 @@ points, not connected to the old ones), reported as ``initializing``.
 
 Localisation mode (``localization``): frames with few map matches go on by visual odometry and try
 to relocalise at every frame; a relocalisation is taken only near the odometry's pose
-(``relocalisation.vo_agreement_*``), unless the odometry failed too.
+(``relocalisation.vo_agreement_*``), unless the odometry failed too. The saved map's points are
+weighed by their covariance from the keyframes the cache holds (``point_uncertainty``).
 """
 
 from __future__ import annotations
