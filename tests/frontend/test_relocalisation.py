@@ -509,11 +509,12 @@ def test_a_pose_the_inliers_do_not_pin_down_is_refused_when_asked(place) -> None
         RelocalisationConfig(max_position_sigma_ratio=0.0)
 
 
-@pytest.mark.parametrize("max_sigma_m", [10.0, None])
-def test_localising_in_a_saved_map_weighs_its_points_by_their_covariance(max_sigma_m) -> None:
-    """A localisation run entering a map another run made: the points of the keyframes it brings
-    into its cache get their covariance from those keyframes' observations (zeros, points exact,
-    when ``localization_point_max_sigma_m`` is None), and the relocalised pose is as good."""
+@pytest.mark.parametrize(("max_sigma_m", "sensor"), [(10.0, "stereo"), (None, "stereo"), (10.0, "rgbd")])
+def test_localising_in_a_saved_map_weighs_its_points_by_their_covariance(max_sigma_m, sensor) -> None:
+    """A stereo localisation run entering a map another run made: the points of the keyframes it
+    brings into its cache get their covariance from those keyframes' observations (zeros, points
+    exact, when ``localization_point_max_sigma_m`` is None, or for an RGB-D camera), and the
+    relocalised pose is as good."""
     mapper, backend, scene = _tracker()
     for k in range(12):
         assert _track(mapper, backend, scene.view(path_pose(k), seed=k, index=k)[0]).state == "ok"
@@ -521,7 +522,7 @@ def test_localising_in_a_saved_map_weighs_its_points_by_their_covariance(max_sig
         localization=True, start_in_map=True, localization_point_max_sigma_m=max_sigma_m,
         local_map=LocalMapConfig(keyframe_id_start=1000, point_id_start=1 << 40),
     )  # fmt: skip
-    localiser = Tracker(CAL, "stereo", config, camera_fps=10.0, vocabulary=VOCABULARY)
+    localiser = Tracker(CAL, sensor, config, camera_fps=10.0, vocabulary=VOCABULARY)
     results = [localiser.track(scene.view(path_pose(k), seed=100 + k, index=k)[0], candidates=backend) for k in (3, 4, 5)]
     assert results[0].relocalised and all(r.state == "ok" for r in results)
     for k, r in zip((3, 4, 5), results):
@@ -530,7 +531,7 @@ def test_localising_in_a_saved_map_weighs_its_points_by_their_covariance(max_sig
     lm = localiser.map
     rows = np.unique(np.concatenate([lm.keyframe_point_rows(slot) for slot in lm.cached_slots()]))
     sigmas = np.sqrt(np.linalg.eigvalsh(lm.covariance[rows]))
-    if max_sigma_m is None:
+    if max_sigma_m is None or sensor == "rgbd":
         assert not lm.covariance.any()
         return
     # Points 5-12 m away, seen by keyframes a few centimetres apart with a 12 cm baseline: known to

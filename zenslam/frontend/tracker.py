@@ -24,8 +24,8 @@ points, not connected to the old ones), reported as ``initializing``.
 
 Localisation mode (``localization``): frames with few map matches go on by visual odometry and try
 to relocalise at every frame; a relocalisation is taken only near the odometry's pose
-(``relocalisation.vo_agreement_*``), unless the odometry failed too. The saved map's points are
-weighed by their covariance from the keyframes the cache holds (``point_uncertainty``).
+(``relocalisation.vo_agreement_*``), unless the odometry failed too. With a stereo camera the saved
+map's points are weighed by their covariance from the keyframes the cache holds (``point_uncertainty``).
 """
 
 from __future__ import annotations
@@ -125,10 +125,13 @@ class TrackingConfig:
     # placed in the backend's map; with few map matches they go on by visual odometry (see
     # visual_odometry) until a relocalisation finds the map again. Lost frames are never started over.
     localization: bool = False
-    # Localisation mode, not ORB-SLAM's: each map point is weighed by its position's covariance from
-    # the saved keyframes that observe it (frontend/point_uncertainty.py), bounded at this standard
-    # deviation (metres), so a far point's depth error, seen from the side, does not move the pose
-    # as if it were exact. None: every point exact, as ORB-SLAM.
+    # Localisation mode with a stereo camera, not ORB-SLAM's: each map point is weighed by its
+    # position's covariance from the saved keyframes that observe it (frontend/point_uncertainty.py),
+    # bounded at this standard deviation (metres), so a far point's depth error, seen from the side,
+    # does not move the pose as if it were exact. None: every point exact, as ORB-SLAM. An RGB-D or
+    # monocular camera keeps its points exact: a depth sensor's depths are far better than the
+    # pixel model of the virtual right image says, and there the weighing measured worse
+    # (benchmarks/README.md, "Saved maps and localisation"); monocular is not measured.
     localization_point_max_sigma_m: float | None = 10.0
     visual_odometry: VisualOdometryConfig = field(default_factory=VisualOdometryConfig)
     monocular: MonocularInitialisationConfig = field(default_factory=MonocularInitialisationConfig)
@@ -557,18 +560,20 @@ class Tracker:
         """Bring the backend's ``keyframes`` (with the reply's points) into the cache; localising,
         estimate the covariance of every point they observe."""
         slots = self.map.restore_keyframes(keyframes, reply.points)
-        max_sigma = self.config.localization_point_max_sigma_m
-        if not self.config.localization or max_sigma is None or not slots:
+        if not self._weighs_points or not slots:
             return
         rows = np.unique(np.concatenate([self.map.keyframe_point_rows(slot) for slot in slots]))
-        self.map.set_covariances(rows, point_covariances(self.map, rows, self.calibration, max_sigma))
+        self.map.set_covariances(rows, point_covariances(self.map, rows, self.calibration, self.config.localization_point_max_sigma_m))
+
+    @property
+    def _weighs_points(self) -> bool:
+        """Localisation mode with a stereo camera and ``localization_point_max_sigma_m`` set."""
+        return self.config.localization and self.config.localization_point_max_sigma_m is not None and self.sensor == "stereo"
 
     def _covariance(self, rows: np.ndarray) -> np.ndarray | None:
         """The position covariances (K, 3, 3) of map ``rows`` (K,) to weigh them by in pose
-        optimisation; None (points exact) outside localisation mode."""
-        if not self.config.localization or self.config.localization_point_max_sigma_m is None:
-            return None
-        return self.map.covariance[rows]
+        optimisation; None (points exact) where the tracker does not weigh its points."""
+        return self.map.covariance[rows] if self._weighs_points else None
 
     # ---- relocalisation ------------------------------------------------------------------------------
     def _relocalises(self, candidates: CandidateSource | None) -> bool:
