@@ -339,6 +339,28 @@ def test_a_restarted_backend_rebuilds_its_map_from_the_journal_and_answers_what_
     assert sum(isinstance(e, JournaledKeyframe) for e in entries) == 7  # keyframe 5 is not journaled twice
 
 
+def test_only_stereo_and_rgbd_keyframes_are_answered_before_their_local_ba():
+    """A monocular keyframe gets one update, its answer after local BA, whatever
+    ``answer_before_local_ba`` says: ORB-SLAM's monocular tracking makes no keyframe beside a busy
+    local mapping, so answering before the BA would starve a monocular map of keyframes."""
+    node = _node()
+    node.answer_before_local_ba = True
+    stereo = World().keyframe(0)
+    assert node.answers_before_local_ba(stereo)
+    assert node.answers_before_local_ba(dataclasses.replace(stereo, sensor="rgbd"))
+    assert not node.answers_before_local_ba(dataclasses.replace(stereo, sensor="mono"))
+    node.answer_before_local_ba = False
+    assert not node.answers_before_local_ba(stereo)
+    stepped = _node()
+    stepped.answer_before_local_ba = True
+    assert [u.kind for u in stepped.step(stereo).updates] == ["keyframe", "correction"]
+    mono = _node()
+    mono.answer_before_local_ba = True
+    no_depth = np.full(len(stereo.right_u), -1.0, np.float32)
+    updates = mono.step(dataclasses.replace(World().keyframe(0), sensor="mono", right_u=no_depth, depth_m=no_depth)).updates
+    assert [u.kind for u in updates] == ["keyframe"] and not updates[0].corrections_after_next_frame
+
+
 def test_a_keyframe_answered_before_its_local_ba_leaves_the_map_step_leaves():
     """``begin`` then ``finish`` (``backend.answer_before_local_ba``) make the map ``step`` makes, bit
     for bit: the answer carries insertion, new points and fusion and announces one correction after

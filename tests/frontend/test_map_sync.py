@@ -25,13 +25,15 @@ FRAMES = 20
 ATE_BOUND_M = 0.01  # the synthetic loop tracks to ~3 mm over its first frames
 
 
-@pytest.fixture(scope="module")
-def synced_run():
+@pytest.fixture(scope="module", params=[False, True], ids=["answer_after_local_ba", "answer_before_local_ba"])
+def synced_run(request):
     """Track FRAMES synthetic frames; every keyframe goes through the backend (over the codec, as on
-    the bus) and its update comes back before the next frame. Returns the checks made after each update."""
+    the bus) and its updates come back before the next frame: one, or with
+    ``answer_before_local_ba`` the answer then the local BA's correction. Returns the checks made
+    after each keyframe's last update."""
     source = open_source("synthetic")
     pipeline = FrontendPipeline(FrontendConfig(), source.calibration, source.sensor)
-    backend = BackendNode.from_config(BackendConfig())
+    backend = BackendNode.from_config(BackendConfig(answer_before_local_ba=request.param))
     checks, poses = [], []
     for i, frame in enumerate(source):
         if i >= FRAMES:
@@ -42,8 +44,9 @@ def synced_run():
         if out.keyframe is None:
             continue
         sent = codec.encode_keyframe(keyframe_message(out.keyframe, source.calibration, source.sensor))
-        update = codec.decode_map_update(codec.encode_map_update(backend.step(codec.decode_keyframe(sent)).updates[0]))
-        pipeline.apply_map_update(update)
+        for update in backend.step(codec.decode_keyframe(sent)).updates:
+            update = codec.decode_map_update(codec.encode_map_update(update))
+            pipeline.apply_map_update(update)
         checks.append((update, _disagreements(pipeline.tracker.map, backend.mapper.map, update)))
     trajectory = Trajectory(np.array([s for s, _ in poses], dtype=np.int64), np.stack([T for _, T in poses]))
     return checks, trajectory, source.ground_truth(), pipeline, backend

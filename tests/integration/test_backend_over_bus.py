@@ -34,7 +34,7 @@ class FollowedRun:
     """What the test process saw of one run."""
 
     states: list[codec.TrackingStateMessage] = field(default_factory=list)
-    updates: list[int] = field(default_factory=list)  # keyframe id of each map update, in arrival order
+    updates: list[int] = field(default_factory=list)  # keyframe id of each answer to a keyframe, in arrival order
     end_count: int | None = None  # the count in the backend's end of stream
     during_trajectory: codec.KeyframeTrajectoryMessage | None = None  # asked while the stages ran
     during_map: codec.MapSnapshotMessage | None = None
@@ -69,7 +69,7 @@ def _follow(tmp_path: Path, run_id: str, source: SourceConfig, mode: RunMode = "
                     update = updates.get(timeout_s=0.05)
                     if isinstance(update, codec.EndOfStream):
                         seen.end_count = update.count
-                    elif update is not None:
+                    elif update is not None and update.answers_keyframe:  # not the corrections after an answer
                         seen.updates.append(update.keyframe_id)
                     if len(seen.updates) == 2 and seen.during_trajectory is None:
                         seen.during_trajectory = query_trajectory(session, run_id, timeout_s=10.0)

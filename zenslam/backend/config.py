@@ -44,11 +44,12 @@ class BackendConfig:
     journal: bool = True
     # Publish each keyframe's answer (its insertion, new points and fusion) before its local BA, and
     # the BA's changes after it as a correction: a lockstep frontend tracks the next frame on the
-    # answer while the BA runs, and applies the correction before the frame after (a lag of one
-    # frame, the same in every run). Faster (KITTI 06 clip: 0.97-1.13x real time against 0.78-0.90x),
-    # as accurate over eight draws of the synthetic rooms, but their default draws track 13-41%
-    # worse: measured in benchmarks/README.md, "Local mapping".
-    answer_before_local_ba: bool = False
+    # answer while the BA runs (local mapping counts as busy, as ORB-SLAM's tracking thread sees its
+    # local-mapping thread), and applies the correction before the frame after (a lag of one frame,
+    # the same in every run). Stereo and RGB-D keyframes only: a monocular one is answered after its
+    # BA (``BackendNode.answers_before_local_ba``). false: every answer waits for its local BA, and
+    # tracking with it. Measured in benchmarks/README.md, "Local mapping" (twenty-first session).
+    answer_before_local_ba: bool = True
 
     def __post_init__(self) -> None:
         if not 0 <= self.nice <= 19:
