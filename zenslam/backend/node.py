@@ -4,9 +4,9 @@ backend/trajectory and backend/relocalisation.
 ``BackendNode.step`` runs local mapping, then loop closing, on one decoded keyframe and returns the
 map updates to publish (the keyframe's answer, then any loop correction) and the verified loop
 candidates for backend/loop; it is testable without the bus. With ``answer_before_local_ba`` the
-worker runs it for a stereo or RGB-D keyframe in two halves, ``begin`` (up to fusion: the answer, published at once) and
-``finish`` (local BA, keyframe culling and loop closing: the corrections), so that a lockstep
-frontend tracks its next frame while local BA runs. A background global BA's correction
+worker runs it on a stereo or RGB-D keyframe in two halves, ``begin`` (up to fusion: the answer,
+published at once) and ``finish`` (local BA, keyframe culling and loop closing: the corrections),
+so that a lockstep frontend tracks its next frame while local BA runs. A background global BA's correction
 is published between keyframes when it finishes. ``serve`` is the loop: it takes keyframes from a lossless,
 bounded inbox (a full inbox blocks the frontend's send, nothing is dropped), tells local mapping
 how many keyframes wait behind the current one (ORB-SLAM's CheckNewKeyFrames: a backlog defers
