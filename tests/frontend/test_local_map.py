@@ -305,6 +305,31 @@ def test_keyframes_the_backend_has_not_mapped_follow_their_parents_correction() 
         np.testing.assert_array_equal(lm.p_world[lm.rows_of_ids(kf0.new_point_ids[5:])], old_p[kf0.id][5:])
 
 
+def test_a_correction_with_more_associations_than_keypoints_is_skipped(caplog) -> None:
+    """A damaged correction naming a held keyframe with one association too many (or too few) is
+    skipped with a warning: the keyframe keeps its pose and associations; the update's other
+    keyframes and points are applied."""
+    lm = LocalMap()
+    kf0 = add_keyframe(lm, [], 40)
+    kf1 = add_keyframe(lm, kf0.new_point_ids[:30], 20, centre=(0.0, 0.0, 1.0))
+    moved = make_T(np.eye(3), np.array([0.0, 0.2, 0.0]))
+    for damaged in (np.append(kf1.map_point_ids, -1), kf1.map_point_ids[:-1]):
+        update = _update(
+            lm, kf0.new_point_ids[:2], np.ones((2, 3)), keyframe_id=kf1.id,
+            keyframes=(
+                KeyframeCorrection(kf0.id, moved @ kf0.T_world_cam, kf0.map_point_ids),
+                KeyframeCorrection(kf1.id, moved @ kf1.T_world_cam, damaged),
+            ),
+        )
+        with caplog.at_level("WARNING", logger="zenslam.frontend.local_map"):
+            lm.apply_map_update(update)
+        assert f"keyframe {kf1.id}'s correction lists {len(damaged)} point associations for its 50 keypoints" in caplog.text
+        np.testing.assert_array_equal(lm.keyframe(1).T_world_cam, kf1.T_world_cam)
+        np.testing.assert_array_equal(lm.keyframe(1).map_point_ids, kf1.map_point_ids)
+        np.testing.assert_allclose(lm.keyframe(0).T_world_cam, moved @ kf0.T_world_cam, atol=1e-12)
+        np.testing.assert_array_equal(lm.p_world[lm.rows_of_ids(kf0.new_point_ids[:2])], np.ones((2, 3)))
+
+
 def test_map_update_removes_keyframes() -> None:
     lm = LocalMap()
     kf0 = add_keyframe(lm, [], 40)

@@ -18,7 +18,9 @@ from zenslam.schemas import codec, keys
 from zenslam.runtime import bus
 from zenslam.service import mcap_io
 from zenslam.service.commands.export import export_recording
+from zenslam.schemas.map_update import MapUpdate
 from zenslam.service.evaluation.trajectory_io import read_tum
+from zenslam.service.replay import MAP_UPDATE_TOPIC, read_topics
 from zenslam.service.recorder_config import RecorderConfig
 from zenslam.service.sources import SensorFrame
 
@@ -59,7 +61,13 @@ def test_the_run_writes_an_indexed_recording_with_viewer_schemas(recorded_run):
     assert counts["/sensor/frame"] == frames + 1  # and its end of stream
     assert counts["/camera/left"] == counts["/camera/right"] == frames
     assert counts["/frontend/state"] == frames + 1
-    assert counts["/backend/map_update"] == log.keyframe_counts()["processed"] + 1
+    # One answer per keyframe, the corrections the answers announce (local BA answered after its
+    # keyframe, loop corrections), and the end of stream.
+    updates = [codec.decode_map_update(m.data) for m in read_topics(run_dir / "run.mcap", (MAP_UPDATE_TOPIC,))[MAP_UPDATE_TOPIC]]
+    answers = [u for u in updates if isinstance(u, MapUpdate) and u.answers_keyframe]
+    assert len(answers) == log.keyframe_counts()["processed"]
+    announced = sum(u.corrections_following for u in updates if isinstance(u, MapUpdate))
+    assert counts["/backend/map_update"] == len(updates) == len(answers) + announced + 1
     # The first map, the final one, and at most one per recorder.map_points_period_s of sensor time between.
     stamps = sorted(log.poses)
     between = int((stamps[-1] - stamps[0]) / 1e9 / RecorderConfig().map_points_period_s)

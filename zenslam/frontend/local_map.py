@@ -573,14 +573,32 @@ class LocalMap:
         whole map does not copy it into the cache. Points listed by the backend are never culled
         by ``cull_recent_points``: the backend decides about them.
         """
-        moved = self._poses_of(update.keyframes)
-        held = [c.map_point_ids for c in update.keyframes if self.slot_of(c.id) >= 0]
+        corrections = self._fitting(update.keyframes)
+        moved = self._poses_of(corrections)
+        held = [c.map_point_ids for c in corrections if self.slot_of(c.id) >= 0]
         self._replace_points(update, np.concatenate(held) if held else np.zeros(0, dtype=np.int64))
-        self._replace_keyframes(update.keyframes)
+        self._replace_keyframes(corrections)
         self._carry_unmapped_keyframes(update, moved)
         self.remove_points(update.removed_point_ids)
         for keyframe_id in np.asarray(update.removed_keyframe_ids, dtype=np.int64).tolist():
             self._remove_keyframe(keyframe_id)
+
+    def _fitting(self, corrections: Sequence[KeyframeCorrection]) -> list[KeyframeCorrection]:
+        """``corrections`` less those of held keyframes whose associations do not list one point
+        per keypoint: a damaged message, which names a keyframe it cannot describe (skipped, with a
+        warning; the keyframe keeps what it had)."""
+        fitting = []
+        for correction in corrections:
+            slot = self.slot_of(correction.id)
+            keyframe = self._keyframes[slot] if slot >= 0 else None
+            if keyframe is not None and len(correction.map_point_ids) != len(keyframe.map_point_ids):
+                logger.warning(
+                    "map update: keyframe %d's correction lists %d point associations for its %d keypoints; skipped",
+                    correction.id, len(correction.map_point_ids), len(keyframe.map_point_ids),
+                )  # fmt: skip
+                continue
+            fitting.append(correction)
+        return fitting
 
     def _poses_of(self, corrections: list[KeyframeCorrection]) -> dict[int, np.ndarray]:
         """Slot -> current T_world_cam of the known keyframes among ``corrections``."""
