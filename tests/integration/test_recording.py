@@ -15,10 +15,10 @@ from mcap.reader import make_reader
 
 from zenslam.camera import PinholeCalibration
 from zenslam.schemas import codec, keys
+from zenslam.schemas.map_update import MapUpdate
 from zenslam.runtime import bus
 from zenslam.service import mcap_io
 from zenslam.service.commands.export import export_recording
-from zenslam.schemas.map_update import MapUpdate
 from zenslam.service.evaluation.trajectory_io import read_tum
 from zenslam.service.replay import MAP_UPDATE_TOPIC, read_topics
 from zenslam.service.recorder_config import RecorderConfig

@@ -6,12 +6,12 @@ map updates to publish (the keyframe's answer, then any loop correction) and the
 candidates for backend/loop; it is testable without the bus. With ``answer_before_local_ba`` the
 worker runs it on a stereo or RGB-D keyframe in two halves, ``begin`` (up to fusion: the answer,
 published at once) and ``finish`` (local BA, keyframe culling and loop closing: the corrections),
-so that a lockstep frontend tracks its next frame while local BA runs. A background global BA's correction
-is published between keyframes when it finishes. ``serve`` is the loop: it takes keyframes from a lossless,
-bounded inbox (a full inbox blocks the frontend's send, nothing is dropped), tells local mapping
-how many keyframes wait behind the current one (ORB-SLAM's CheckNewKeyFrames: a backlog defers
-fusion, local BA and keyframe culling to the last queued keyframe; the end-of-stream marker does
-not count, so the last keyframe always gets them), publishes each keyframe's updates and a
+so that a lockstep frontend tracks its next frame while local BA runs. A background global BA's
+correction is published between keyframes when it finishes. ``serve`` is the loop: it takes
+keyframes from a lossless, bounded inbox (a full inbox blocks the frontend's send, nothing is
+dropped), tells local mapping how many keyframes wait behind the current one (ORB-SLAM's
+CheckNewKeyFrames: a backlog defers fusion, local BA and keyframe culling to the last queued
+keyframe; the end-of-stream marker does not count, so the last keyframe always gets them), publishes each keyframe's updates and a
 backend/status with the step time, the per-step timings and the queue depth, and answers the
 queryables between steps, on the same thread, so a reply always shows the map between two
 keyframes. After the frontend's end of stream it forwards the end of stream on backend/map_update
