@@ -11,8 +11,9 @@ correction is published between keyframes when it finishes. ``serve`` is the loo
 keyframes from a lossless, bounded inbox (a full inbox blocks the frontend's send, nothing is
 dropped), tells local mapping how many keyframes wait behind the current one (ORB-SLAM's
 CheckNewKeyFrames: a backlog defers fusion, local BA and keyframe culling to the last queued
-keyframe; the end-of-stream marker does not count, so the last keyframe always gets them), publishes each keyframe's updates and a
-backend/status with the step time, the per-step timings and the queue depth, and answers the
+keyframe; the end-of-stream marker does not count, so the last keyframe always gets them),
+publishes each keyframe's updates and a backend/status with the step time, the per-step timings
+and the queue depth, and answers the
 queryables between steps, on the same thread, so a reply always shows the map between two
 keyframes. After the frontend's end of stream it forwards the end of stream on backend/map_update
 and keeps answering queries for ``BackendConfig.linger_s`` seconds or until stopped.
