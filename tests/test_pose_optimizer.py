@@ -7,7 +7,7 @@ import zenslam.pose_optimizer as pose_optimizer
 from zenslam.camera import PinholeCalibration
 from zenslam.errors import CalibrationError
 from zenslam.pose_optimizer import PoseOptimizerConfig, optimize_pose
-from zenslam.geometry import invert_T, make_T, so3_exp, so3_log
+from zenslam.geometry import invert_T, make_T, se3_exp, so3_exp, so3_log
 from zenslam.config import from_mapping
 
 STEREO = PinholeCalibration(707.0912, 707.0912, 601.8873, 183.1104, 1226, 370, baseline_m=0.5372)
@@ -152,8 +152,8 @@ def test_analytic_jacobian_matches_finite_differences():
     for k in range(6):
         step = np.zeros(6)
         step[k] = 1e-6
-        _, plus = pose_optimizer._project(pose_optimizer._se3_exp(step) @ T, problem)
-        _, minus = pose_optimizer._project(pose_optimizer._se3_exp(-step) @ T, problem)
+        _, plus = pose_optimizer._project(se3_exp(step) @ T, problem)
+        _, minus = pose_optimizer._project(se3_exp(-step) @ T, problem)
         numeric[:, :, k] = (plus - minus) / 2e-6
     np.testing.assert_allclose(analytic, numeric, rtol=1e-5, atol=1e-4)
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 
@@ -65,6 +67,42 @@ def so3_log(R: np.ndarray) -> np.ndarray:
         axis = M[i] / axis[i]
         return theta * axis / np.linalg.norm(axis)
     return theta / (2.0 * np.sin(theta)) * v
+
+
+def se3_exp(xi: np.ndarray) -> np.ndarray:
+    """4x4 exponential of xi = (omega rad, upsilon m)."""
+    omega, upsilon = xi[:3], xi[3:]
+    theta = float(np.linalg.norm(omega))
+    K = skew(omega)
+    if theta < 1e-8:
+        V = np.eye(3) + 0.5 * K
+    else:
+        V = np.eye(3) + (1.0 - math.cos(theta)) / theta**2 * K + (theta - math.sin(theta)) / theta**3 * (K @ K)
+    T = np.eye(4)
+    T[:3, :3] = so3_exp(omega)
+    T[:3, 3] = V @ upsilon
+    return T
+
+
+def se3_log(T: np.ndarray) -> np.ndarray:
+    """xi = (omega rad, upsilon m) with se3_exp(xi) = T (rotation angle below pi)."""
+    omega = so3_log(T[:3, :3])
+    theta = float(np.linalg.norm(omega))
+    K = skew(omega)
+    V_inv = np.eye(3) - 0.5 * K
+    if theta >= 1e-8:
+        V_inv += (1.0 - theta * math.sin(theta) / (2.0 * (1.0 - math.cos(theta)))) / theta**2 * (K @ K)
+    return np.concatenate([omega, V_inv @ T[:3, 3]])
+
+
+def se3_adjoint(T: np.ndarray) -> np.ndarray:
+    """(6, 6) adjoint of T on xi = (omega, upsilon): T @ se3_exp(xi) @ inv(T) = se3_exp(adjoint @ xi)."""
+    R, t = T[:3, :3], T[:3, 3]
+    adjoint = np.zeros((6, 6))
+    adjoint[:3, :3] = R
+    adjoint[3:, 3:] = R
+    adjoint[3:, :3] = skew(t) @ R
+    return adjoint
 
 
 def quat_wxyz_to_R(q_wxyz: np.ndarray) -> np.ndarray:

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from zenslam.camera import PinholeCalibration
-from zenslam.geometry import skew, so3_exp
+from zenslam.geometry import se3_exp, skew
 
 logger = logging.getLogger(__name__)
 
@@ -174,13 +174,7 @@ def position_sigma(
     camera down: points far away and on one plane trade sideways motion for rotation, and the sigma
     along that direction grows. Infinite when the observations do not fix the pose.
     """
-    T = np.asarray(T_cam_world, dtype=float)
-    p_world, obs_px, obs_right_u, inv_sigma2 = _check_shapes(T, p_world, obs_px, obs_right_u, inv_sigma2)
-    usable = np.isfinite(p_world).all(axis=1) & np.isfinite(obs_px).all(axis=1) & (inv_sigma2 > 0)
-    if int(usable.sum()) < 3:
-        return math.inf
-    problem = _make_problem(p_world, obs_px, obs_right_u, inv_sigma2, usable, calibration, PoseOptimizerConfig())
-    _, H, _ = _linearize(T, problem.subset(usable), robust=False, min_depth_m=PoseOptimizerConfig().min_depth_m)
+    H = pose_information(T_cam_world, p_world, obs_px, obs_right_u, inv_sigma2, calibration)
     try:
         covariance = np.linalg.inv(H)
     except np.linalg.LinAlgError:
@@ -189,6 +183,32 @@ def position_sigma(
     # block rotated, with the same eigenvalues.
     largest = float(np.linalg.eigvalsh(covariance[3:, 3:])[-1])
     return math.sqrt(largest) if largest > 0 else math.inf
+
+
+def pose_information(
+    T_cam_world: np.ndarray,
+    p_world: np.ndarray,
+    obs_px: np.ndarray,
+    obs_right_u: np.ndarray,
+    inv_sigma2: np.ndarray,
+    calibration: PinholeCalibration,
+    point_covariance: np.ndarray | None = None,
+) -> np.ndarray:
+    """(6, 6) information of the pose ``T_cam_world`` from the observations (``optimize_pose``'s
+    arguments, inliers only): the Gauss-Newton H = J^T W J at that pose, without a kernel, on the
+    left perturbation T <- exp(xi) T with xi = (omega rad, upsilon m), as ``optimize_pose`` steps.
+    ``point_covariance`` weighs the observations as ``optimize_pose`` does. All zeros (no
+    information) with fewer than 3 usable observations."""
+    T = np.asarray(T_cam_world, dtype=float)
+    p_world, obs_px, obs_right_u, inv_sigma2 = _check_shapes(T, p_world, obs_px, obs_right_u, inv_sigma2)
+    usable = np.isfinite(p_world).all(axis=1) & np.isfinite(obs_px).all(axis=1) & (inv_sigma2 > 0)
+    if int(usable.sum()) < 3:
+        return np.zeros((6, 6))
+    problem = _make_problem(p_world, obs_px, obs_right_u, inv_sigma2, usable, calibration, PoseOptimizerConfig())
+    if point_covariance is not None:
+        problem = _with_point_covariance(problem, T, _checked_covariance(point_covariance, len(p_world), usable))
+    _, H, _ = _linearize(T, problem.subset(usable), robust=False, min_depth_m=PoseOptimizerConfig().min_depth_m)
+    return H
 
 
 def _check_shapes(T, p_world, obs_px, obs_right_u, inv_sigma2):
@@ -362,21 +382,6 @@ def _linearize(T: np.ndarray, problem: _Problem, robust: bool, min_depth_m: floa
     return cost, Jw.T @ J.reshape(-1, 6), Jw.T @ residual.reshape(-1)
 
 
-def _se3_exp(xi: np.ndarray) -> np.ndarray:
-    """4x4 exponential of xi = (omega rad, upsilon m)."""
-    omega, upsilon = xi[:3], xi[3:]
-    theta = float(np.linalg.norm(omega))
-    K = skew(omega)
-    if theta < 1e-8:
-        V = np.eye(3) + 0.5 * K
-    else:
-        V = np.eye(3) + (1.0 - math.cos(theta)) / theta**2 * K + (theta - math.sin(theta)) / theta**3 * (K @ K)
-    T = np.eye(4)
-    T[:3, :3] = so3_exp(omega)
-    T[:3, 3] = V @ upsilon
-    return T
-
-
 def _solve_round(T, problem, robust, config) -> tuple[np.ndarray, int]:
     """Levenberg-Marquardt with IRLS Huber weights on SE(3) (left perturbation); returns (T, iterations)."""
     cost, H, g = _linearize(T, problem, robust, config.min_depth_m)
@@ -390,7 +395,7 @@ def _solve_round(T, problem, robust, config) -> tuple[np.ndarray, int]:
         except np.linalg.LinAlgError:
             lam *= 10.0
             continue
-        T_new = _se3_exp(xi) @ T
+        T_new = se3_exp(xi) @ T
         cost_new, H_new, g_new = _linearize(T_new, problem, robust, config.min_depth_m)
         if cost_new <= cost:
             T, cost, H, g = T_new, cost_new, H_new, g_new

@@ -12,7 +12,7 @@ from zenslam.camera import PinholeCalibration
 from zenslam.errors import CalibrationError, ImageReadError, ZenslamError
 from zenslam.frontend.orb_extractor import Features, OrbExtractor
 from zenslam.frontend.stereo_matcher import StereoMatchConfig, match_stereo
-from zenslam.pose_optimizer import PoseOptimizerConfig, PoseResult, optimize_pose, position_sigma
+from zenslam.pose_optimizer import PoseOptimizerConfig, PoseResult, optimize_pose, pose_information, position_sigma
 
 logger = logging.getLogger(__name__)
 
@@ -289,6 +289,14 @@ def optimize_frame_pose(
     return optimize_pose(
         T_cam_world_init, p_world, *_observations(frame, keypoints), frame.calibration, config, point_covariance=point_covariance
     )
+
+
+def frame_pose_information(
+    frame: Frame, T_cam_world: np.ndarray, keypoints: np.ndarray, p_world: np.ndarray, point_covariance: np.ndarray | None = None
+) -> np.ndarray:
+    """``pose_information`` (6, 6) of the pose ``T_cam_world`` of ``frame`` from its keypoints
+    ``keypoints`` observing ``p_world``, weighed as ``optimize_frame_pose`` weighs them."""
+    return pose_information(T_cam_world, p_world, *_observations(frame, keypoints), frame.calibration, point_covariance)
 
 
 def frame_position_sigma(frame: Frame, T_cam_world: np.ndarray, keypoints: np.ndarray, p_world: np.ndarray) -> float:

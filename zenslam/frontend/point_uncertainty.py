@@ -32,7 +32,6 @@ def point_covariances(
     any direction (a point seen along one ray only, mono, is unbounded along it). A point no held
     keyframe observes gets max_sigma_m^2 along every axis."""
     rows = np.asarray(rows, dtype=np.int64)
-    bf = calibration.bf if calibration.baseline_m is not None else 0.0
     information = np.zeros((len(rows), 3, 3))
     obs_rows, obs_slots, obs_keypoints = local_map.observation_arrays()
     position = np.full(local_map.n_points, -1, dtype=np.int64)
@@ -47,7 +46,18 @@ def point_covariances(
         keypoints = obs_keypoints[these]
         stereo = keyframe.right_u[keypoints] >= 0
         inv_sigma2 = keyframe.features.inv_level_sigma2[keyframe.features.level[keypoints]]
-        J = point_jacobian(invert_T(keyframe.T_world_cam), local_map.p_world[obs_rows[these]], calibration.fx, calibration.fy, bf)
-        J[:, 2, :] *= stereo[:, None]  # a mono observation has no u_right
-        np.add.at(information, position[obs_rows[these]], (J.transpose(0, 2, 1) @ J) * inv_sigma2[:, None, None])
+        view = view_information(invert_T(keyframe.T_world_cam), local_map.p_world[obs_rows[these]], inv_sigma2, stereo, calibration)
+        np.add.at(information, position[obs_rows[these]], view)
     return np.linalg.inv(information + np.eye(3) / max_sigma_m**2)
+
+
+def view_information(
+    T_cam_world: np.ndarray, p_world: np.ndarray, inv_sigma2: np.ndarray, stereo: np.ndarray, calibration: PinholeCalibration
+) -> np.ndarray:
+    """(K, 3, 3) information (1/m^2, world frame) of the points ``p_world`` (K, 3) from one view of
+    each by the camera at ``T_cam_world``: pixel (u, v), and u_right where ``stereo`` (K,), with the
+    keypoints' levels' ``inv_sigma2`` (K,)."""
+    bf = calibration.bf if calibration.baseline_m is not None else 0.0
+    J = point_jacobian(T_cam_world, p_world, calibration.fx, calibration.fy, bf)
+    J[:, 2, :] *= np.asarray(stereo, dtype=bool)[:, None]  # a mono observation has no u_right
+    return (J.transpose(0, 2, 1) @ J) * np.asarray(inv_sigma2, dtype=float)[:, None, None]

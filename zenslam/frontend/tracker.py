@@ -45,7 +45,7 @@ from zenslam.camera import PinholeCalibration, SensorKind
 from zenslam.errors import ConfigError
 from zenslam.frontend.feature_matcher import match_by_descriptor, rotation_consistent, search_by_projection
 from zenslam.frontend.cache_eviction import CacheEviction
-from zenslam.frontend.frame import Frame, optimize_frame_pose
+from zenslam.frontend.frame import Frame, frame_pose_information, optimize_frame_pose
 from zenslam.frontend.keyframe import KeyFrame, select_new_point_keypoints, unproject_keypoints
 from zenslam.frontend.keyframe_decision import (
     KeyframeDecisionConfig,
@@ -58,7 +58,8 @@ from zenslam.frontend.frustum import project_in_frustum
 from zenslam.frontend.local_map import LocalMap, LocalMapConfig
 from zenslam.frontend.monocular_initialisation import InitialMap, MonocularInitialisationConfig, MonocularInitialiser
 from zenslam.frontend.motion_model import ConstantVelocityModel
-from zenslam.frontend.point_uncertainty import point_covariances
+from zenslam.frontend.point_uncertainty import point_covariances, view_information
+from zenslam.frontend.pose_filter import PoseEstimate, fuse, predict
 from zenslam.pose_optimizer import PoseOptimizerConfig
 from zenslam.frontend.relocalisation import BowTransform, PosePrior, RelocalisationConfig, keyframes_to_restore, pose_offset, relocalise
 from zenslam.frontend.visual_odometry import (
@@ -171,6 +172,12 @@ class _LastFrame:
     frame: Frame
     rows: np.ndarray  # (N,) map point row per keypoint, -1 none
     T_cam_world: np.ndarray
+    # (6, 6) of T_cam_world (``pose_filter``) where localisation filters the poses; None: exact
+    covariance: np.ndarray | None = None
+
+    def estimate(self) -> PoseEstimate:
+        """The frame's pose and covariance (zeros when it has none: taken as exact)."""
+        return PoseEstimate(self.T_cam_world, np.zeros((6, 6)) if self.covariance is None else self.covariance)
 
 
 class Tracker:
@@ -294,10 +301,12 @@ class Tracker:
 
     def _tracked(
         self, frame: Frame, T_cam_world: np.ndarray, rows: np.ndarray, n_inliers: int, keyframes_in_flight: int,
-        relocalised: bool = False,
+        relocalised: bool = False, covariance: np.ndarray | None = None,
     ) -> TrackResult:
         """A frame tracked in the local map: the keyframe decision, the motion model (restarted after
-        a relocalisation, as ORB-SLAM's has no velocity across a lost frame) and the last frame."""
+        a relocalisation, as ORB-SLAM's has no velocity across a lost frame) and the last frame,
+        with the pose's ``covariance`` where localisation filters the poses (None: the map
+        inliers' alone)."""
         start = time.perf_counter()
         keyframe = None
         if self._need_keyframe(frame, rows, n_inliers, keyframes_in_flight):
@@ -307,7 +316,9 @@ class Tracker:
             self.motion.reset()
         else:
             self.motion.update(self._last.T_cam_world, T_cam_world, self._frame_gap(frame), self._elapsed_ns(frame))
-        self._last = _LastFrame(frame, rows, T_cam_world)
+        if covariance is None and self._filters_poses:
+            covariance = PoseEstimate.from_information(T_cam_world, self._map_information(frame, T_cam_world, rows)).covariance
+        self._last = _LastFrame(frame, rows, T_cam_world, covariance)
         self._lost_streak = 0
         self._on_vo = False
         self._vo_anchor = None
@@ -449,7 +460,8 @@ class Tracker:
         if self._on_vo and self._relocalises(candidates):
             found, _ = self._relocalise(frame, candidates, self._odometry_prior(odometry))
             if found is not None:
-                return self._tracked(frame, *found, 0, relocalised=True)
+                T_cam_world, rows, n_inliers, covariance = self._relocalised_with_odometry(frame, found, odometry)
+                return self._tracked(frame, T_cam_world, rows, n_inliers, 0, relocalised=True, covariance=covariance)
         if odometry is None and not self._on_vo:
             start, pose_ms = time.perf_counter(), self._timers["pose_optimization"]
             odometry = self._track_reference_keyframe(frame)
@@ -460,11 +472,12 @@ class Tracker:
             start, pose_ms = time.perf_counter(), self._timers["pose_optimization"]
             T_cam_world, rows, n_inliers = self._track_local_map(frame, odometry.T_cam_world, odometry.rows)
             joint_below = self.config.visual_odometry.joint_below_map_inliers
+            covariance = None
             if (joint_below is None or n_inliers < joint_below) and len(odometry.vo_keypoints):
-                T_cam_world, rows, n_inliers = self._with_odometry(frame, T_cam_world, rows, odometry)
+                T_cam_world, rows, n_inliers, covariance = self._with_odometry(frame, T_cam_world, rows, odometry)
             self._add_time("local_map_tracking", start, pose_ms)
             if n_inliers >= self._min_local_map_inliers(frame):
-                return self._tracked(frame, T_cam_world, rows, n_inliers, 0)
+                return self._tracked(frame, T_cam_world, rows, n_inliers, 0, covariance=covariance)
         if odometry.n_total < self.config.visual_odometry.min_matches:
             return self._lost(frame, f"local_map_inliers_below_{self._min_local_map_inliers(frame)}", odometry.n_total)
         return self._tracked_by_odometry(frame, odometry)
@@ -489,7 +502,12 @@ class Tracker:
         return odometry
 
     def _with_odometry(self, frame: Frame, T_cam_world: np.ndarray, rows: np.ndarray, odometry: OdometryPose):
-        """The local-map pose optimised again with the odometry's VO matches: (T, rows, map inliers)."""
+        """The local-map pose steadied by the odometry's VO matches: (T, rows, map inliers, covariance).
+        ``visual_odometry.fusion`` "filter": fused with the odometry's prediction (``pose_filter``);
+        "exact_points": optimised again with the VO matches added as exact points (covariance None)."""
+        if self._filters_poses:
+            fused = self._fused_with_odometry(frame, T_cam_world, rows, odometry)
+            return fused.T_cam_world, rows, int(np.count_nonzero(rows >= 0)), fused.covariance
         start = time.perf_counter()
         kps = np.flatnonzero(rows >= 0)
         T_cam_world, inliers = optimise_with_odometry(
@@ -498,16 +516,74 @@ class Tracker:
         self._timers["pose_optimization"] += (time.perf_counter() - start) * 1e3
         rows = rows.copy()
         rows[kps[~inliers]] = -1
-        return T_cam_world, rows, int(np.count_nonzero(inliers))
+        return T_cam_world, rows, int(np.count_nonzero(inliers)), None
+
+    def _relocalised_with_odometry(self, frame: Frame, found: tuple, odometry: OdometryPose | None):
+        """A relocalisation ``found`` (T, rows, map inliers) that ends visual odometry, fused with the
+        odometry's prediction where localisation filters the poses: (T, rows, map inliers, covariance)."""
+        T_cam_world, rows, n_inliers = found
+        if not self._filters_poses or odometry is None or not len(odometry.vo_keypoints):
+            return T_cam_world, rows, n_inliers, None
+        fused = self._fused_with_odometry(frame, T_cam_world, rows, odometry)
+        return fused.T_cam_world, rows, n_inliers, fused.covariance
+
+    def _fused_with_odometry(self, frame: Frame, T_cam_world: np.ndarray, rows: np.ndarray, odometry: OdometryPose) -> PoseEstimate:
+        """The pose ``T_cam_world`` from the map inliers ``rows`` fused with the odometry's prediction."""
+        odometry_config = self.config.visual_odometry
+        information = self._map_information(frame, T_cam_world, rows) * odometry_config.filter_map_information_scale
+        return fuse(T_cam_world, information, self._odometry_estimate(frame, odometry), odometry_config.filter_max_chi2)
+
+    @property
+    def _filters_poses(self) -> bool:
+        """``visual_odometry.fusion`` "filter" (``pose_filter``) where the tracker weighs the map's
+        points by their covariances (localisation mode, stereo): without them a map pose's
+        information is far too confident (an RGB-D camera keeps ORB-SLAM2's exact VO points)."""
+        return self._weighs_points and self.config.visual_odometry.fusion == "filter"
+
+    def _map_information(self, frame: Frame, T_cam_world: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """(6, 6) information of the pose from the frame's map inliers ``rows``, weighed as tracking
+        weighs them."""
+        start = time.perf_counter()
+        kps = np.flatnonzero(rows >= 0)
+        information = frame_pose_information(frame, T_cam_world, kps, self.map.p_world[rows[kps]], self._covariance(rows[kps]))
+        self._timers["pose_optimization"] += (time.perf_counter() - start) * 1e3
+        return information
+
+    def _odometry_estimate(self, frame: Frame, odometry: OdometryPose) -> PoseEstimate:
+        """The frame as its odometry places it relative to the frame whose VO points it matched (the
+        anchor or the last frame): the pose from those VO points alone, and the covariance carried
+        from that frame plus the odometry's own (``pose_filter.predict``). Where the tracker weighs
+        map points by their covariance, each VO point is weighed by the covariance of its one stereo
+        view from that frame (this frame's keypoint's level standing for that frame's)."""
+        start = time.perf_counter()
+        source = self._vo_anchor if self._odometry_from_anchor else self._last
+        kps, p_world = odometry.vo_keypoints, odometry.vo_p_world
+        covariance = None
+        if len(kps):
+            levels = frame.features.inv_level_sigma2[frame.features.level[kps]]
+            view = view_information(source.T_cam_world, p_world, levels, np.ones(len(kps), dtype=bool), self.calibration)
+            covariance = np.linalg.inv(view + np.eye(3) / self.config.localization_point_max_sigma_m**2)
+        found = optimize_frame_pose(frame, odometry.T_cam_world, kps, p_world, self.pose_config, point_covariance=covariance)
+        T_cam_world, information = odometry.T_cam_world, np.zeros((6, 6))
+        if found.n_inliers:
+            T_cam_world, inliers = found.T_cam_world, found.inliers
+            information = frame_pose_information(
+                frame, T_cam_world, kps[inliers], p_world[inliers], None if covariance is None else covariance[inliers]
+            )
+        self._timers["pose_optimization"] += (time.perf_counter() - start) * 1e3
+        return predict(source.estimate(), T_cam_world, information)
 
     def _tracked_by_odometry(self, frame: Frame, odometry: OdometryPose) -> TrackResult:
         """A frame placed by visual odometry: the motion model goes on, the map is not touched."""
         self._on_vo = True
         self.n_vo_frames += 1
         self._vo_path_m += pose_offset(self._last.T_cam_world, odometry.T_cam_world)[0]
-        self._keep_or_move_anchor(frame, odometry)
+        covariance = None
+        if self._filters_poses:
+            covariance = self._odometry_estimate(frame, odometry).covariance
+        self._keep_or_move_anchor(frame, odometry, covariance)
         self.motion.update(self._last.T_cam_world, odometry.T_cam_world, self._frame_gap(frame), self._elapsed_ns(frame))
-        self._last = _LastFrame(frame, odometry.rows, odometry.T_cam_world)
+        self._last = _LastFrame(frame, odometry.rows, odometry.T_cam_world, covariance)
         self._lost_streak = 0
         logger.debug("frame %d on visual odometry: %d map, %d total matches", frame.index, odometry.n_map, odometry.n_total)
         T_world_cam = invert_T(odometry.T_cam_world)
@@ -525,13 +601,14 @@ class Tracker:
             odometry.T_cam_world, cfg.vo_agreement_m + cfg.vo_agreement_per_m * path, cfg.vo_agreement_deg + cfg.vo_agreement_deg_per_m * path
         )
 
-    def _keep_or_move_anchor(self, frame: Frame, odometry: OdometryPose) -> None:
-        """The frame becomes the VO anchor unless it was matched to the anchor and kept enough of it."""
+    def _keep_or_move_anchor(self, frame: Frame, odometry: OdometryPose, covariance: np.ndarray | None) -> None:
+        """The frame (its pose's ``covariance``) becomes the VO anchor unless it was matched to the
+        anchor and kept enough of it."""
         matches = len(odometry.vo_keypoints)
         if self._odometry_from_anchor and self._vo_anchor_matches == 0:
             self._vo_anchor_matches = matches
         elif not self._odometry_from_anchor or matches < self.config.visual_odometry.anchor_keep_ratio * self._vo_anchor_matches:
-            self._vo_anchor = _LastFrame(frame, odometry.rows, odometry.T_cam_world)
+            self._vo_anchor = _LastFrame(frame, odometry.rows, odometry.T_cam_world, covariance)
             self._vo_anchor_matches = 0
 
     def _fetch_window(self, frame: Frame, candidates: CandidateSource, unanswered: int) -> None:

@@ -16,23 +16,28 @@ In localisation mode no keyframe, hence no point, is made: a frame with fewer th
 ``min_map_matches`` map inliers is *VO* and skips local-map tracking until a relocalisation finds
 the map again. Unlike ORB-SLAM2, whose odometry chains frame to frame, a frame on VO is matched to
 the VO points of an anchor frame, which it keeps while enough of them are matched
-(``anchor_keep_ratio``). A localisation frame that does track the local map is optimised once
-more with its VO matches added (``optimise_with_odometry``), as in ORB-SLAM2, whose
-``TrackLocalMap`` keeps the frame's matches to the temporary points of the motion-model step: the
-map cannot be refined in this mode, and a frame that sees its points only from afar, where stereo
-placed them to within centimetres, is held steady by the last frame's near depths
-(``joint_below_map_inliers`` limits it to frames on few map points).
+(``anchor_keep_ratio``). A localisation frame that does track the local map is steadied by its
+VO matches: the map cannot be refined in this mode, and a frame that sees its points only from
+afar, where stereo placed them to within centimetres, is held by the last frame's near depths
+(``joint_below_map_inliers`` limits it to frames on few map points). By default (``fusion``
+"filter") its pose from the map is fused with the odometry's prediction, each with its covariance
+(``frontend/pose_filter.py``); "exact_points" optimises it once more with the VO matches added as
+exact points (``optimise_with_odometry``), as ORB-SLAM2's ``TrackLocalMap`` keeps the frame's
+matches to the temporary points of the motion-model step.
 
 Plain numpy: the tracker owns the state (which frame is last, whether it was VO).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 
 from zenslam.camera import PinholeCalibration
+from zenslam.errors import ConfigError
 from zenslam.frontend.feature_matcher import rotation_consistent, search_by_projection
 from zenslam.frontend.frame import Frame, optimize_frame_pose
 from zenslam.frontend.keyframe import unproject_keypoints
@@ -56,6 +61,34 @@ class VisualOdometryConfig:
     # when it has fewer inlier map matches than this (None: always, as ORB-SLAM2; 0: never; the
     # measurements are in benchmarks/README.md, "Saved maps and localisation").
     joint_below_map_inliers: int | None = None
+    # Localisation mode: how the VO matches steady a frame tracked in the map. "filter": its pose
+    # from the map alone is fused with the odometry's prediction, each with its covariance, the last
+    # frame's pose uncertain too (frontend/pose_filter.py); with a stereo camera whose map points
+    # are weighed by their covariances (``tracking.localization_point_max_sigma_m``), else as
+    # "exact_points": optimised again with the VO points taken as exact in the world (ORB-SLAM2),
+    # which holds each frame to the last one's pose as if that were exact (benchmarks/README.md,
+    # "Saved maps and localisation").
+    fusion: Literal["filter", "exact_points"] = "filter"
+    # The filter's innovation test: a pose from the map further from the odometry's prediction than
+    # this squared Mahalanobis distance (unitless, 6 dof; 22.46 is chi2's 99.9%) replaces it
+    # rather than being averaged with it.
+    filter_max_chi2: float = 22.46
+    # The filter's weight on the map: the information of a pose from the map (pixel noise and the
+    # points' covariances) is multiplied by this (unitless, 1: as computed). The map's points share
+    # their errors (the same keyframes placed them), which the covariances, taken independent, leave
+    # out: on the figure-eight in the loop's map the map poses' errors are about twice the standard
+    # deviations their information gives, hence 0.25 (benchmarks/README.md, "Saved maps and
+    # localisation").
+    filter_map_information_scale: float = 0.25
+
+    def __post_init__(self) -> None:
+        problems = []
+        if not self.filter_max_chi2 > 0:
+            problems.append(f"filter_max_chi2={self.filter_max_chi2} must be > 0 (inf: no test)")
+        if not (math.isfinite(self.filter_map_information_scale) and self.filter_map_information_scale > 0):
+            problems.append(f"filter_map_information_scale={self.filter_map_information_scale} must be a finite number > 0")
+        if problems:
+            raise ConfigError("invalid frontend tracking.visual_odometry configuration: " + "; ".join(problems))
     # Localisation mode: a frame on visual odometry is matched to the VO points of an anchor frame
     # (the first frame on VO, then each frame that re-anchors) rather than of the last frame, so the
     # pose drifts once per anchor rather than once per frame. A frame re-anchors when it keeps fewer
