@@ -9,11 +9,15 @@ the map puts in one frame (a relocalisation on a few far points) is carried on f
 Here the pose is a recursive estimate with a covariance instead, as a Kalman filter on SE(3):
 - predicted: the frame placed by the VO points of the last frame (or of the VO anchor), whose pose
   error is carried over to the frame and added to the odometry's own (its information from the VO
-  points' pixels; ``predict``);
+  points' pixels, each point weighed by the covariance of its one stereo view; ``predict``);
 - updated: the pose from the local map alone, with its information from the map inliers (pixel
-  noise plus the points' covariances), fused with the prediction (``fuse``).
-A frame on VO keeps the prediction, whose covariance grows frame by frame; a relocalised frame
-starts again from the map's pose and information alone.
+  noise plus the points' covariances, scaled by ``visual_odometry.filter_map_information_scale``:
+  the points share errors the covariances leave out), fused with the prediction (``fuse``), unless
+  the two disagree beyond the innovation test, when the map's pose replaces the prediction.
+A frame on VO keeps the prediction, whose covariance grows frame by frame; a relocalisation that
+ends VO is fused with it the same way, and one without odometry starts again from the map's pose
+and information alone. The tracker (``Tracker._fused_with_odometry``) decides where it applies:
+localisation mode with a stereo camera whose map points carry covariances.
 
 Covariances are 6 x 6 on xi = (omega rad, upsilon m) of the left perturbation T <- exp(xi) T of
 T_cam_world, as the pose optimiser steps (``pose_optimizer.pose_information``). Plain numpy.

@@ -527,7 +527,9 @@ class Tracker:
         fused = self._fused_with_odometry(frame, T_cam_world, rows, odometry)
         return fused.T_cam_world, rows, n_inliers, fused.covariance
 
-    def _fused_with_odometry(self, frame: Frame, T_cam_world: np.ndarray, rows: np.ndarray, odometry: OdometryPose) -> PoseEstimate:
+    def _fused_with_odometry(
+        self, frame: Frame, T_cam_world: np.ndarray, rows: np.ndarray, odometry: OdometryPose
+    ) -> PoseEstimate:
         """The pose ``T_cam_world`` from the map inliers ``rows`` fused with the odometry's prediction."""
         odometry_config = self.config.visual_odometry
         information = self._map_information(frame, T_cam_world, rows) * odometry_config.filter_map_information_scale
@@ -552,9 +554,9 @@ class Tracker:
     def _odometry_estimate(self, frame: Frame, odometry: OdometryPose) -> PoseEstimate:
         """The frame as its odometry places it relative to the frame whose VO points it matched (the
         anchor or the last frame): the pose from those VO points alone, and the covariance carried
-        from that frame plus the odometry's own (``pose_filter.predict``). Where the tracker weighs
-        map points by their covariance, each VO point is weighed by the covariance of its one stereo
-        view from that frame (this frame's keypoint's level standing for that frame's)."""
+        from that frame plus the odometry's own (``pose_filter.predict``), each VO point weighed by
+        the covariance of its one stereo view from that frame (this frame's keypoint's level standing
+        for that frame's), bounded as the map's points are."""
         start = time.perf_counter()
         source = self._vo_anchor if self._odometry_from_anchor else self._last
         kps, p_world = odometry.vo_keypoints, odometry.vo_p_world
