@@ -61,6 +61,13 @@ class VisualOdometryConfig:
     # when it has fewer inlier map matches than this (None: always, as ORB-SLAM2; 0: never; the
     # measurements are in benchmarks/README.md, "Saved maps and localisation").
     joint_below_map_inliers: int | None = None
+    # Localisation mode: a frame on visual odometry is matched to the VO points of an anchor frame
+    # (the first frame on VO, then each frame that re-anchors) rather than of the last frame, so the
+    # pose drifts once per anchor rather than once per frame. A frame re-anchors when it keeps fewer
+    # VO matches than this fraction of the first frame matched to the anchor, or when the anchor
+    # gives no pose (it is then matched to the last frame, as ORB-SLAM2 does). 1.0: every frame is
+    # an anchor (ORB-SLAM2's frame-to-frame odometry).
+    anchor_keep_ratio: float = 0.5
     # Localisation mode: how the VO matches steady a frame tracked in the map. "filter": its pose
     # from the map alone is fused with the odometry's prediction, each with its covariance, the last
     # frame's pose uncertain too (frontend/pose_filter.py); with a stereo camera whose map points
@@ -89,13 +96,6 @@ class VisualOdometryConfig:
             problems.append(f"filter_map_information_scale={self.filter_map_information_scale} must be a finite number > 0")
         if problems:
             raise ConfigError("invalid frontend tracking.visual_odometry configuration: " + "; ".join(problems))
-    # Localisation mode: a frame on visual odometry is matched to the VO points of an anchor frame
-    # (the first frame on VO, then each frame that re-anchors) rather than of the last frame, so the
-    # pose drifts once per anchor rather than once per frame. A frame re-anchors when it keeps fewer
-    # VO matches than this fraction of the first frame matched to the anchor, or when the anchor
-    # gives no pose (it is then matched to the last frame, as ORB-SLAM2 does). 1.0: every frame is
-    # an anchor (ORB-SLAM2's frame-to-frame odometry).
-    anchor_keep_ratio: float = 0.5
 
 
 @dataclass(frozen=True)
