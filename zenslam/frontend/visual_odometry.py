@@ -83,9 +83,9 @@ class VisualOdometryConfig:
     # The filter's weight on the map: the information of a pose from the map (pixel noise and the
     # points' covariances) is multiplied by this (unitless, 1: as computed). The map's points share
     # their errors (the same keyframes placed them), which the covariances, taken independent, leave
-    # out: on the figure-eight in the loop's map the map poses' errors are about twice the standard
-    # deviations their information gives, hence 0.25 (benchmarks/README.md, "Saved maps and
-    # localisation").
+    # out: on the figure-eight in the loop's map the map poses' errors exceed the standard
+    # deviations their information gives (1.2-1.6x), and 0.25 measured better than 1 on four seeds
+    # (benchmarks/README.md, "Saved maps and localisation").
     filter_map_information_scale: float = 0.25
 
     def __post_init__(self) -> None:
