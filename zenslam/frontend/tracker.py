@@ -560,18 +560,14 @@ class Tracker:
         start = time.perf_counter()
         source = self._vo_anchor if self._odometry_from_anchor else self._last
         kps, p_world = odometry.vo_keypoints, odometry.vo_p_world
-        covariance = None
-        if len(kps):
-            levels = frame.features.inv_level_sigma2[frame.features.level[kps]]
-            view = view_information(source.T_cam_world, p_world, levels, np.ones(len(kps), dtype=bool), self.calibration)
-            covariance = np.linalg.inv(view + np.eye(3) / self.config.localization_point_max_sigma_m**2)
+        levels = frame.features.inv_level_sigma2[frame.features.level[kps]]
+        view = view_information(source.T_cam_world, p_world, levels, np.ones(len(kps), dtype=bool), self.calibration)
+        covariance = np.linalg.inv(view + np.eye(3) / self.config.localization_point_max_sigma_m**2)
         found = optimize_frame_pose(frame, odometry.T_cam_world, kps, p_world, self.pose_config, point_covariance=covariance)
-        T_cam_world, information = odometry.T_cam_world, np.zeros((6, 6))
+        T_cam_world, information = odometry.T_cam_world, np.zeros((6, 6))  # no pose: the prediction says nothing
         if found.n_inliers:
             T_cam_world, inliers = found.T_cam_world, found.inliers
-            information = frame_pose_information(
-                frame, T_cam_world, kps[inliers], p_world[inliers], None if covariance is None else covariance[inliers]
-            )
+            information = frame_pose_information(frame, T_cam_world, kps[inliers], p_world[inliers], covariance[inliers])
         self._timers["pose_optimization"] += (time.perf_counter() - start) * 1e3
         return predict(source.estimate(), T_cam_world, information)
 
