@@ -78,11 +78,10 @@ def run(name: str, source) -> dict:
 
 def _local_mapper():
     from zenslam.backend.config import BackendConfig
-    from zenslam.backend.local_ba import LocalBundleAdjuster
-    from zenslam.backend.local_mapping import LocalMapper, new_backend_map
+    from zenslam.backend.local_mapping import LocalMapper, bundle_adjuster, new_backend_map
 
     config = BackendConfig()
-    return LocalMapper(new_backend_map(config.local_mapping), config.local_mapping, LocalBundleAdjuster(config.local_ba))
+    return LocalMapper(new_backend_map(config.local_mapping), config.local_mapping, bundle_adjuster(config.local_ba))
 
 
 def _map_keyframes(mapper, pipeline, out, source) -> None:

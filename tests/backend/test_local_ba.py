@@ -9,6 +9,7 @@ import pytest
 from zenslam.backend import local_ba
 from zenslam.backend.gtsam_keys import landmark_key, pose_key
 from zenslam.backend.local_ba import BAProblem, LocalBAConfig, LocalBundleAdjuster
+from zenslam.backend.local_mapping import bundle_adjuster
 from zenslam.camera import PinholeCalibration
 from zenslam.errors import ZenslamError
 from zenslam.geometry import invert_T, make_T, so3_exp, so3_log
@@ -110,14 +111,20 @@ def pose_errors(T_est, T_true):
     return position, rotation
 
 
-def run(problem, **overrides):
-    return LocalBundleAdjuster(LocalBAConfig(**overrides)).optimize(problem)
+def run(problem, method="batch_lm", **overrides):
+    return bundle_adjuster(LocalBAConfig(method=method, **overrides)).optimize(problem)
+
+
+@pytest.fixture(params=["schur_lm", "batch_lm"])
+def method(request):
+    """Both solvers: numpy's reduced camera system and gtsam's factor graph solve the same problem."""
+    return request.param
 
 
 @pytest.mark.parametrize("seed", [0, 1])
-def test_stereo_window_recovers_poses_and_points_with_fixed_poses_exact(seed):
+def test_stereo_window_recovers_poses_and_points_with_fixed_poses_exact(seed, method):
     problem, T_true, p_true, _ = make_window(seed)
-    result = run(problem)
+    result = run(problem, method)
     position, rotation = pose_errors(result.T_world_cam, T_true)
     assert position.max() < 0.01  # metres
     assert rotation.max() < 0.1  # degrees
@@ -130,9 +137,9 @@ def test_stereo_window_recovers_poses_and_points_with_fixed_poses_exact(seed):
     assert result.stats["failure"] is None
 
 
-def test_gross_outliers_are_flagged_and_the_solution_stays_accurate():
+def test_gross_outliers_are_flagged_and_the_solution_stays_accurate(method):
     problem, T_true, p_true, outlier = make_window(3, outlier_fraction=0.1)
-    result = run(problem)
+    result = run(problem, method)
     assert (~result.inlier_obs[outlier]).mean() > 0.9  # recall of outliers
     assert result.inlier_obs[~outlier].mean() > 0.95
     position, rotation = pose_errors(result.T_world_cam, T_true)
@@ -141,43 +148,43 @@ def test_gross_outliers_are_flagged_and_the_solution_stays_accurate():
     assert result.stats["n_outliers"] == int((~result.inlier_obs).sum())
 
 
-def test_mono_window_with_three_fixed_keyframes():
+def test_mono_window_with_three_fixed_keyframes(method):
     problem, T_true, p_true, _ = make_window(4, n_keyframes=6, n_fixed=3, stereo=False)
-    result = run(problem)
+    result = run(problem, method)
     position, rotation = pose_errors(result.T_world_cam, T_true)
     assert position.max() < 0.01 and rotation.max() < 0.1
     assert np.median(np.linalg.norm(result.p_world - p_true, axis=1)) < 0.02  # depth from the 2 m of motion
     np.testing.assert_array_equal(result.T_world_cam[:3], problem.T_world_cam[:3])
 
 
-def test_point_behind_the_cameras_is_flagged_and_removed():
+def test_point_behind_the_cameras_is_flagged_and_removed(method):
     problem, T_true, _, _ = make_window(5)
     p_world = problem.p_world.copy()
     p_world[7] = [0.5, 0.2, -10.0]  # behind every keyframe
-    result = run(dataclasses.replace(problem, p_world=p_world))
+    result = run(dataclasses.replace(problem, p_world=p_world), method)
     assert not result.inlier_obs[problem.obs_point == 7].any()
     assert problem.point_ids[7] in result.removed_point_ids
     assert pose_errors(result.T_world_cam, T_true)[0].max() < 0.01
 
 
-def test_non_finite_point_is_removed_and_empty_or_all_fixed_windows_run():
+def test_non_finite_point_is_removed_and_empty_or_all_fixed_windows_run(method):
     problem, T_true, _, _ = make_window(11)
     p_world = problem.p_world.copy()
     p_world[8] = np.nan
-    result = run(dataclasses.replace(problem, p_world=p_world))
+    result = run(dataclasses.replace(problem, p_world=p_world), method)
     assert problem.point_ids[8] in result.removed_point_ids
     assert pose_errors(result.T_world_cam, T_true)[0].max() < 0.01
-    all_fixed = run(dataclasses.replace(problem, fixed=np.ones(5, dtype=bool)))
+    all_fixed = run(dataclasses.replace(problem, fixed=np.ones(5, dtype=bool)), method)
     np.testing.assert_array_equal(all_fixed.T_world_cam, problem.T_world_cam)
     empty = dataclasses.replace(
         problem, obs_keyframe=[], obs_point=[], obs_px=np.zeros((0, 2)), obs_right_u=[], obs_inv_sigma2=[]
     )
-    result = run(empty)
+    result = run(empty, method)
     np.testing.assert_array_equal(result.T_world_cam, problem.T_world_cam)
     assert len(result.removed_point_ids) == len(problem.point_ids)  # no observation, no inlier
 
 
-def test_single_monocular_observation_is_held_and_does_not_crash():
+def test_single_monocular_observation_is_held_and_does_not_crash(method):
     problem, T_true, p_true, _ = make_window(6)
     keep = (problem.obs_point != 9) | (problem.obs_keyframe == 4)
     right_u = problem.obs_right_u.copy()
@@ -190,7 +197,7 @@ def test_single_monocular_observation_is_held_and_does_not_crash():
         obs_right_u=right_u[keep],
         obs_inv_sigma2=problem.obs_inv_sigma2[keep],
     )
-    result = run(lone)
+    result = run(lone, method)
     np.testing.assert_array_equal(result.p_world[9], problem.p_world[9])  # no depth from one ray: held
     assert pose_errors(result.T_world_cam, T_true)[0].max() < 0.01
     assert result.stats["failure"] is None
@@ -250,20 +257,20 @@ def test_failure_near_a_pose_returns_the_estimate_so_far_without_raising(monkeyp
     assert result.inlier_obs.shape == problem.obs_point.shape
 
 
-def test_same_input_gives_identical_output_bytes():
+def test_same_input_gives_identical_output_bytes(method):
     problem, _, _, _ = make_window(8, outlier_fraction=0.05)
-    a, b = run(problem), run(problem)
+    a, b = run(problem, method), run(problem, method)
     assert a.T_world_cam.tobytes() == b.T_world_cam.tobytes()
     assert a.p_world.tobytes() == b.p_world.tobytes()
     assert a.inlier_obs.tobytes() == b.inlier_obs.tobytes()
     assert a.removed_point_ids.tobytes() == b.removed_point_ids.tobytes()
 
 
-def test_backend_point_ids_above_2_62_work():
+def test_backend_point_ids_above_2_62_work(method):
     problem, T_true, p_true, _ = make_window(9)
     ids = problem.point_ids.copy()
     ids[::2] += BACKEND_POINT_ID_BASE
-    result = run(dataclasses.replace(problem, point_ids=ids))
+    result = run(dataclasses.replace(problem, point_ids=ids), method)
     assert pose_errors(result.T_world_cam, T_true)[0].max() < 0.01
     assert np.median(np.linalg.norm(result.p_world - p_true, axis=1)) < 0.02
 
@@ -282,25 +289,25 @@ def test_config_builds_from_yaml_mapping():
     assert config.huber_mono == pytest.approx(5.991**0.5)
 
 
-def test_both_passes_run_and_outliers_are_dropped():
+def test_both_passes_run_and_outliers_are_dropped(method):
     problem, T_true, _, outlier = make_window(10, outlier_fraction=0.05)
-    result = run(problem)
+    result = run(problem, method)
     assert result.stats["passes"] == 2 and not result.inlier_obs[outlier].any()
     assert pose_errors(result.T_world_cam, T_true)[0].max() < 0.01
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_rgbd_depth_keeps_points_and_poses_where_the_sensor_puts_them(seed):
+def test_rgbd_depth_keeps_points_and_poses_where_the_sensor_puts_them(seed, method):
     # ORB-SLAM's model (right u independent, the keypoint's sigma) leaves a 3-5 m point's depth to
     # the parallax between keyframes: median point error ~13 cm, poses 1-2 cm. Modelled as u minus
     # a disparity of the depth sensor's sigma, the depth holds the points to ~1 cm.
     problem, T_true, p_true = make_rgbd_window(seed)
     sigma = np.full(len(problem.obs_px), ROOM.bf * DEPTH_SIGMA_AT_1M)
-    result = run(dataclasses.replace(problem, obs_disparity_sigma=sigma))
+    result = run(dataclasses.replace(problem, obs_disparity_sigma=sigma), method)
     assert np.median(np.linalg.norm(result.p_world - p_true, axis=1)) < 0.02  # metres
     assert pose_errors(result.T_world_cam, T_true)[0].max() < 0.012  # metres
     assert result.inlier_obs.mean() > 0.95
-    orb_slam = run(problem)
+    orb_slam = run(problem, method)
     assert np.median(np.linalg.norm(orb_slam.p_world - p_true, axis=1)) > 0.05
 
 
@@ -386,3 +393,32 @@ def test_first_pass_graph_is_the_robust_pass_the_adjuster_starts_from():
     assert all(isinstance(m, gtsam.noiseModel.Robust) for m in robust)
     step = graph.linearize(values).optimize(ordering)
     assert np.isfinite(step.vector()).all() and np.linalg.norm(step.vector()) > 0
+
+
+def _windows_of_every_kind():
+    """Stereo with outliers, monocular, RGB-D with its depth model, far stereo rows with a weaker right u."""
+    stereo, _, _, _ = make_window(12, n_keyframes=7, outlier_fraction=0.05)
+    mono, _, _, _ = make_window(13, n_keyframes=6, n_fixed=3, stereo=False, outlier_fraction=0.05)
+    rgbd, _, _ = make_rgbd_window(14)
+    rgbd = dataclasses.replace(rgbd, obs_disparity_sigma=np.full(len(rgbd.obs_px), ROOM.bf * DEPTH_SIGMA_AT_1M))
+    scaled = dataclasses.replace(stereo, obs_right_sigma_scale=np.where(np.arange(len(stereo.obs_px)) % 3 == 0, 2.5, 1.0))
+    mixed_right_u = stereo.obs_right_u.copy()
+    mixed_right_u[::4] = np.nan  # a quarter of the rows monocular
+    mixed = dataclasses.replace(stereo, obs_right_u=mixed_right_u)
+    return {"stereo": stereo, "mono": mono, "rgbd": rgbd, "scaled_right_u": scaled, "stereo_and_mono": mixed}
+
+
+@pytest.mark.parametrize("kind", ["stereo", "mono", "rgbd", "scaled_right_u", "stereo_and_mono"])
+def test_the_numpy_reduced_system_takes_gtsams_steps_to_the_same_optimum(kind):
+    # The same problem, damping, acceptance and stopping rules: the same iterations and errors, and
+    # an estimate that differs only by rounding (and so the same classification of every observation).
+    problem = _windows_of_every_kind()[kind]
+    gtsam_result, schur_result = run(problem, "batch_lm"), run(problem, "schur_lm")
+    assert schur_result.stats["iterations"] == gtsam_result.stats["iterations"]
+    assert schur_result.stats["final_error"] == pytest.approx(gtsam_result.stats["final_error"], rel=1e-9)
+    assert schur_result.stats["initial_error"] == pytest.approx(gtsam_result.stats["initial_error"], rel=1e-12)
+    np.testing.assert_allclose(schur_result.T_world_cam, gtsam_result.T_world_cam, atol=1e-9)
+    np.testing.assert_allclose(schur_result.p_world, gtsam_result.p_world, atol=1e-8)
+    np.testing.assert_array_equal(schur_result.inlier_obs, gtsam_result.inlier_obs)
+    np.testing.assert_array_equal(schur_result.removed_point_ids, gtsam_result.removed_point_ids)
+    assert gtsam_result.stats["n_outliers"] > 0 or kind == "rgbd"

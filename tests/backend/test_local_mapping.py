@@ -5,11 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from zenslam.backend.local_ba import BAProblem, BAResult, LocalBAConfig, LocalBundleAdjuster
+from zenslam.backend.local_ba import BAProblem, BAResult, LocalBAConfig
 from zenslam.backend.local_mapping import (
     TIMING_STEPS,
     BAWindowConfig,
     LocalMapper,
+    bundle_adjuster,
     new_backend_map,
     LocalMappingConfig,
     apply_ba_result,
@@ -314,7 +315,7 @@ def test_ba_outliers_leave_both_sides_and_weak_points_go() -> None:
 
 def test_with_the_real_bundle_adjuster_poses_stay_on_the_truth() -> None:
     frontend = SyntheticFrontend(noise_px=0.5, n_points=200, seed=6)
-    mapper = LocalMapper(new_backend_map(LocalMappingConfig()), LocalMappingConfig(), LocalBundleAdjuster(LocalBAConfig()))
+    mapper = LocalMapper(new_backend_map(LocalMappingConfig()), LocalMappingConfig(), bundle_adjuster(LocalBAConfig()))
     run(frontend, mapper, 6)
     assert mapper.last_ba_stats  # BA ran
     for kf_id, kf in mapper.map.keyframes.items():

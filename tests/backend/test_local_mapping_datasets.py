@@ -15,8 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from zenslam.backend.local_ba import LocalBundleAdjuster
-from zenslam.backend.local_mapping import LocalMapper, new_backend_map
+from zenslam.backend.local_mapping import LocalMapper, bundle_adjuster, new_backend_map
 from zenslam.frontend.node import keyframe_message
 from zenslam.frontend.pipeline import FrontendConfig, FrontendPipeline
 from zenslam.schemas import codec
@@ -29,7 +28,7 @@ def run_lockstep(source, with_backend: bool, max_frames: int | None = None) -> t
     """(ATE rmse in metres of the per-frame poses, None when none was tracked; the frame states; the mapper)
     of one run; monocular runs are compared after a Sim(3) alignment."""
     config = BackendConfig()
-    mapper = LocalMapper(new_backend_map(config.local_mapping), config.local_mapping, LocalBundleAdjuster(config.local_ba))
+    mapper = LocalMapper(new_backend_map(config.local_mapping), config.local_mapping, bundle_adjuster(config.local_ba))
     pipeline = FrontendPipeline(FrontendConfig(), source.calibration, source.sensor)
     stamps, poses, states = [], [], []
     for frame in source:

@@ -366,11 +366,12 @@ def test_a_keyframe_answered_before_its_local_ba_leaves_the_map_step_leaves():
     for bit: the answer carries insertion, new points and fusion and announces one correction after
     it, which carries local BA and keyframe culling; replayed in order they leave what step's one
     update leaves."""
-    from zenslam.backend.local_ba import LocalBAConfig, LocalBundleAdjuster
+    from zenslam.backend.local_ba import LocalBAConfig
+    from zenslam.backend.local_mapping import bundle_adjuster
 
     def node() -> BackendNode:
         config = LocalMappingConfig()
-        return BackendNode(LocalMapper(new_backend_map(config), config, LocalBundleAdjuster(LocalBAConfig())))
+        return BackendNode(LocalMapper(new_backend_map(config), config, bundle_adjuster(LocalBAConfig())))
 
     rng = np.random.default_rng(3)
     world_a, world_b, world_c = World(), World(), World()

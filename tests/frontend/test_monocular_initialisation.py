@@ -4,8 +4,7 @@ import numpy as np
 import pytest
 
 from zenslam.backend.config import BackendConfig
-from zenslam.backend.local_ba import LocalBundleAdjuster
-from zenslam.backend.local_mapping import LocalMapper, new_backend_map
+from zenslam.backend.local_mapping import LocalMapper, bundle_adjuster, new_backend_map
 from zenslam.frontend.config import FrontendConfig
 from zenslam.frontend.node import keyframe_message
 from zenslam.frontend.pipeline import FrontendPipeline
@@ -39,7 +38,7 @@ def test_loop_scene_starts_a_map_of_two_keyframes_at_unit_median_depth():
     # Local mapping's BA of the two keyframes: the motion's direction and rotation match the truth, at the
     # scale the frontend chose (the distance between the keyframes is kept: their poses are published).
     config = BackendConfig()
-    mapper = LocalMapper(new_backend_map(config.local_mapping), config.local_mapping, LocalBundleAdjuster(config.local_ba))
+    mapper = LocalMapper(new_backend_map(config.local_mapping), config.local_mapping, bundle_adjuster(config.local_ba))
     for kf in (first, second):
         update = mapper.process(codec.decode_keyframe(codec.encode_keyframe(keyframe_message(kf, source.calibration, "mono"))))
     pipeline.apply_map_update(update)

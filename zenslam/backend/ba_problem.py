@@ -20,7 +20,13 @@ from zenslam.errors import ZenslamError
 class LocalBAConfig:
     """Settings of local bundle adjustment (defaults are ORB-SLAM2's schedule and thresholds)."""
 
-    method: Literal["batch_lm"] = "batch_lm"  # gtsam LevenbergMarquardtOptimizer on the whole window
+    # Levenberg-Marquardt on the whole window. schur_lm: each step solved on the reduced camera
+    # system, the landmarks eliminated by their Schur complement in numpy (``schur_ba``); batch_lm:
+    # gtsam's LevenbergMarquardtOptimizer on the window's factor graph (``local_ba``). The same
+    # problem, steps and stopping rules, so the same optimum; schur_lm takes a third to a half of
+    # the time on local windows (benchmarks/README.md, "Local bundle adjustment").
+    method: Literal["schur_lm", "batch_lm"] = "schur_lm"
+    # batch_lm's gtsam settings:
     linear_solver: Literal["sequential_cholesky", "multifrontal_cholesky", "multifrontal_qr"] = "sequential_cholesky"
     # Elimination ordering: every landmark, then every pose (the Schur-complement order of BA
     # solvers), or gtsam's COLAMD / METIS. COLAMD interleaves poses once windows reach ~15 keyframes.

@@ -55,6 +55,7 @@ class GlobalBAConfig:
         """The solver settings: local BA's thresholds with this schedule."""
         return dataclasses.replace(
             LocalBAConfig(),
+            method="batch_lm",  # gtsam's sparse elimination: the reduced system of a whole map is large
             robust_iterations=self.robust_iterations,
             refine_iterations=self.iterations,
             two_passes=True,

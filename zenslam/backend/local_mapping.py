@@ -20,13 +20,14 @@ from typing import Protocol
 
 import numpy as np
 
-from zenslam.backend.ba_problem import BAProblem, BAResult
+from zenslam.backend.ba_problem import BAProblem, BAResult, LocalBAConfig
 from zenslam.backend.keyframe_culling import KeyframeCullingConfig, cull_redundant_keyframes
 from zenslam.backend.keyframe_placement import PlacementConfig, placement
 from zenslam.backend.map import BackendKeyframe, BackendMap, MapChanges
 from zenslam.backend.monocular_map_start import baseline, is_monocular_map_start, rescale_about_first_keyframe
 from zenslam.backend.point_culling import PointCullingConfig, count_visibility, cull_recent_points
 from zenslam.backend.point_fusion import FusionConfig, fuse_with_neighbours
+from zenslam.backend.schur_ba import SchurBundleAdjuster
 from zenslam.backend.triangulation import TriangulationConfig, create_new_points
 from zenslam.camera import PinholeCalibration
 from zenslam.errors import ConfigError
@@ -111,9 +112,18 @@ class LocalMappingConfig:
 
 
 class BundleAdjuster(Protocol):
-    """What local mapping needs from local BA (``zenslam.backend.local_ba.LocalBundleAdjuster``)."""
+    """What local mapping needs from local BA (``schur_ba.SchurBundleAdjuster``, ``local_ba.LocalBundleAdjuster``)."""
 
     def optimize(self, problem: BAProblem) -> BAResult: ...
+
+
+def bundle_adjuster(config: LocalBAConfig) -> BundleAdjuster:
+    """The local BA solver that ``config.method`` names."""
+    if config.method == "batch_lm":
+        from zenslam.backend.local_ba import LocalBundleAdjuster  # gtsam: loaded only when chosen
+
+        return LocalBundleAdjuster(config)
+    return SchurBundleAdjuster(config)
 
 
 @dataclass(frozen=True)

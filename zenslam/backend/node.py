@@ -41,8 +41,7 @@ import zenoh
 
 from zenslam.backend.config import BackendConfig
 from zenslam.backend.journal import JOURNAL_NAME, Answered, Entry, JournaledKeyframe, JournalWriter, read_journal
-from zenslam.backend.local_ba import LocalBundleAdjuster
-from zenslam.backend.local_mapping import LocalMapper, map_update_from_changes, new_backend_map
+from zenslam.backend.local_mapping import LocalMapper, bundle_adjuster, map_update_from_changes, new_backend_map
 from zenslam.backend.loop_messages import loop_messages
 from zenslam.backend.keyframe_database import KeyframeDatabase
 from zenslam.backend.map import BackendMap
@@ -119,7 +118,7 @@ class BackendNode:
         closer and global BA (in a helper process when ``global_ba_in_background``: pipelined and
         live runs; in place in lockstep, so its result lands at a deterministic point)."""
         bmap = new_backend_map(config.local_mapping)
-        mapper = LocalMapper(bmap, config.local_mapping, LocalBundleAdjuster(config.local_ba))
+        mapper = LocalMapper(bmap, config.local_mapping, bundle_adjuster(config.local_ba))
         from zenslam.backend.place_recognition import PlaceRecognition
         from zenslam.vocabulary import load_vocabulary
 

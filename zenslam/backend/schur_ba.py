@@ -1,0 +1,451 @@
+"""Local bundle adjustment on the reduced camera system: Levenberg-Marquardt with the landmarks
+eliminated by their Schur complement, vectorised in numpy.
+
+The problem, its passes and its result are those of ``local_ba.LocalBundleAdjuster`` (ORB-SLAM's
+``Optimizer::LocalBundleAdjustment`` as gtsam factors; see that module): the same residuals
+(left (u, v) and, for stereo / RGB-D rows, the right u), the same noise models (isotropic, a
+scaled right u, RGB-D's correlated virtual right u), Huber on the whitened residual norm, the same
+two passes, stopping rules, damping floor, chi2 classification and points held or removed. What
+differs is how each Levenberg-Marquardt step is solved. gtsam eliminates the landmarks one at a
+time through its generic factor machinery (a HessianFactor assembled, factored and combined per
+landmark: ~13 us each, about two thirds of a KITTI window's time, benchmarks/README.md). BA
+solvers (g2o's block solver, which ORB-SLAM uses; Ceres' SPARSE_SCHUR) instead exploit that a
+landmark's 3x3 block touches only the poses that see it: every landmark block is inverted at once,
+the reduced camera system (6 x free poses, square) is assembled from per-observation products and
+solved densely, and the landmarks' steps follow by back-substitution. Here each of those is a few
+array operations over all observations.
+
+The step is the one gtsam's Levenberg-Marquardt takes: the Gauss-Newton system of the whitened,
+Huber-reweighted residuals (gtsam's robust noise model reweights each observation by
+sqrt(w), w = 1 within Huber's threshold, threshold / norm beyond) with lambda * I added to every
+variable's block, a step accepted when it lowers the error (lambda / 10, not below the floor),
+rejected otherwise (lambda * 10, up to 1e5). A pose moves as T_world_cam * exp(xi), xi = (omega,
+upsilon); a point by addition. A point behind a camera gives gtsam's constant error (2 fx per
+component) and no Jacobian. Both solvers reach the same optimum (tests compare them on the same
+windows); their results differ in the last digits.
+
+Determinism: only numpy (elementwise arithmetic, reductions in a fixed order, ``np.linalg.solve``
+on the reduced system through OpenBLAS, whose kernels the stages pin), so lockstep runs give the
+same bits on any x86-64 CPU.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from zenslam.backend.ba_problem import BAProblem, BAResult, LocalBAConfig
+from zenslam.geometry import se3_exp
+
+logger = logging.getLogger(__name__)
+
+LAMBDA_FACTOR = 10.0  # gtsam's LevenbergMarquardtParams.lambdaFactor
+LAMBDA_UPPER_BOUND = 1e5  # gtsam's lambdaUpperBound: a pass ends when no step is accepted below it
+
+
+class SchurBundleAdjuster:
+    """Runs local BA on windows handed over one at a time; keeps no state between calls."""
+
+    def __init__(self, config: LocalBAConfig) -> None:
+        self.config = config
+
+    def optimize(self, problem: BAProblem) -> BAResult:
+        """Optimise the non-fixed poses and the constrained points of ``problem`` (see module doc)."""
+        start = time.perf_counter()
+        config = self.config
+        rows = _Rows.of(problem, config)
+        state = _State(problem.T_world_cam.copy(), problem.p_world.copy())
+        dropped = ~np.isfinite(state.p_world).all(axis=1)
+        state.p_world[dropped] = 0.0  # never read: their observations take part in nothing
+        active = rows.usable & ~dropped[problem.obs_point]
+        # The one-step refinement after a robust pass keeps Huber's kernel, as local_ba's does.
+        schedule = [(True, config.robust_iterations)]
+        if config.two_passes:
+            reuse = config.refine_iterations == 1 and config.robust_iterations > 0
+            schedule.append((reuse, config.refine_iterations))
+        for robust, iterations in schedule:
+            if iterations > 0:
+                _run_pass(problem, rows, state, active, robust, iterations, config)
+            active = rows.classify(problem, state) & ~dropped[problem.obs_point]
+        state.p_world[dropped] = problem.p_world[dropped]
+        T_world_cam = state.T_world_cam
+        T_world_cam[problem.fixed] = problem.T_world_cam[problem.fixed]
+        has_inlier = np.bincount(problem.obs_point[active], minlength=len(problem.point_ids)) > 0
+        removed = problem.point_ids[~has_inlier]
+        stats = {
+            "method": config.method,
+            "iterations": state.iterations,
+            "initial_error": state.initial_error,
+            "final_error": state.final_error,
+            "time_ms": 1e3 * (time.perf_counter() - start),
+            "n_observations": int(len(active)),
+            "n_outliers": int((~active).sum()),
+            "n_removed_points": int(len(removed)),
+            "n_dropped_points": int(dropped.sum()),
+            "passes": state.passes,
+            "retries": 0,  # nothing to repair: damping keeps every landmark block invertible
+            "failure": None,
+        }
+        logger.debug("local BA: %s", stats)
+        return BAResult(T_world_cam, state.p_world, active, removed, stats)
+
+
+@dataclass
+class _State:
+    """The estimate as it evolves over the passes, plus what the stats report."""
+
+    T_world_cam: np.ndarray
+    p_world: np.ndarray
+    iterations: int = 0
+    passes: int = 0
+    initial_error: float = math.nan
+    final_error: float = math.nan
+
+
+@dataclass(frozen=True)
+class _Rows:
+    """Per observation: whether it is usable, its whitening and its robust and outlier thresholds.
+
+    Residuals are ordered (u, v, u_right); a monocular row's whitening has a zero third row, so
+    every row is three-dimensional and the arrays stay rectangular.
+    """
+
+    usable: np.ndarray  # (O,) bool: finite pixel and positive information
+    stereo: np.ndarray  # (O,) bool
+    whiten: np.ndarray  # (O, 3, 3): W with W^T W = the residual's information
+    huber: np.ndarray  # (O,) Huber threshold on the whitened residual norm
+    chi2_threshold: np.ndarray  # (O,)
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    bf: float  # px * m; 0 for a window without stereo rows
+    min_depth_m: float  # a point nearer than this along the optical axis is behind the camera
+
+    @staticmethod
+    def of(problem: BAProblem, config: LocalBAConfig) -> _Rows:
+        c = problem.calibration
+        info = problem.obs_inv_sigma2
+        usable = np.isfinite(problem.obs_px).all(axis=1) & np.isfinite(info) & (info > 0)
+        stereo = usable & np.isfinite(problem.obs_right_u)
+        inv_sigma = np.sqrt(np.where(usable, info, 0.0))
+        scale = np.ones(len(info)) if problem.obs_right_sigma_scale is None else problem.obs_right_sigma_scale
+        disparity = np.zeros(len(info)) if problem.obs_disparity_sigma is None else np.nan_to_num(problem.obs_disparity_sigma)
+        rgbd = stereo & (disparity > 0)
+        plain = stereo & ~rgbd
+        whiten = np.zeros((len(info), 3, 3))
+        whiten[:, 0, 0] = inv_sigma
+        whiten[:, 1, 1] = inv_sigma
+        whiten[plain, 2, 2] = inv_sigma[plain] / scale[plain]
+        # RGB-D: u_right = u - bf / depth shares u's keypoint error, so the independent part is the
+        # difference u - u_right (the disparity, from the depth sensor): chi2 adds (du_right - du)^2 / d^2.
+        whiten[rgbd, 2, 0] = -1.0 / disparity[rgbd]
+        whiten[rgbd, 2, 2] = 1.0 / disparity[rgbd]
+        return _Rows(
+            usable=usable,
+            stereo=stereo,
+            whiten=whiten,
+            huber=np.where(stereo, config.huber_stereo, config.huber_mono),
+            chi2_threshold=np.where(stereo, config.chi2_stereo, config.chi2_mono),
+            fx=c.fx, fy=c.fy, cx=c.cx, cy=c.cy,
+            bf=c.bf if stereo.any() else 0.0,
+            min_depth_m=config.min_depth_m,
+        )  # fmt: skip
+
+    def residuals(self, problem: BAProblem, rows: np.ndarray, T_world_cam: np.ndarray, p_world: np.ndarray):
+        """Whitened residuals (n, 3) of observation ``rows``, the points in their cameras (n, 3) and
+        which rows have the point in front of the camera (n,)."""
+        kf = problem.obs_keyframe[rows]
+        R, t = T_world_cam[kf, :3, :3], T_world_cam[kf, :3, 3]
+        p_cam = (R.transpose(0, 2, 1) @ (p_world[problem.obs_point[rows]] - t)[:, :, None])[:, :, 0]
+        z = p_cam[:, 2]
+        in_front = z > 0.0
+        inv_z = 1.0 / np.where(in_front, z, 1.0)
+        u = self.fx * p_cam[:, 0] * inv_z + self.cx
+        r = np.empty((len(rows), 3))
+        r[:, 0] = u - problem.obs_px[rows, 0]
+        r[:, 1] = self.fy * p_cam[:, 1] * inv_z + self.cy - problem.obs_px[rows, 1]
+        r[:, 2] = u - self.bf * inv_z - np.nan_to_num(problem.obs_right_u[rows])
+        r[~in_front] = 2.0 * self.fx  # gtsam's factors on a point behind the camera
+        return (self.whiten[rows] @ r[:, :, None])[:, :, 0], p_cam, in_front
+
+    def classify(self, problem: BAProblem, state: _State) -> np.ndarray:
+        """(O,) inlier mask at the current estimate: usable, in front of the camera, chi2 within threshold."""
+        rows = np.flatnonzero(self.usable)
+        inlier = np.zeros(len(self.usable), dtype=bool)
+        if len(rows):
+            with np.errstate(invalid="ignore", over="ignore"):
+                e, p_cam, _ = self.residuals(problem, rows, state.T_world_cam, state.p_world)
+                chi2 = (e * e).sum(axis=1)
+                inlier[rows] = (p_cam[:, 2] > self.min_depth_m) & (chi2 <= self.chi2_threshold[rows])
+        return inlier
+
+
+
+@dataclass(frozen=True)
+class _Structure:
+    """One pass's variables and the index arrays that its steps reuse.
+
+    The pass's observation rows are ordered by point, then keyframe, so each point's rows are
+    contiguous; points and free poses are numbered from 0 in the order of their rows in the
+    problem. The point-pose coupling J_pose^T J_point is held densely, (points, free poses, 6, 3):
+    a local window has ~10 free poses, and the reduced camera system is then one matrix product.
+    """
+
+    rows: np.ndarray  # (n,) observation rows of the pass, by point then keyframe
+    point_rows: np.ndarray  # (L,) problem point rows that are variables
+    point_of: np.ndarray  # (n,) variable point of each row
+    point_starts: np.ndarray  # (L,) where each point's rows start
+    free_pose_rows: np.ndarray  # (F,) problem keyframe rows that are variables
+    pose_of: np.ndarray  # (n,) free pose of each row, -1 on a fixed keyframe
+    free: np.ndarray  # (m,) the rows on free poses
+    by_pose: np.ndarray  # (m,) the rows on free poses, by pose
+    pose_ends: np.ndarray  # (F,) where each free pose's rows end in by_pose
+    cell_starts: np.ndarray | None  # where each (point, free pose) group starts in free; None: one row each
+
+    @staticmethod
+    def of(problem: BAProblem, rows: np.ndarray) -> _Structure:
+        n_keyframes = len(problem.keyframe_ids)
+        rows = rows[np.argsort(problem.obs_point[rows] * n_keyframes + problem.obs_keyframe[rows], kind="stable")]
+        point_rows, point_of = np.unique(problem.obs_point[rows], return_inverse=True)
+        kf = problem.obs_keyframe[rows]
+        on_free = ~problem.fixed[kf]
+        free_pose_rows, free_index = np.unique(kf[on_free], return_inverse=True)
+        pose_of = np.full(len(rows), -1, dtype=np.intp)
+        pose_of[on_free] = free_index
+        free = np.flatnonzero(on_free)
+        by_pose = free[np.argsort(pose_of[free], kind="stable")]
+        cell = point_of[free] * n_keyframes + kf[free]
+        cell_starts = _group_starts(cell)
+        return _Structure(
+            rows=rows,
+            point_rows=point_rows,
+            point_of=point_of,
+            point_starts=_group_starts(point_of),
+            free_pose_rows=free_pose_rows,
+            pose_of=pose_of,
+            free=free,
+            by_pose=by_pose,
+            pose_ends=np.cumsum(np.bincount(pose_of[free], minlength=len(free_pose_rows))),
+            cell_starts=None if len(cell_starts) == len(free) else cell_starts,
+        )
+
+
+@dataclass(frozen=True)
+class _Evaluation:
+    """The pass's residuals at one estimate."""
+
+    T_world_cam: np.ndarray
+    p_world: np.ndarray
+    e: np.ndarray  # (n, 3) whitened residuals
+    p_cam: np.ndarray  # (n, 3)
+    in_front: np.ndarray  # (n,) bool
+    cost: float  # gtsam's error: 0.5 |e|^2 per row, Huber's loss when robust; inf when not finite
+
+
+@dataclass(frozen=True)
+class _Linearized:
+    """The whitened, reweighted normal equations at one estimate, in the blocks the Schur complement uses."""
+
+    U: np.ndarray  # (F, 6, 6) J_pose^T J_pose per free pose
+    V: np.ndarray  # (L, 3, 3) J_point^T J_point per point
+    W: np.ndarray  # (c, 6, 3) J_pose^T J_point per cell: a point and a free pose that sees it
+    cell_point: np.ndarray  # (c,) the cell's point
+    cell_pose: np.ndarray  # (c,) the cell's free pose
+    g_pose: np.ndarray  # (F, 6) J_pose^T e
+    g_point: np.ndarray  # (L, 3) J_point^T e
+
+
+def _run_pass(
+    problem: BAProblem, rows_info: _Rows, state: _State, active: np.ndarray, robust: bool, iterations: int,
+    config: LocalBAConfig,
+) -> None:
+    """Levenberg-Marquardt on the active observations of constrained points, at most ``iterations`` steps."""
+    rows = np.flatnonzero(active & _constrained_points(problem, rows_info.stereo, active)[problem.obs_point])
+    if len(rows) == 0:
+        return
+    structure = _Structure.of(problem, rows)
+    lam = config.lambda_initial
+    current = _evaluate(problem, rows_info, structure.rows, state.T_world_cam, state.p_world, robust)
+    if math.isnan(state.initial_error):
+        state.initial_error = current.cost
+    done = 0
+    while done < iterations:
+        done += 1
+        linear = _linearize(problem, rows_info, structure, current, robust)
+        accepted = False
+        while not accepted and lam < LAMBDA_UPPER_BOUND:  # damp more until a step lowers the error
+            step = _solve(linear, lam)
+            if step is not None:
+                T_new, p_new = _apply(structure, current.T_world_cam, current.p_world, *step)
+                candidate = _evaluate(problem, rows_info, structure.rows, T_new, p_new, robust)
+                accepted = candidate.cost < current.cost
+            if not accepted:
+                lam *= LAMBDA_FACTOR
+        if not accepted:  # converged as far as damping allows
+            break
+        lam = max(lam / LAMBDA_FACTOR, config.lambda_lower_bound)
+        decrease = current.cost - candidate.cost
+        relative = decrease / current.cost
+        current = candidate
+        if current.cost <= 0.0 or relative <= config.relative_error_tolerance or decrease <= config.absolute_error_tolerance:
+            break
+    state.T_world_cam, state.p_world = current.T_world_cam, current.p_world
+    state.iterations += done
+    state.passes += 1
+    state.final_error = current.cost
+
+
+def _evaluate(
+    problem: BAProblem, rows_info: _Rows, rows: np.ndarray, T_world_cam: np.ndarray, p_world: np.ndarray, robust: bool
+) -> _Evaluation:
+    with np.errstate(invalid="ignore", over="ignore"):
+        e, p_cam, in_front = rows_info.residuals(problem, rows, T_world_cam, p_world)
+        cost = _loss((e * e).sum(axis=1), rows_info.huber[rows], robust)
+    return _Evaluation(T_world_cam, p_world, e, p_cam, in_front, cost if math.isfinite(cost) else math.inf)
+
+
+def _linearize(problem: BAProblem, f: _Rows, s: _Structure, at: _Evaluation, robust: bool) -> _Linearized:
+    rows, e, p_cam = s.rows, at.e, at.p_cam
+    X, Y, Z = p_cam[:, 0:1], p_cam[:, 1:2], p_cam[:, 2:3]
+    inv_z = 1.0 / np.where(at.in_front, p_cam[:, 2], 1.0)
+    inv_z2 = inv_z * inv_z
+    # d(u, v, u_right) / d p_cam, zero behind the camera (gtsam's factors give no Jacobian there)
+    P = np.zeros((len(rows), 3, 3))
+    P[:, 0, 0] = f.fx * inv_z
+    P[:, 0, 2] = -f.fx * p_cam[:, 0] * inv_z2
+    P[:, 1, 1] = f.fy * inv_z
+    P[:, 1, 2] = -f.fy * p_cam[:, 1] * inv_z2
+    P[:, 2, 0] = P[:, 0, 0]
+    P[:, 2, 2] = (f.bf - f.fx * p_cam[:, 0]) * inv_z2
+    P[~at.in_front] = 0.0
+    M = f.whiten[rows] @ P
+    # p_cam = exp(-xi) p_cam for T * exp(xi): d p_cam = [p_cam]x omega - upsilon; d p_cam / d p_world = R^T
+    M0, M1, M2 = M[:, :, 0], M[:, :, 1], M[:, :, 2]
+    A = np.empty((len(rows), 3, 6))
+    A[:, :, 0] = M1 * Z - M2 * Y
+    A[:, :, 1] = M2 * X - M0 * Z
+    A[:, :, 2] = M0 * Y - M1 * X
+    A[:, :, 3:] = -M
+    B = M @ at.T_world_cam[problem.obs_keyframe[rows], :3, :3].transpose(0, 2, 1)
+    if robust:  # gtsam's robust noise model: rows reweighted by sqrt(w)
+        norm = np.sqrt((e * e).sum(axis=1))
+        k = f.huber[rows]
+        sqrt_w = np.sqrt(np.where(norm <= k, 1.0, k / np.where(norm > 0, norm, 1.0)))
+        e = e * sqrt_w[:, None]
+        A = A * sqrt_w[:, None, None]
+        B = B * sqrt_w[:, None, None]
+    Bt = B.transpose(0, 2, 1)
+    V = np.add.reduceat(Bt @ B, s.point_starts, axis=0)
+    g_point = np.add.reduceat((Bt @ e[:, :, None])[:, :, 0], s.point_starts, axis=0)
+    n_free = len(s.free_pose_rows)
+    U = np.empty((n_free, 6, 6))
+    g_pose = np.empty((n_free, 6))
+    A_pose, e_pose = A[s.by_pose], e[s.by_pose]
+    start = 0
+    for f_index, end in enumerate(s.pose_ends.tolist()):  # one product per free pose: its rows stacked
+        J = A_pose[start:end].reshape(-1, 6)
+        U[f_index] = J.T @ J
+        g_pose[f_index] = J.T @ e_pose[start:end].reshape(-1)
+        start = end
+    free = s.free
+    W = A[free].transpose(0, 2, 1) @ B[free]
+    if s.cell_starts is not None:  # a point seen twice by one keyframe: sum its rows
+        W = np.add.reduceat(W, s.cell_starts, axis=0)
+        free = free[s.cell_starts]
+    return _Linearized(U, V, W, s.point_of[free], s.pose_of[free], g_pose, g_point)
+
+
+def _solve(linear: _Linearized, lam: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """The damped step (free poses (F, 6), points (L, 3)), or None when it is not finite.
+
+    Normal equations [U W; W^T V] [d_pose; d_point] = -[g_pose; g_point], each block damped by
+    lam * I: the points are eliminated (S = U - W V^-1 W^T, the reduced camera system), the poses
+    solved, then the points by back-substitution.
+    """
+    n_points, n_free = len(linear.V), len(linear.U)
+    V_inv = _inverse_3x3(linear.V + lam * np.eye(3))
+    point, pose = linear.cell_point, linear.cell_pose
+    g_point = linear.g_point
+    if n_free:
+        # Dense (pose, 6) x (point, 3) layouts of W and W V^-1: the reduced system is one product.
+        W = np.zeros((n_free, 6, n_points, 3))
+        W[pose, :, point, :] = linear.W
+        Y = np.zeros((n_free, 6, n_points, 3))
+        Y[pose, :, point, :] = linear.W @ V_inv[point]
+        W = W.reshape(6 * n_free, 3 * n_points)
+        Y = Y.reshape(6 * n_free, 3 * n_points)
+        S = -(Y @ W.T)
+        U = linear.U + lam * np.eye(6)
+        for f in range(n_free):
+            S[6 * f : 6 * f + 6, 6 * f : 6 * f + 6] += U[f]
+        rhs = Y @ g_point.reshape(-1) - linear.g_pose.reshape(-1)
+        try:
+            d_pose = np.linalg.solve(S, rhs)
+        except np.linalg.LinAlgError:
+            return None
+        g_point = g_point + (d_pose @ W).reshape(n_points, 3)
+        d_pose = d_pose.reshape(n_free, 6)
+    else:
+        d_pose = np.zeros((0, 6))
+    d_point = -(V_inv @ g_point[:, :, None])[:, :, 0]
+    if not (np.isfinite(d_pose).all() and np.isfinite(d_point).all()):
+        return None
+    return d_pose, d_point
+
+
+def _apply(s: _Structure, T_world_cam: np.ndarray, p_world: np.ndarray, d_pose: np.ndarray, d_point: np.ndarray):
+    """The estimate moved by a step: T * exp(xi) for free poses, p + d for points (copies)."""
+    T_new = T_world_cam.copy()
+    for row, xi in zip(s.free_pose_rows.tolist(), d_pose):
+        T_new[row] = T_world_cam[row] @ se3_exp(xi)
+    p_new = p_world.copy()
+    p_new[s.point_rows] += d_point
+    return T_new, p_new
+
+
+def _loss(norm2: np.ndarray, huber: np.ndarray, robust: bool) -> float:
+    """gtsam's error: 0.5 d^2 per row, or Huber's 0.5 d^2 within k and k d - 0.5 k^2 beyond."""
+    if not robust:
+        return float(0.5 * norm2.sum())
+    norm = np.sqrt(norm2)
+    return float(np.where(norm <= huber, 0.5 * norm2, huber * norm - 0.5 * huber * huber).sum())
+
+
+def _constrained_points(problem: BAProblem, stereo: np.ndarray, active: np.ndarray) -> np.ndarray:
+    """(P,) bool: one active stereo observation, or active observations from two distinct keyframes."""
+    n_points, n_keyframes = len(problem.point_ids), len(problem.keyframe_ids)
+    stereo_count = np.bincount(problem.obs_point[active & stereo], minlength=n_points)
+    pairs = np.unique(problem.obs_point[active].astype(np.int64) * n_keyframes + problem.obs_keyframe[active])
+    view_count = np.bincount(pairs // n_keyframes, minlength=n_points)
+    return (stereo_count > 0) | (view_count >= 2)
+
+
+def _group_starts(sorted_ids: np.ndarray) -> np.ndarray:
+    """Where each run of equal values starts in a sorted array."""
+    if len(sorted_ids) == 0:
+        return np.zeros(0, dtype=np.intp)
+    return np.flatnonzero(np.concatenate(([True], sorted_ids[1:] != sorted_ids[:-1])))
+
+
+def _inverse_3x3(M: np.ndarray) -> np.ndarray:
+    """Inverses of (N, 3, 3) matrices by their adjugates."""
+    a, b, c = M[:, 0, 0], M[:, 0, 1], M[:, 0, 2]
+    d, e, f = M[:, 1, 0], M[:, 1, 1], M[:, 1, 2]
+    g, h, i = M[:, 2, 0], M[:, 2, 1], M[:, 2, 2]
+    adj = np.empty_like(M)
+    adj[:, 0, 0] = e * i - f * h
+    adj[:, 0, 1] = c * h - b * i
+    adj[:, 0, 2] = b * f - c * e
+    adj[:, 1, 0] = f * g - d * i
+    adj[:, 1, 1] = a * i - c * g
+    adj[:, 1, 2] = c * d - a * f
+    adj[:, 2, 0] = d * h - e * g
+    adj[:, 2, 1] = b * g - a * h
+    adj[:, 2, 2] = a * e - b * d
+    det = a * adj[:, 0, 0] + b * adj[:, 1, 0] + c * adj[:, 2, 0]
+    return adj / det[:, None, None]
