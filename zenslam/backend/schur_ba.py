@@ -110,13 +110,19 @@ class _State:
 class _Rows:
     """Per observation: whether it is usable, its whitening and its robust and outlier thresholds.
 
-    Residuals are ordered (u, v, u_right); a monocular row's whitening has a zero third row, so
-    every row is three-dimensional and the arrays stay rectangular.
+    Residuals are ordered (u, v, u_right) and whitened as e = (w r_u, w r_v, w_right r_right +
+    w_cross r_u): w = 1/sigma; w_right = 1/(sigma * scale) for a stereo row, 1/d for an RGB-D
+    one, whose virtual u_right = u - bf / depth shares u's keypoint error, so the independent part
+    is the difference u - u_right (the disparity, from the depth sensor, sigma d), hence w_cross =
+    -1/d; both 0 on a monocular row, whose third residual then counts for nothing.
     """
 
     usable: np.ndarray  # (O,) bool: finite pixel and positive information
     stereo: np.ndarray  # (O,) bool
-    whiten: np.ndarray  # (O, 3, 3): W with W^T W = the residual's information
+    w: np.ndarray  # (O,) 1/px
+    w_right: np.ndarray  # (O,) 1/px
+    w_cross: np.ndarray  # (O,) 1/px
+    right_u: np.ndarray  # (O,) px, 0 on monocular rows
     huber: np.ndarray  # (O,) Huber threshold on the whitened residual norm
     chi2_threshold: np.ndarray  # (O,)
     fx: float
@@ -132,23 +138,18 @@ class _Rows:
         info = problem.obs_inv_sigma2
         usable = np.isfinite(problem.obs_px).all(axis=1) & np.isfinite(info) & (info > 0)
         stereo = usable & np.isfinite(problem.obs_right_u)
-        inv_sigma = np.sqrt(np.where(usable, info, 0.0))
+        w = np.sqrt(np.where(usable, info, 0.0))
         scale = np.ones(len(info)) if problem.obs_right_sigma_scale is None else problem.obs_right_sigma_scale
         disparity = np.zeros(len(info)) if problem.obs_disparity_sigma is None else np.nan_to_num(problem.obs_disparity_sigma)
         rgbd = stereo & (disparity > 0)
-        plain = stereo & ~rgbd
-        whiten = np.zeros((len(info), 3, 3))
-        whiten[:, 0, 0] = inv_sigma
-        whiten[:, 1, 1] = inv_sigma
-        whiten[plain, 2, 2] = inv_sigma[plain] / scale[plain]
-        # RGB-D: u_right = u - bf / depth shares u's keypoint error, so the independent part is the
-        # difference u - u_right (the disparity, from the depth sensor): chi2 adds (du_right - du)^2 / d^2.
-        whiten[rgbd, 2, 0] = -1.0 / disparity[rgbd]
-        whiten[rgbd, 2, 2] = 1.0 / disparity[rgbd]
+        inv_disparity = 1.0 / np.where(rgbd, disparity, 1.0)
         return _Rows(
             usable=usable,
             stereo=stereo,
-            whiten=whiten,
+            w=w,
+            w_right=np.where(rgbd, inv_disparity, np.where(stereo, w / scale, 0.0)),
+            w_cross=np.where(rgbd, -inv_disparity, 0.0),
+            right_u=np.where(stereo, problem.obs_right_u, 0.0),
             huber=np.where(stereo, config.huber_stereo, config.huber_mono),
             chi2_threshold=np.where(stereo, config.chi2_stereo, config.chi2_mono),
             fx=c.fx, fy=c.fy, cx=c.cx, cy=c.cy,
@@ -156,22 +157,30 @@ class _Rows:
             min_depth_m=config.min_depth_m,
         )  # fmt: skip
 
-    def residuals(self, problem: BAProblem, rows: np.ndarray, T_world_cam: np.ndarray, p_world: np.ndarray):
-        """Whitened residuals (n, 3) of observation ``rows``, the points in their cameras (n, 3) and
-        which rows have the point in front of the camera (n,)."""
+    def project(self, problem: BAProblem, rows: np.ndarray, T_world_cam: np.ndarray, p_world: np.ndarray) -> _Projection:
+        """The observation ``rows``' points in their cameras and their whitened residuals."""
         kf = problem.obs_keyframe[rows]
-        R, t = T_world_cam[kf, :3, :3], T_world_cam[kf, :3, 3]
-        p_cam = (R.transpose(0, 2, 1) @ (p_world[problem.obs_point[rows]] - t)[:, :, None])[:, :, 0]
-        z = p_cam[:, 2]
-        in_front = z > 0.0
-        inv_z = 1.0 / np.where(in_front, z, 1.0)
-        u = self.fx * p_cam[:, 0] * inv_z + self.cx
-        r = np.empty((len(rows), 3))
-        r[:, 0] = u - problem.obs_px[rows, 0]
-        r[:, 1] = self.fy * p_cam[:, 1] * inv_z + self.cy - problem.obs_px[rows, 1]
-        r[:, 2] = u - self.bf * inv_z - np.nan_to_num(problem.obs_right_u[rows])
-        r[~in_front] = 2.0 * self.fx  # gtsam's factors on a point behind the camera
-        return (self.whiten[rows] @ r[:, :, None])[:, :, 0], p_cam, in_front
+        R = np.ascontiguousarray(T_world_cam[:, :3, :3]).reshape(-1, 9)[kf]  # row-major R per row
+        d = p_world[problem.obs_point[rows]] - T_world_cam[kf, :3, 3]
+        d0, d1, d2 = d[:, 0], d[:, 1], d[:, 2]
+        X = R[:, 0] * d0 + R[:, 3] * d1 + R[:, 6] * d2  # p_cam = R^T (p_world - t)
+        Y = R[:, 1] * d0 + R[:, 4] * d1 + R[:, 7] * d2
+        Z = R[:, 2] * d0 + R[:, 5] * d1 + R[:, 8] * d2
+        in_front = Z > 0.0
+        inv_z = 1.0 / np.where(in_front, Z, 1.0)
+        u = self.fx * X * inv_z + self.cx
+        r_u = u - problem.obs_px[rows, 0]
+        r_v = self.fy * Y * inv_z + self.cy - problem.obs_px[rows, 1]
+        r_right = u - self.bf * inv_z - self.right_u[rows]
+        behind = ~in_front
+        if behind.any():  # gtsam's factors on a point behind the camera: a constant error
+            r_u[behind] = r_v[behind] = r_right[behind] = 2.0 * self.fx
+        w = self.w[rows]
+        e = np.empty((len(rows), 3))
+        e[:, 0] = w * r_u
+        e[:, 1] = w * r_v
+        e[:, 2] = self.w_right[rows] * r_right + self.w_cross[rows] * r_u
+        return _Projection(X, Y, Z, inv_z, in_front, R, e)
 
     def classify(self, problem: BAProblem, state: _State) -> np.ndarray:
         """(O,) inlier mask at the current estimate: usable, in front of the camera, chi2 within threshold."""
@@ -179,11 +188,23 @@ class _Rows:
         inlier = np.zeros(len(self.usable), dtype=bool)
         if len(rows):
             with np.errstate(invalid="ignore", over="ignore"):
-                e, p_cam, _ = self.residuals(problem, rows, state.T_world_cam, state.p_world)
-                chi2 = (e * e).sum(axis=1)
-                inlier[rows] = (p_cam[:, 2] > self.min_depth_m) & (chi2 <= self.chi2_threshold[rows])
+                projection = self.project(problem, rows, state.T_world_cam, state.p_world)
+                chi2 = (projection.e * projection.e).sum(axis=1)
+                inlier[rows] = (projection.Z > self.min_depth_m) & (chi2 <= self.chi2_threshold[rows])
         return inlier
 
+
+@dataclass(frozen=True)
+class _Projection:
+    """Observations' points in their cameras and whitened residuals at one estimate."""
+
+    X: np.ndarray  # (n,) m
+    Y: np.ndarray  # (n,) m
+    Z: np.ndarray  # (n,) m
+    inv_z: np.ndarray  # (n,) 1/m, 1 behind the camera
+    in_front: np.ndarray  # (n,) bool
+    R: np.ndarray  # (n, 9) the observing camera's rotation (camera to world), row-major
+    e: np.ndarray  # (n, 3) whitened residuals
 
 
 @dataclass(frozen=True)
@@ -241,9 +262,7 @@ class _Evaluation:
 
     T_world_cam: np.ndarray
     p_world: np.ndarray
-    e: np.ndarray  # (n, 3) whitened residuals
-    p_cam: np.ndarray  # (n, 3)
-    in_front: np.ndarray  # (n,) bool
+    projection: _Projection
     cost: float  # gtsam's error: 0.5 |e|^2 per row, Huber's loss when robust; inf when not finite
 
 
@@ -304,41 +323,42 @@ def _evaluate(
     problem: BAProblem, rows_info: _Rows, rows: np.ndarray, T_world_cam: np.ndarray, p_world: np.ndarray, robust: bool
 ) -> _Evaluation:
     with np.errstate(invalid="ignore", over="ignore"):
-        e, p_cam, in_front = rows_info.residuals(problem, rows, T_world_cam, p_world)
-        cost = _loss((e * e).sum(axis=1), rows_info.huber[rows], robust)
-    return _Evaluation(T_world_cam, p_world, e, p_cam, in_front, cost if math.isfinite(cost) else math.inf)
+        projection = rows_info.project(problem, rows, T_world_cam, p_world)
+        cost = _loss((projection.e * projection.e).sum(axis=1), rows_info.huber[rows], robust)
+    return _Evaluation(T_world_cam, p_world, projection, cost if math.isfinite(cost) else math.inf)
 
 
 def _linearize(problem: BAProblem, f: _Rows, s: _Structure, at: _Evaluation, robust: bool) -> _Linearized:
-    rows, e, p_cam = s.rows, at.e, at.p_cam
-    X, Y, Z = p_cam[:, 0:1], p_cam[:, 1:2], p_cam[:, 2:3]
-    inv_z = 1.0 / np.where(at.in_front, p_cam[:, 2], 1.0)
-    inv_z2 = inv_z * inv_z
-    # d(u, v, u_right) / d p_cam, zero behind the camera (gtsam's factors give no Jacobian there)
-    P = np.zeros((len(rows), 3, 3))
-    P[:, 0, 0] = f.fx * inv_z
-    P[:, 0, 2] = -f.fx * p_cam[:, 0] * inv_z2
-    P[:, 1, 1] = f.fy * inv_z
-    P[:, 1, 2] = -f.fy * p_cam[:, 1] * inv_z2
-    P[:, 2, 0] = P[:, 0, 0]
-    P[:, 2, 2] = (f.bf - f.fx * p_cam[:, 0]) * inv_z2
-    P[~at.in_front] = 0.0
-    M = f.whiten[rows] @ P
-    # p_cam = exp(-xi) p_cam for T * exp(xi): d p_cam = [p_cam]x omega - upsilon; d p_cam / d p_world = R^T
-    M0, M1, M2 = M[:, :, 0], M[:, :, 1], M[:, :, 2]
-    A = np.empty((len(rows), 3, 6))
-    A[:, :, 0] = M1 * Z - M2 * Y
-    A[:, :, 1] = M2 * X - M0 * Z
-    A[:, :, 2] = M0 * Y - M1 * X
-    A[:, :, 3:] = -M
-    B = M @ at.T_world_cam[problem.obs_keyframe[rows], :3, :3].transpose(0, 2, 1)
+    rows, q = s.rows, at.projection
+    X, Y, Z, inv_z, R, e = q.X, q.Y, q.Z, q.inv_z, q.R, q.e
+    # M = d e / d p_cam (whitened), zero behind the camera (gtsam's factors give no Jacobian there):
+    # rows (a0, 0, c0), (0, b1, c1), (a2, 0, c2), from u = fx X/Z + cx, v = fy Y/Z + cy, u_right = u - bf/Z.
+    w, w_right, w_cross = f.w[rows], f.w_right[rows], f.w_cross[rows]
+    fx_z = np.where(q.in_front, f.fx * inv_z, 0.0)
+    x_z2 = X * inv_z * inv_z
+    a0 = w * fx_z
+    c0 = -w * f.fx * x_z2
+    b1 = w * np.where(q.in_front, f.fy * inv_z, 0.0)
+    c1 = -w * np.where(q.in_front, f.fy * Y * inv_z * inv_z, 0.0)
+    a2 = (w_right + w_cross) * fx_z
+    c2 = np.where(q.in_front, w_right * f.bf * inv_z * inv_z - (w_right + w_cross) * f.fx * x_z2, 0.0)
+    c0 = np.where(q.in_front, c0, 0.0)
     if robust:  # gtsam's robust noise model: rows reweighted by sqrt(w)
         norm = np.sqrt((e * e).sum(axis=1))
         k = f.huber[rows]
         sqrt_w = np.sqrt(np.where(norm <= k, 1.0, k / np.where(norm > 0, norm, 1.0)))
+        a0, c0, b1, c1, a2, c2 = (sqrt_w * x for x in (a0, c0, b1, c1, a2, c2))
         e = e * sqrt_w[:, None]
-        A = A * sqrt_w[:, None, None]
-        B = B * sqrt_w[:, None, None]
+    # d p_cam = [p_cam]x omega - upsilon for T * exp(xi); d p_cam / d p_world = R^T
+    A = np.zeros((len(rows), 3, 6))
+    A[:, 0, 0], A[:, 0, 1], A[:, 0, 2], A[:, 0, 3], A[:, 0, 5] = -c0 * Y, c0 * X - a0 * Z, a0 * Y, -a0, -c0
+    A[:, 1, 0], A[:, 1, 1], A[:, 1, 2], A[:, 1, 4], A[:, 1, 5] = b1 * Z - c1 * Y, c1 * X, -b1 * X, -b1, -c1
+    A[:, 2, 0], A[:, 2, 1], A[:, 2, 2], A[:, 2, 3], A[:, 2, 5] = -c2 * Y, c2 * X - a2 * Z, a2 * Y, -a2, -c2
+    B = np.empty((len(rows), 3, 3))
+    for j in range(3):  # B[i, j] = sum_k M[i, k] R[j, k]
+        B[:, 0, j] = a0 * R[:, 3 * j] + c0 * R[:, 3 * j + 2]
+        B[:, 1, j] = b1 * R[:, 3 * j + 1] + c1 * R[:, 3 * j + 2]
+        B[:, 2, j] = a2 * R[:, 3 * j] + c2 * R[:, 3 * j + 2]
     Bt = B.transpose(0, 2, 1)
     V = np.add.reduceat(Bt @ B, s.point_starts, axis=0)
     g_point = np.add.reduceat((Bt @ e[:, :, None])[:, :, 0], s.point_starts, axis=0)
