@@ -384,35 +384,30 @@ def _solve(linear: _Linearized, lam: float) -> tuple[np.ndarray, np.ndarray] | N
     """The damped step (free poses (F, 6), points (L, 3)), or None when it is not finite.
 
     Normal equations [U W; W^T V] [d_pose; d_point] = -[g_pose; g_point], each block damped by
-    lam * I: the points are eliminated (S = U - W V^-1 W^T, the reduced camera system), the poses
-    solved, then the points by back-substitution.
+    lam * I. The points are eliminated: with V = C C^T (Cholesky, per point) and Z = W C^-T, the
+    reduced camera system is S = U - Z Z^T, its right-hand side Z h - g_pose with h = C^-1 g_point;
+    then d_point = -C^-T (h + Z^T d_pose).
     """
     n_points, n_free = len(linear.V), len(linear.U)
-    V_inv = _inverse_3x3(linear.V + lam * np.eye(3))
-    point, pose = linear.cell_point, linear.cell_pose
-    g_point = linear.g_point
+    C_inv = _inverse_cholesky_3x3(linear.V + lam * np.eye(3))
+    h = (C_inv @ linear.g_point[:, :, None])[:, :, 0]
     if n_free:
-        # Dense (pose, 6) x (point, 3) layouts of W and W V^-1: the reduced system is one product.
-        W = np.zeros((n_free, 6, n_points, 3))
-        W[pose, :, point, :] = linear.W
-        Y = np.zeros((n_free, 6, n_points, 3))
-        Y[pose, :, point, :] = linear.W @ V_inv[point]
-        W = W.reshape(6 * n_free, 3 * n_points)
-        Y = Y.reshape(6 * n_free, 3 * n_points)
-        S = -(Y @ W.T)
+        Z = np.zeros((n_free, 6, n_points, 3))  # dense (pose, 6) x (point, 3): S is one product
+        Z[linear.cell_pose, :, linear.cell_point, :] = linear.W @ C_inv[linear.cell_point].transpose(0, 2, 1)
+        Z = Z.reshape(6 * n_free, 3 * n_points)
+        S = -(Z @ Z.T)  # numpy computes a product with its own transpose as a symmetric rank-k update
         U = linear.U + lam * np.eye(6)
         for f in range(n_free):
             S[6 * f : 6 * f + 6, 6 * f : 6 * f + 6] += U[f]
-        rhs = Y @ g_point.reshape(-1) - linear.g_pose.reshape(-1)
         try:
-            d_pose = np.linalg.solve(S, rhs)
+            d_pose = np.linalg.solve(S, Z @ h.reshape(-1) - linear.g_pose.reshape(-1))
         except np.linalg.LinAlgError:
             return None
-        g_point = g_point + (d_pose @ W).reshape(n_points, 3)
+        h = h + (d_pose @ Z).reshape(n_points, 3)
         d_pose = d_pose.reshape(n_free, 6)
     else:
         d_pose = np.zeros((0, 6))
-    d_point = -(V_inv @ g_point[:, :, None])[:, :, 0]
+    d_point = -(C_inv.transpose(0, 2, 1) @ h[:, :, None])[:, :, 0]
     if not (np.isfinite(d_pose).all() and np.isfinite(d_point).all()):
         return None
     return d_pose, d_point
@@ -452,20 +447,20 @@ def _group_starts(sorted_ids: np.ndarray) -> np.ndarray:
     return np.flatnonzero(np.concatenate(([True], sorted_ids[1:] != sorted_ids[:-1])))
 
 
-def _inverse_3x3(M: np.ndarray) -> np.ndarray:
-    """Inverses of (N, 3, 3) matrices by their adjugates."""
-    a, b, c = M[:, 0, 0], M[:, 0, 1], M[:, 0, 2]
-    d, e, f = M[:, 1, 0], M[:, 1, 1], M[:, 1, 2]
-    g, h, i = M[:, 2, 0], M[:, 2, 1], M[:, 2, 2]
-    adj = np.empty_like(M)
-    adj[:, 0, 0] = e * i - f * h
-    adj[:, 0, 1] = c * h - b * i
-    adj[:, 0, 2] = b * f - c * e
-    adj[:, 1, 0] = f * g - d * i
-    adj[:, 1, 1] = a * i - c * g
-    adj[:, 1, 2] = c * d - a * f
-    adj[:, 2, 0] = d * h - e * g
-    adj[:, 2, 1] = b * g - a * h
-    adj[:, 2, 2] = a * e - b * d
-    det = a * adj[:, 0, 0] + b * adj[:, 1, 0] + c * adj[:, 2, 0]
-    return adj / det[:, None, None]
+def _inverse_cholesky_3x3(V: np.ndarray) -> np.ndarray:
+    """C^-1 (lower triangular) of V = C C^T, for (N, 3, 3) symmetric positive definite matrices."""
+    v00, v10, v11, v20, v21, v22 = V[:, 0, 0], V[:, 1, 0], V[:, 1, 1], V[:, 2, 0], V[:, 2, 1], V[:, 2, 2]
+    with np.errstate(invalid="ignore", divide="ignore"):  # a matrix that is not positive definite gives NaN
+        c00 = np.sqrt(v00)
+        c10, c20 = v10 / c00, v20 / c00
+        c11 = np.sqrt(v11 - c10 * c10)
+        c21 = (v21 - c20 * c10) / c11
+        c22 = np.sqrt(v22 - c20 * c20 - c21 * c21)
+        inverse = np.zeros_like(V)
+        inverse[:, 0, 0] = i00 = 1.0 / c00
+        inverse[:, 1, 1] = i11 = 1.0 / c11
+        inverse[:, 2, 2] = i22 = 1.0 / c22
+        inverse[:, 1, 0] = i10 = -c10 * i00 * i11
+        inverse[:, 2, 1] = -c21 * i11 * i22
+        inverse[:, 2, 0] = -(c20 * i00 + c21 * i10) * i22
+    return inverse
