@@ -1,5 +1,9 @@
 """Local bundle adjustment: keyframe poses and map points of a covisibility window, with gtsam.
 
+This is ``local_ba.method: batch_lm``, the reference: the default, ``schur_lm`` (``schur_ba``),
+takes the same steps on the same problem and solves them on the reduced camera system in numpy,
+3-4x faster; global BA runs this one (see ``schur_ba`` for why).
+
 The problem is ORB-SLAM's ``Optimizer::LocalBundleAdjustment``: the local keyframes' poses and
 the local map points are variables, the other keyframes that see those points are held fixed,
 and every observation is a reprojection factor -- ``gtsam.GenericStereoFactor3D`` for stereo /

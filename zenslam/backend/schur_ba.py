@@ -10,10 +10,12 @@ differs is how each Levenberg-Marquardt step is solved. gtsam eliminates the lan
 time through its generic factor machinery (a HessianFactor assembled, factored and combined per
 landmark: ~13 us each, about two thirds of a KITTI window's time, benchmarks/README.md). BA
 solvers (g2o's block solver, which ORB-SLAM uses; Ceres' SPARSE_SCHUR) instead exploit that a
-landmark's 3x3 block touches only the poses that see it: every landmark block is inverted at once,
-the reduced camera system (6 x free poses, square) is assembled from per-observation products and
+landmark's 3x3 block touches only the poses that see it: every landmark block is factored at once
+(Cholesky), the reduced camera system (6 x free poses, square) is assembled as one product and
 solved densely, and the landmarks' steps follow by back-substitution. Here each of those is a few
-array operations over all observations.
+array operations over all observations. The reduced system is held densely, which suits a local
+window (~10 free poses); global BA, over every keyframe of the map, keeps gtsam's sparse
+elimination (``global_ba``).
 
 The step is the one gtsam's Levenberg-Marquardt takes: the Gauss-Newton system of the whitened,
 Huber-reweighted residuals (gtsam's robust noise model reweights each observation by
