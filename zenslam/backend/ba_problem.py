@@ -136,3 +136,14 @@ def _check_problem(problem: BAProblem) -> None:
             problems.append(f"T_world_cam of keyframes {bad.tolist()} holds non-finite values")
     if problems:
         raise ZenslamError("invalid local BA problem: " + "; ".join(problems) + "; fix the window built by local mapping")
+
+
+def constrained_points(problem: BAProblem, stereo: np.ndarray, active: np.ndarray) -> np.ndarray:
+    """(P,) bool: the points a BA pass can optimise, with one active stereo observation (depth from
+    disparity) or active observations from two distinct keyframes; ``stereo`` and ``active`` are (O,)."""
+    n_points, n_keyframes = len(problem.point_ids), len(problem.keyframe_ids)
+    stereo_count = np.bincount(problem.obs_point[active & stereo], minlength=n_points)
+    # distinct (point, keyframe) pairs as one integer each: a 1-D unique is far cheaper than axis=0
+    pairs = np.unique(problem.obs_point[active].astype(np.int64) * n_keyframes + problem.obs_keyframe[active])
+    view_count = np.bincount(pairs // n_keyframes, minlength=n_points)
+    return (stereo_count > 0) | (view_count >= 2)

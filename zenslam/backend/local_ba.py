@@ -65,7 +65,7 @@ import gtsam
 import numpy as np
 
 from zenslam.backend import gtsam_keys
-from zenslam.backend.ba_problem import BAProblem, BAResult, LocalBAConfig
+from zenslam.backend.ba_problem import BAProblem, BAResult, LocalBAConfig, constrained_points
 
 logger = logging.getLogger(__name__)
 
@@ -320,17 +320,6 @@ def _landmarks_first(window: _Window, point_rows: np.ndarray, pose_rows: np.ndar
     return ordering
 
 
-def _constrained_points(window: _Window, active: np.ndarray) -> np.ndarray:
-    """(P,) bool: one active stereo observation, or active observations from two distinct keyframes."""
-    p = window.problem
-    n_points = len(p.point_ids)
-    stereo_count = np.bincount(p.obs_point[active & window.stereo], minlength=n_points)
-    # distinct (point, keyframe) pairs as one integer each: a 1-D unique is far cheaper than axis=0
-    pairs = np.unique(p.obs_point[active].astype(np.int64) * len(p.keyframe_ids) + p.obs_keyframe[active])
-    view_count = np.bincount(pairs // len(p.keyframe_ids), minlength=n_points)
-    return (stereo_count > 0) | (view_count >= 2)
-
-
 def _build_graph(
     window: _Window, state: _State, active: np.ndarray, robust: bool, config: LocalBAConfig, last: _PassGraph | None = None
 ):
@@ -340,7 +329,7 @@ def _build_graph(
     less the other rows' factors, and its result less the variables left without a factor: the
     same factors in the same order (gtsam skips removed ones), at the same values."""
     p = window.problem
-    rows = np.flatnonzero(active & _constrained_points(window, active)[p.obs_point])
+    rows = np.flatnonzero(active & constrained_points(window.problem, window.stereo, active)[p.obs_point])
     pose_rows = np.unique(p.obs_keyframe[rows])
     point_rows = np.unique(p.obs_point[rows])
     # extractPoint3 returns points in key order; keep the rows in that order to read them back.

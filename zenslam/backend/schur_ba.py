@@ -40,7 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from zenslam.backend.ba_problem import BAProblem, BAResult, LocalBAConfig
+from zenslam.backend.ba_problem import BAProblem, BAResult, LocalBAConfig, constrained_points
 from zenslam.geometry import se3_exp
 
 logger = logging.getLogger(__name__)
@@ -286,7 +286,7 @@ def _run_pass(
     config: LocalBAConfig,
 ) -> None:
     """Levenberg-Marquardt on the active observations of constrained points, at most ``iterations`` steps."""
-    rows = np.flatnonzero(active & _constrained_points(problem, rows_info.stereo, active)[problem.obs_point])
+    rows = np.flatnonzero(active & constrained_points(problem, rows_info.stereo, active)[problem.obs_point])
     if len(rows) == 0:
         return
     structure = _Structure.of(problem, rows)
@@ -431,15 +431,6 @@ def _loss(norm2: np.ndarray, huber: np.ndarray, robust: bool) -> float:
         return float(0.5 * norm2.sum())
     norm = np.sqrt(norm2)
     return float(np.where(norm <= huber, 0.5 * norm2, huber * norm - 0.5 * huber * huber).sum())
-
-
-def _constrained_points(problem: BAProblem, stereo: np.ndarray, active: np.ndarray) -> np.ndarray:
-    """(P,) bool: one active stereo observation, or active observations from two distinct keyframes."""
-    n_points, n_keyframes = len(problem.point_ids), len(problem.keyframe_ids)
-    stereo_count = np.bincount(problem.obs_point[active & stereo], minlength=n_points)
-    pairs = np.unique(problem.obs_point[active].astype(np.int64) * n_keyframes + problem.obs_keyframe[active])
-    view_count = np.bincount(pairs // n_keyframes, minlength=n_points)
-    return (stereo_count > 0) | (view_count >= 2)
 
 
 def _group_starts(sorted_ids: np.ndarray) -> np.ndarray:
