@@ -215,8 +215,8 @@ class _Structure:
 
     The pass's observation rows are ordered by point, then keyframe, so each point's rows are
     contiguous; points and free poses are numbered from 0 in the order of their rows in the
-    problem. The point-pose coupling J_pose^T J_point is held densely, (points, free poses, 6, 3):
-    a local window has ~10 free poses, and the reduced camera system is then one matrix product.
+    problem. A cell is a point and a free pose that sees it: the point-pose coupling J_pose^T
+    J_point has one 6x3 block per cell.
     """
 
     rows: np.ndarray  # (n,) observation rows of the pass, by point then keyframe
