@@ -272,3 +272,19 @@ def test_a_frontend_restart_counts_the_frames_between_the_last_pose_and_the_firs
     assert "frames_lost" not in backend
     log.restarts.append({"stage": "frontend", "signal": "SIGKILL", "restart": 2, "frame": 12, "last_frame_index": 11})
     assert log.restart_events()[-1]["frames_lost"] is None  # never relocalised
+
+
+def test_corrections_an_answer_announces_are_owed_until_they_arrive():
+    # A lockstep frontend waits for them as for the answer, so the hang watch counts them as the
+    # backend's work: a backend stopped between an answer and its correction is the one that hangs.
+    log = RunLog()
+    assert log.corrections_owed == 0
+    log.add_map_update(MapUpdate(keyframe_id=0, stamp_ns=0, corrections_following=1, corrections_after_next_frame=True))
+    assert log.corrections_owed == 1  # the local-mapping correction
+    log.add_map_update(MapUpdate(keyframe_id=0, stamp_ns=0, kind="correction", corrections_following=2))
+    assert log.corrections_owed == 2  # the two loop corrections it announced
+    log.add_map_update(MapUpdate(keyframe_id=0, stamp_ns=0, kind="correction"))
+    log.add_map_update(MapUpdate(keyframe_id=0, stamp_ns=0, kind="correction"))
+    assert log.corrections_owed == 0
+    log.add_map_update(MapUpdate(keyframe_id=1, stamp_ns=0))  # an answer with nothing to follow
+    assert log.corrections_owed == 0 and log.keyframe_counts()["processed"] == 2

@@ -108,6 +108,9 @@ class RunLog:
         self.corrected_poses: dict[int, np.ndarray] = {}  # keyframe id -> its newest T_world_cam from a map update
         self.removed_keyframes: set[int] = set()  # keyframe ids a map update removed (culled)
         self.backend_ended = False  # the backend's end of stream arrived
+        # Updates the last answer announced that have not arrived (its local-mapping correction and
+        # the loop corrections that announces), counted as the frontend counts what it waits for.
+        self.corrections_owed = 0
         self.backend_timings: dict[int, dict[str, float]] = {}  # keyframes processed -> ms per step of that one
         self.backend_keyframes: codec.KeyframeTrajectoryMessage | None = None  # the backend's final keyframe poses
         self.backend_queue_max = 0  # most keyframes the backend reported waiting in its inbox after a step
@@ -170,6 +173,9 @@ class RunLog:
         else:
             if update.answers_keyframe:
                 self.updated_keyframes.append(int(update.keyframe_id))
+                self.corrections_owed = int(update.corrections_following)
+            else:
+                self.corrections_owed = max(self.corrections_owed - 1, 0) + int(update.corrections_following)
             for correction in update.keyframes:
                 self.corrected_poses[int(correction.id)] = np.asarray(correction.T_world_cam, dtype=float)
             self.removed_keyframes.update(np.asarray(update.removed_keyframe_ids).tolist())

@@ -324,7 +324,7 @@ class _Follower:
 def _watch_for_hang(follower: _Follower, supervisor: Supervisor, hang_timeout_s: float, since: float, stop: StopFlag) -> None:
     """Kill a stage whose input waits while it has said nothing for ``hang_timeout_s`` seconds (0:
     never; a stage still starting gets ``bus.start_timeout_s``), counted from ``since`` at the latest
-    (when following began): the backend while keyframes wait for it; the frontend while frames the
+    (when following began): the backend while keyframes or announced corrections wait for it; the frontend while frames the
     source sent wait for it, unless it waits for the backend's answers itself. The next ``_check``
     then restarts it or fails the run, as for a crash. The frontend's silence counts from the
     backend's last answer at the latest: in lockstep it is silent while it waits for one (for as long
@@ -339,7 +339,10 @@ def _watch_for_hang(follower: _Follower, supervisor: Supervisor, hang_timeout_s:
         return  # the usual case, decided before counting the log's frames and keyframes
     log = follower.log
     counts = log.keyframe_counts()
-    keyframes_wait = not log.backend_ended and (counts["processed"] < counts["sent"] or (log.ended and counts["sent"] > 0))
+    # The backend owes work while a keyframe waits for its answer or an answer's announced
+    # corrections are still to come (a lockstep frontend waits for those too).
+    owed = counts["processed"] < counts["sent"] or log.corrections_owed > 0
+    keyframes_wait = not log.backend_ended and (owed or (log.ended and counts["sent"] > 0))
     if keyframes_wait and backend_silent_s >= backend_limit_s:
         supervisor.kill_hung("backend", backend_silent_s)
         return
