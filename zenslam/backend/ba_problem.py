@@ -23,8 +23,8 @@ class LocalBAConfig:
     # Levenberg-Marquardt on the whole window. schur_lm: each step solved on the reduced camera
     # system, the landmarks eliminated by their Schur complement in numpy (``schur_ba``); batch_lm:
     # gtsam's LevenbergMarquardtOptimizer on the window's factor graph (``local_ba``). The same
-    # problem, steps and stopping rules, so the same optimum; schur_lm takes a third to a half of
-    # the time on local windows (benchmarks/README.md, "Local bundle adjustment").
+    # problem, steps and stopping rules, so the same optimum; schur_lm takes about a third of the CPU
+    # time on local windows (0.27-0.31x on windows dumped from runs; benchmarks/README.md, "Local bundle adjustment").
     method: Literal["schur_lm", "batch_lm"] = "schur_lm"
     # batch_lm's gtsam settings:
     linear_solver: Literal["sequential_cholesky", "multifrontal_cholesky", "multifrontal_qr"] = "sequential_cholesky"

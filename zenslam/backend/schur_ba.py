@@ -26,9 +26,9 @@ upsilon); a point by addition. A point behind a camera gives gtsam's constant er
 component) and no Jacobian. Both solvers reach the same optimum (tests compare them on the same
 windows); their results differ in the last digits.
 
-Determinism: only numpy (elementwise arithmetic, reductions in a fixed order, ``np.linalg.solve``
-on the reduced system through OpenBLAS, whose kernels the stages pin), so lockstep runs give the
-same bits on any x86-64 CPU.
+Determinism: only numpy (elementwise arithmetic, reductions in a fixed order, matrix products and
+``np.linalg.solve`` through OpenBLAS, whose kernels and single thread the stages pin), so lockstep
+runs give the same bits on any x86-64 CPU.
 """
 
 from __future__ import annotations
