@@ -42,6 +42,7 @@ class _Log:
 
     ended = backend_ended = False
     frames = range(22)
+    corrections_owed = 0  # the last answer's announced corrections have all arrived
 
     def keyframe_counts(self) -> dict[str, int]:
         return {"sent": 13, "processed": 13}
@@ -79,3 +80,14 @@ def test_the_frontends_hang_clock_starts_again_at_the_backends_answer():
     stuck = _Supervisor()
     run_command._watch_for_hang(_follower(frontend_silent_s=14.0, answered_s_ago=12.0), stuck, 10.0, since, stop)
     assert stuck.killed == ["frontend"]
+
+
+def test_a_backend_silent_before_the_correction_its_answer_announced_is_the_hung_one():
+    """Lockstep with answers before local BA: the frontend waits for the correction of the keyframe
+    the backend answered; when neither has been heard for the hang timeout, the backend owes the work."""
+    stop, since = (lambda: False), time.monotonic() - 60.0
+    follower = _follower(frontend_silent_s=14.0, answered_s_ago=12.0)
+    follower.log.corrections_owed = 1
+    supervisor = _Supervisor()
+    run_command._watch_for_hang(follower, supervisor, 10.0, since, stop)
+    assert supervisor.killed == ["backend"]
