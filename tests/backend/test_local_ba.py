@@ -405,10 +405,23 @@ def _windows_of_every_kind():
     mixed_right_u = stereo.obs_right_u.copy()
     mixed_right_u[::4] = np.nan  # a quarter of the rows monocular
     mixed = dataclasses.replace(stereo, obs_right_u=mixed_right_u)
-    return {"stereo": stereo, "mono": mono, "rgbd": rgbd, "scaled_right_u": scaled, "stereo_and_mono": mixed}
+    # A point seen twice by one keyframe (two keypoints, 0.3 px apart): both rows weigh on the pose.
+    twice = np.arange(0, len(stereo.obs_px), 7)
+    seen_twice = dataclasses.replace(
+        stereo,
+        obs_keyframe=np.concatenate([stereo.obs_keyframe, stereo.obs_keyframe[twice]]),
+        obs_point=np.concatenate([stereo.obs_point, stereo.obs_point[twice]]),
+        obs_px=np.concatenate([stereo.obs_px, stereo.obs_px[twice] + 0.3]),
+        obs_right_u=np.concatenate([stereo.obs_right_u, stereo.obs_right_u[twice] + 0.3]),
+        obs_inv_sigma2=np.concatenate([stereo.obs_inv_sigma2, stereo.obs_inv_sigma2[twice]]),
+    )
+    return {
+        "stereo": stereo, "mono": mono, "rgbd": rgbd, "scaled_right_u": scaled, "stereo_and_mono": mixed,
+        "point_seen_twice": seen_twice,
+    }  # fmt: skip
 
 
-@pytest.mark.parametrize("kind", ["stereo", "mono", "rgbd", "scaled_right_u", "stereo_and_mono"])
+@pytest.mark.parametrize("kind", ["stereo", "mono", "rgbd", "scaled_right_u", "stereo_and_mono", "point_seen_twice"])
 def test_the_numpy_reduced_system_takes_gtsams_steps_to_the_same_optimum(kind):
     # The same problem, damping, acceptance and stopping rules: the same iterations and errors, and
     # an estimate that differs only by rounding (and so the same classification of every observation).

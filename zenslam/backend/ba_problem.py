@@ -147,3 +147,25 @@ def constrained_points(problem: BAProblem, stereo: np.ndarray, active: np.ndarra
     pairs = np.unique(problem.obs_point[active].astype(np.int64) * n_keyframes + problem.obs_keyframe[active])
     view_count = np.bincount(pairs // n_keyframes, minlength=n_points)
     return (stereo_count > 0) | (view_count >= 2)
+
+
+def ba_stats(
+    config: LocalBAConfig, *, iterations: int, initial_error: float, final_error: float, seconds: float,
+    inlier_obs: np.ndarray, removed_point_ids: np.ndarray, n_dropped_points: int, passes: int, retries: int,
+    failure: str | None,
+) -> dict:
+    """``BAResult.stats``, the same keys whichever solver ran."""
+    return {
+        "method": config.method,
+        "iterations": iterations,
+        "initial_error": initial_error,
+        "final_error": final_error,
+        "time_ms": 1e3 * seconds,
+        "n_observations": int(len(inlier_obs)),
+        "n_outliers": int((~inlier_obs).sum()),
+        "n_removed_points": int(len(removed_point_ids)),
+        "n_dropped_points": int(n_dropped_points),
+        "passes": passes,
+        "retries": retries,
+        "failure": failure,
+    }

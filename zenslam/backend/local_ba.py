@@ -65,7 +65,7 @@ import gtsam
 import numpy as np
 
 from zenslam.backend import gtsam_keys
-from zenslam.backend.ba_problem import BAProblem, BAResult, LocalBAConfig, constrained_points
+from zenslam.backend.ba_problem import BAProblem, BAResult, LocalBAConfig, ba_stats, constrained_points
 
 logger = logging.getLogger(__name__)
 
@@ -144,20 +144,11 @@ class _State:
         self.dropped_points = np.zeros(len(self.p_world), dtype=bool)
 
     def stats(self, active: np.ndarray, removed: np.ndarray, seconds: float, config: LocalBAConfig) -> dict:
-        return {
-            "method": config.method,
-            "iterations": self.iterations,
-            "initial_error": self.initial_error,
-            "final_error": self.final_error,
-            "time_ms": 1e3 * seconds,
-            "n_observations": int(len(active)),
-            "n_outliers": int((~active).sum()),
-            "n_removed_points": int(len(removed)),
-            "n_dropped_points": int(self.dropped_points.sum()),
-            "passes": self.passes,
-            "retries": self.retries,
-            "failure": self.failure,
-        }
+        return ba_stats(
+            config, iterations=self.iterations, initial_error=self.initial_error, final_error=self.final_error,
+            seconds=seconds, inlier_obs=active, removed_point_ids=removed, n_dropped_points=int(self.dropped_points.sum()),
+            passes=self.passes, retries=self.retries, failure=self.failure,
+        )
 
 
 @dataclass(frozen=True)

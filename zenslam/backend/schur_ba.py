@@ -40,7 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from zenslam.backend.ba_problem import BAProblem, BAResult, LocalBAConfig, constrained_points
+from zenslam.backend.ba_problem import BAProblem, BAResult, LocalBAConfig, ba_stats, constrained_points
 from zenslam.geometry import se3_exp
 
 logger = logging.getLogger(__name__)
@@ -78,20 +78,13 @@ class SchurBundleAdjuster:
         T_world_cam[problem.fixed] = problem.T_world_cam[problem.fixed]
         has_inlier = np.bincount(problem.obs_point[active], minlength=len(problem.point_ids)) > 0
         removed = problem.point_ids[~has_inlier]
-        stats = {
-            "method": config.method,
-            "iterations": state.iterations,
-            "initial_error": state.initial_error,
-            "final_error": state.final_error,
-            "time_ms": 1e3 * (time.perf_counter() - start),
-            "n_observations": int(len(active)),
-            "n_outliers": int((~active).sum()),
-            "n_removed_points": int(len(removed)),
-            "n_dropped_points": int(dropped.sum()),
-            "passes": state.passes,
-            "retries": 0,  # nothing to repair: damping keeps every landmark block invertible
-            "failure": None,
-        }
+        stats = ba_stats(
+            config, iterations=state.iterations, initial_error=state.initial_error, final_error=state.final_error,
+            seconds=time.perf_counter() - start, inlier_obs=active, removed_point_ids=removed,
+            n_dropped_points=int(dropped.sum()), passes=state.passes,
+            retries=0,  # nothing to repair: damping keeps every landmark block invertible
+            failure=None,
+        )
         logger.debug("local BA: %s", stats)
         return BAResult(T_world_cam, state.p_world, active, removed, stats)
 
@@ -339,12 +332,11 @@ def _linearize(problem: BAProblem, f: _Rows, s: _Structure, at: _Evaluation, rob
     fx_z = np.where(q.in_front, f.fx * inv_z, 0.0)
     x_z2 = X * inv_z * inv_z
     a0 = w * fx_z
-    c0 = -w * f.fx * x_z2
+    c0 = np.where(q.in_front, -w * f.fx * x_z2, 0.0)
     b1 = w * np.where(q.in_front, f.fy * inv_z, 0.0)
     c1 = -w * np.where(q.in_front, f.fy * Y * inv_z * inv_z, 0.0)
     a2 = (w_right + w_cross) * fx_z
     c2 = np.where(q.in_front, w_right * f.bf * inv_z * inv_z - (w_right + w_cross) * f.fx * x_z2, 0.0)
-    c0 = np.where(q.in_front, c0, 0.0)
     if robust:  # gtsam's robust noise model: rows reweighted by sqrt(w)
         norm = np.sqrt((e * e).sum(axis=1))
         k = f.huber[rows]
