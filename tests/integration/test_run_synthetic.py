@@ -8,6 +8,8 @@ lockstep runs repeat exactly. Both runs are the shared ones of conftest.py.
 from __future__ import annotations
 
 import json
+import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -15,7 +17,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from zenslam.backend.config import BackendConfig
 from zenslam.service.evaluation.metrics import evaluate
+from zenslam.service.recorder_config import RecorderConfig
 from zenslam.service.sources import open_source
 
 pytestmark = pytest.mark.integration
@@ -74,6 +78,15 @@ def test_the_command_prints_the_ate_and_repeats_exactly(lockstep_run, command_ru
     assert metrics["frames"] == command_run.frames == FRAMES and metrics["ate"]["rmse_m"] < ATE_BOUND_M
     # Lockstep runs are deterministic: the command and the run followed in this process give the same bytes.
     assert _poses(command_run.run_dir / "trajectory.tum") == _poses(run_dir / "trajectory.tum")
+
+
+def test_mapping_and_recording_yield_the_cpu_to_tracking(command_run):
+    # The stages log the niceness the kernel gives them: ours plus their configured increment.
+    logs = command_run.run_dir / "logs"
+    for stage, increment in (("backend", BackendConfig().nice), ("recorder", RecorderConfig().nice)):
+        said = re.findall(r"niceness (\d+): ", (logs / f"{stage}.log").read_text())
+        assert said == [str(min(os.nice(0) + increment, 19))], stage
+    assert "niceness" not in (logs / "frontend.log").read_text()
 
 
 @pytest.mark.slow(12)

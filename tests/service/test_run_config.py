@@ -19,6 +19,7 @@ from zenslam.service.run_config import (
     read_orbslam_settings,
     run_config_to_yaml,
 )
+from zenslam.service.recorder_config import RecorderConfig
 
 # ORB-SLAM3's own format (File.version 1.0), with the values of its KITTI 04-12 example.
 ORBSLAM3_KITTI = """\
@@ -207,12 +208,15 @@ def test_yaml_is_readable_by_people():
     assert textwrap.dedent(text) == text
 
 
-def test_backend_nice_is_a_niceness_increment():
-    assert BackendConfig().nice == 0
-    assert BackendConfig(nice=19).nice == 19
+def test_backend_and_recorder_nice_are_niceness_increments():
+    # Mapping and recording yield the CPU to tracking by default, recording most.
+    assert 0 < BackendConfig().nice < RecorderConfig().nice <= 19
+    assert BackendConfig(nice=0).nice == 0 and RecorderConfig(nice=19).nice == 19
     for bad in (-1, 20):
         with pytest.raises(ConfigError, match=f"backend.nice={bad}"):
             BackendConfig(nice=bad)
+        with pytest.raises(ConfigError, match=f"recorder.nice={bad}"):
+            RecorderConfig(nice=bad)
 
 
 def test_pipelining_settings_are_checked(tmp_path):

@@ -28,7 +28,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
-import os
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -58,6 +57,7 @@ from zenslam.runtime.stage import (
     log_cpu_times,
     setup_process_logging,
     stopped_before_joining,
+    yield_cpu,
 )
 from zenslam.schemas import codec, keys
 from zenslam.schemas.map_update import MapUpdate
@@ -671,8 +671,7 @@ def main(argv: list[str] | None = None) -> int:
         config = load_section(args.config, STAGE, BackendConfig)
         bus_config = load_section(args.config, "bus", bus.BusConfig)
         rerun_config = load_section(args.config, "rerun", rerun_log.RerunConfig)
-        if config.nice:
-            os.nice(config.nice)
+        yield_cpu(config.nice)
         lockstep = load_mode(args.config) == "lockstep"
         node = BackendNode.from_config(config, global_ba_in_background=not lockstep)
         if stopped_before_joining(stop):

@@ -106,6 +106,14 @@ def setup_process_logging(verbose: bool, stage: str) -> None:
     atexit.register(log_cpu_times)  # runs before logging's own atexit shutdown (registered earlier)
 
 
+def yield_cpu(increment: int) -> None:
+    """Lower this process's scheduling priority by ``increment`` (a POSIX niceness increment, 0-19; 0
+    leaves it as is) and log the niceness it now runs at: the stages whose input waits in a queue
+    (mapping, recording) yield the CPU to tracking, which a camera does not wait for."""
+    if increment:
+        logger.info("niceness %d: the CPU goes to tracking first", os.nice(increment))
+
+
 def log_cpu_times(when: str = "at exit") -> None:
     """Log the process's CPU time so far (all its threads, zenoh's included) as
     ``cpu <when>: user U s system S s``; stages log it when their stream starts and at exit."""

@@ -48,6 +48,7 @@ from zenslam.runtime.stage import (
     load_section,
     log_cpu_times,
     setup_process_logging,
+    yield_cpu,
 )
 from zenslam.schemas import codec, keys
 from zenslam.schemas.map_update import MapUpdate
@@ -492,6 +493,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         config = load_section(args.config, STAGE, RecorderConfig)
         bus_config = load_section(args.config, "bus", bus.BusConfig)
+        yield_cpu(config.nice)
         with bus.open_session(bus_config_with(bus_config, args.connect, args.bus_config)) as session:
             if args.run_dir is None:
                 crashed = set_aside(args.output, args.restart) if args.restart else None

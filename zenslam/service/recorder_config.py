@@ -40,6 +40,12 @@ class RecorderConfig:
     # Messages waiting for the writer thread; when full, publishers block (lossless: nothing is dropped).
     queue: int = 64  # messages
     quiet_s: float = 0.3  # seconds without a message that count as drained, at the end
+    # Added to the recorder process's nice value (0-19, POSIX niceness), as ``backend.nice``: recording
+    # (decoding every message, PNG-encoding every image: a fifth of a live KITTI run's CPU) yields the
+    # CPU to tracking, which must keep up with its camera, and catches up from its queue while tracking
+    # waits; a recorder that falls ``queue`` messages behind still blocks the publishers, so nothing is
+    # lost. Scheduling only: the recording is the same at any value.
+    nice: int = 19  # niceness increment
 
     def __post_init__(self) -> None:
         if self.image_format == "frame" and self.frame_images != "png":
@@ -57,5 +63,7 @@ class RecorderConfig:
             raise ConfigError(f"recorder.queue={self.queue} must be at least 1 message")
         if not (math.isfinite(self.map_points_period_s) and self.map_points_period_s >= 0):
             raise ConfigError(f"recorder.map_points_period_s={self.map_points_period_s} must be >= 0 seconds (0: every map change)")
+        if not 0 <= self.nice <= 19:
+            raise ConfigError(f"recorder.nice={self.nice} must be within 0..19 (a niceness increment; 0 leaves it as is)")
         if not self.quiet_s >= 0:
             raise ConfigError(f"recorder.quiet_s={self.quiet_s} must be >= 0 seconds")
