@@ -8,6 +8,8 @@ import pytest
 from zenslam.backend.map import BackendKeyframe, BackendMap
 from zenslam.backend.triangulation import (
     TriangulationConfig,
+    _candidates,
+    _same_node_pairs,
     create_new_points,
     fundamental_matrix,
     match_for_triangulation,
@@ -194,3 +196,47 @@ def test_each_neighbour_triangulates_from_the_keypoints_the_previous_ones_left()
     by_neighbour = {k: [c for c in created if k in bmap.points[c].observations] for k in (1, 2)}
     assert len(by_neighbour[1]) >= 50 and len(by_neighbour[2]) <= 60 - len(by_neighbour[1])
     assert bmap.check_consistency() == []  # among others: no keypoint of keyframe 0 observes two points
+
+
+def test_same_node_pairs_are_every_pair_under_one_node_in_row_order() -> None:
+    rng = np.random.default_rng(3)
+    nodes1, nodes2 = rng.integers(-1, 6, 40), rng.integers(-1, 6, 50)
+    r, c = _same_node_pairs(nodes1, nodes2)
+    expected = [(i, j) for i in range(40) for j in range(50) if nodes1[i] == nodes2[j] >= 0]
+    assert list(zip(r.tolist(), c.tolist())) == expected
+    assert [len(a) for a in _same_node_pairs(nodes1, np.full(5, -1))] == [0, 0]
+
+
+def test_keypoints_are_paired_only_under_the_same_vocabulary_node() -> None:
+    """With every keypoint under one node, the nodes change nothing; with the points' keypoints split
+    between two nodes by point, only the pairs under one node remain, and each is still right."""
+    rng, p, d, T1, T2 = scene()
+    kf1, o1 = view(0, T1, p, d, rng)
+    kf2, o2 = view(1, T2, p, d, rng)
+    F12 = fundamental_matrix(kf1, kf2)
+    idx1, idx2 = np.arange(kf1.n_keypoints), np.arange(kf2.n_keypoints)
+    dense = _candidates(kf1, kf2, idx1, idx2, F12, CONFIG)
+    one_node = _candidates(kf1, kf2, idx1, idx2, F12, CONFIG, (np.zeros(len(idx1), np.int64), np.zeros(len(idx2), np.int64)))
+    assert all(a.tolist() == b.tolist() for a, b in zip(dense, one_node))
+    # keypoints of points 0-59 under node 3, the others under 7; kf2's of points 50-59 under 7
+    node1 = np.where(o1 < 60, 3, 7)
+    node2 = np.where(o2 < 50, 3, 7)
+    i1, i2, _ = _candidates(kf1, kf2, idx1, idx2, F12, CONFIG, (node1, node2))
+    kept = [(a, b) for a, b in zip(*dense[:2]) if node1[a] == node2[b]]
+    assert list(zip(i1.tolist(), i2.tolist())) == kept
+    assert len(kept) < len(dense[0])
+    matched_points = set(o1[i1[o1[i1] == o2[i2]]].tolist())
+    assert matched_points == set(range(120)) - set(range(50, 60))  # a point split between nodes is lost
+
+
+def test_create_new_points_asks_each_keyframe_for_its_feature_nodes() -> None:
+    bmap, _, _ = two_keyframe_map(stereo=False, T2=scene()[4])
+    asked = []
+
+    def one_node(kf_id, descriptors):
+        asked.append(kf_id)
+        return np.zeros(len(descriptors), np.int64)
+
+    created = create_new_points(bmap, 1, CONFIG, one_node)
+    assert sorted(asked) == [0, 1] and len(created) >= 0.95 * 90
+    assert create_new_points(bmap, 1, CONFIG, lambda kf_id, descriptors: np.full(len(descriptors), -1)) == []

@@ -28,7 +28,7 @@ from zenslam.backend.monocular_map_start import baseline, is_monocular_map_start
 from zenslam.backend.point_culling import PointCullingConfig, count_visibility, cull_recent_points
 from zenslam.backend.point_fusion import FusionConfig, fuse_with_neighbours
 from zenslam.backend.schur_ba import SchurBundleAdjuster
-from zenslam.backend.triangulation import TriangulationConfig, create_new_points
+from zenslam.backend.triangulation import FeatureNodes, TriangulationConfig, create_new_points
 from zenslam.camera import PinholeCalibration
 from zenslam.errors import ConfigError
 from zenslam.geometry import transform_points
@@ -162,10 +162,15 @@ def new_backend_map(config: LocalMappingConfig) -> BackendMap:
 class LocalMapper:
     """The backend's map and the local mapping steps run on it for each keyframe."""
 
-    def __init__(self, bmap: BackendMap, config: LocalMappingConfig, bundle_adjuster: BundleAdjuster) -> None:
+    def __init__(
+        self, bmap: BackendMap, config: LocalMappingConfig, bundle_adjuster: BundleAdjuster, feature_nodes: FeatureNodes | None = None
+    ) -> None:
         self.map = bmap  # lent by its owner, the backend node; loop closing works on the same map
         self.config = config
         self.bundle_adjuster = bundle_adjuster
+        # The vocabulary nodes of a keyframe's features (place recognition's), which new points'
+        # matching keeps to; None (no vocabulary): every pair in the epipolar band is compared.
+        self.feature_nodes = feature_nodes
         self.recent_points: list[int] = []  # ids on ORB-SLAM's recently-added list
         self.last_timings_ms: dict[str, float] = {}  # per step of the last call, milliseconds
         self.last_stats = LocalMappingStats()
@@ -212,7 +217,7 @@ class LocalMapper:
                 self.map, self.recent_points, serial, monocular, self.config.point_culling
             )
         with _timed(timings, "triangulation"):
-            created = create_new_points(self.map, kf_id, self.config.triangulation)
+            created = create_new_points(self.map, kf_id, self.config.triangulation, self.feature_nodes)
             self.recent_points.extend(created)
         with _timed(timings, "fusion"):
             if not deferred:

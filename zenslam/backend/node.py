@@ -117,12 +117,12 @@ class BackendNode:
         """The node with the real local mapper, gtsam local bundle adjuster and, when enabled, loop
         closer and global BA (in a helper process when ``global_ba_in_background``: pipelined and
         live runs; in place in lockstep, so its result lands at a deterministic point)."""
-        bmap = new_backend_map(config.local_mapping)
-        mapper = LocalMapper(bmap, config.local_mapping, bundle_adjuster(config.local_ba))
         from zenslam.backend.place_recognition import PlaceRecognition
         from zenslam.vocabulary import load_vocabulary
 
+        bmap = new_backend_map(config.local_mapping)
         places = PlaceRecognition(load_vocabulary(config.vocabulary or None))
+        mapper = LocalMapper(bmap, config.local_mapping, bundle_adjuster(config.local_ba), places.feature_nodes)
         loaded = None
         if config.map_file:
             from zenslam.backend.map_file import load_map

@@ -43,6 +43,14 @@ class FeatureVector:
     def empty() -> FeatureVector:
         return FeatureVector(np.zeros(0, dtype=np.int64), ())
 
+    def node_of_features(self, n_features: int) -> np.ndarray:
+        """(n_features,) int64: the node each of the image's ``n_features`` descriptors is under, -1
+        for those in none (a stopped word)."""
+        nodes = np.full(n_features, -1, dtype=np.int64)
+        if len(self.features):
+            nodes[np.concatenate(self.features)] = np.repeat(self.node_ids, [len(f) for f in self.features])
+        return nodes
+
 
 def l1_score(a: BowVector, b: BowVector) -> float:
     """DBoW2's L1 score of two L1-normalised vectors: 1 - 0.5 * |a - b|_1, in [0, 1] (1: same words, same weights).
