@@ -11,7 +11,7 @@ As ORB-SLAM does, only keypoints under the same vocabulary node (of the feature 
 ``PlaceRecognition.feature_nodes``) are compared; without a vocabulary every pair inside the
 epipolar band is. The assignment is one-to-one, greedy by increasing descriptor distance (ties by
 keypoint index). On the KITTI clip the nodes leave ~1% of the pairs to test, and triangulation
-took 7.0-7.3 ms of CPU per keyframe instead of 10.5-10.9 (benchmarks/README.md, "Local mapping").
+took 6.9-7.4 ms of CPU per keyframe instead of 10.5-10.9 (benchmarks/README.md, "Local mapping").
 """
 
 from __future__ import annotations
@@ -110,9 +110,14 @@ def _epipolar_pairs_in_nodes(kf1, idx1, kf2, idx2, F12, config, nodes1, nodes2) 
 
 
 def _candidates(
-    kf1: BackendKeyframe, kf2: BackendKeyframe, idx1: np.ndarray, idx2: np.ndarray, F12: np.ndarray, config: TriangulationConfig,
+    kf1: BackendKeyframe,
+    kf2: BackendKeyframe,
+    idx1: np.ndarray,
+    idx2: np.ndarray,
+    F12: np.ndarray,
+    config: TriangulationConfig,
     nodes: tuple[np.ndarray, np.ndarray] | None = None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Keypoint pairs (i1 of kf1 among ``idx1``, i2 of kf2 among ``idx2``) in the epipolar band with
     descriptors close enough and, without stereo, not next to the epipole; and their distances.
     With ``nodes`` (the vocabulary node of each keypoint of kf1 and of kf2), only pairs under the
