@@ -37,7 +37,7 @@ class BackendConfig:
     # Added to the backend process's nice value (0-19, POSIX niceness) in pipelined and live runs:
     # mapping yields the CPU to tracking, as ORB-SLAM's tracking is its real-time thread (lockstep
     # tracking waits for mapping, which keeps its priority there). Scheduling only: the numerics are
-    # the same at any value. Live at 2x on two cores, 5 (with the recorder's 19) kept every KITTI
+    # the same at any value. Live at 2x on two cores, 5 (with ``recorder.nice`` 19) kept every KITTI
     # frame in 19 of 20 runs, against 9 of 15 with 0; 10 and 19 starve mapping (ATE up to 12 cm), and
     # a mapping far behind makes the keyframe throttle hold keyframes back until tracking runs out
     # of points (benchmarks/README.md, "Stage priorities").

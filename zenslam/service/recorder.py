@@ -45,6 +45,7 @@ from zenslam.runtime.stage import (
     StopFlag,
     add_process_arguments,
     bus_config_with,
+    load_mode,
     load_section,
     log_cpu_times,
     setup_process_logging,
@@ -493,7 +494,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         config = load_section(args.config, STAGE, RecorderConfig)
         bus_config = load_section(args.config, "bus", bus.BusConfig)
-        yield_cpu(config.nice)
+        # Lockstep tracking waits for the recording too (its messages are lossless): keep pace there,
+        # so that a crash loses no more than the open chunk.
+        yield_cpu(0 if load_mode(args.config) == "lockstep" else config.nice)
         with bus.open_session(bus_config_with(bus_config, args.connect, args.bus_config)) as session:
             if args.run_dir is None:
                 crashed = set_aside(args.output, args.restart) if args.restart else None

@@ -40,11 +40,13 @@ class RecorderConfig:
     # Messages waiting for the writer thread; when full, publishers block (lossless: nothing is dropped).
     queue: int = 64  # messages
     quiet_s: float = 0.3  # seconds without a message that count as drained, at the end
-    # Added to the recorder process's nice value (0-19, POSIX niceness), as ``backend.nice``: recording
-    # (decoding every message, PNG-encoding every image: a fifth of a live KITTI run's CPU) yields the
-    # CPU to tracking, which must keep up with its camera, and catches up from its queue while tracking
-    # waits; a recorder that falls ``queue`` messages behind still blocks the publishers, so nothing is
-    # lost. Scheduling only: the recording is the same at any value.
+    # Added to the recorder process's nice value (0-19, POSIX niceness) in pipelined and live runs, as
+    # ``backend.nice``: recording (decoding every message, PNG-encoding every image: a fifth of a live
+    # KITTI run's CPU) yields the CPU to tracking, which must keep up with its camera, and catches up
+    # from its queue while tracking waits; a recorder ``queue`` messages behind blocks the publishers,
+    # so nothing is left out. What it holds unwritten (the open chunk, and that backlog) is what a
+    # crash of the recorder loses: in lockstep it keeps its priority and pace, and loses one chunk
+    # at most (benchmarks/README.md, "Stage priorities"). Scheduling only: the recording is the same.
     nice: int = 19  # niceness increment
 
     def __post_init__(self) -> None:
