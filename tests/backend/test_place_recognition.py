@@ -45,3 +45,13 @@ def test_a_keyframe_is_transformed_once_whether_local_mapping_or_indexing_asks_f
     assert 5 not in places.feature_vectors
     places.feature_nodes(5, descriptors)
     assert vocabulary.transforms == 3  # forgotten with the keyframe
+
+
+def test_vectors_restored_from_a_saved_map_replace_what_was_computed_for_the_id():
+    rng = np.random.default_rng(8)
+    descriptors = rng.integers(0, 256, (50, 32), dtype=np.uint8)
+    places = PlaceRecognition(load_vocabulary(None))
+    places.feature_nodes(3, descriptors)
+    saved = FeatureVector(np.array([11]), (np.arange(50),))
+    places.restore_all([3], [places.vocabulary.transform(descriptors)[0]], [saved])
+    assert places.feature_nodes(3, descriptors).tolist() == [11] * 50

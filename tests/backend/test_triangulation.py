@@ -225,6 +225,11 @@ def test_keypoints_are_paired_only_under_the_same_vocabulary_node() -> None:
     kept = [(a, b) for a, b in zip(*dense[:2]) if node1[a] == node2[b]]
     assert list(zip(i1.tolist(), i2.tolist())) == kept
     assert len(kept) < len(dense[0])
+    # More pairs under one node than a block of the dense test holds: the dense test, kept to nodes.
+    few_rows = TriangulationConfig(block_rows=8)
+    assert _same_node_pairs(node1, node2, max_pairs=few_rows.block_rows * len(idx2)) is None
+    blocked = _candidates(kf1, kf2, idx1, idx2, F12, few_rows, (node1, node2))
+    assert list(zip(blocked[0].tolist(), blocked[1].tolist())) == kept
     matched_points = set(o1[i1[o1[i1] == o2[i2]]].tolist())
     assert matched_points == set(range(120)) - set(range(50, 60))  # a point split between nodes is lost
 

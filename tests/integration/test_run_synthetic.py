@@ -82,7 +82,7 @@ def test_the_command_prints_the_ate_and_repeats_exactly(lockstep_run, command_ru
 
 def _niceness(run_dir: Path, stage: str) -> list[int]:
     """The niceness a stage logged it runs at (ours plus its increment), once, or nothing."""
-    return [int(n) for n in re.findall(r"niceness (\d+): ", (run_dir / "logs" / f"{stage}.log").read_text())]
+    return [int(n) for n in re.findall(r"niceness (-?\d+): ", (run_dir / "logs" / f"{stage}.log").read_text())]
 
 
 def test_lockstep_stages_keep_their_priority(command_run):

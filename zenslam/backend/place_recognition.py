@@ -54,6 +54,8 @@ class PlaceRecognition:
         (a saved map's), all at once."""
         self.database.add_all(kf_ids, bows)
         self.feature_vectors.update(zip(kf_ids, features))
+        for kf_id in kf_ids:
+            self._feature_nodes.pop(kf_id, None)
 
     def remove(self, kf_ids: list[int]) -> None:
         """Forget culled keyframes (ids not indexed are ignored)."""

@@ -85,12 +85,15 @@ def _epipolar_pairs(kf1, idx1, kf2, idx2, F12, config) -> tuple[np.ndarray, np.n
     return np.concatenate(rows), np.concatenate(cols)
 
 
-def _same_node_pairs(nodes1: np.ndarray, nodes2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Index pairs (r into ``nodes1``, c into ``nodes2``) of equal nodes (>= 0), by r then c."""
+def _same_node_pairs(nodes1: np.ndarray, nodes2: np.ndarray, max_pairs: int | None = None) -> tuple[np.ndarray, np.ndarray] | None:
+    """Index pairs (r into ``nodes1``, c into ``nodes2``) of equal nodes (>= 0), by r then c; None
+    when there would be more than ``max_pairs``."""
     order2 = np.argsort(nodes2, kind="stable")
     sorted2 = nodes2[order2]
     first = np.searchsorted(sorted2, nodes1, "left")
     count = np.where(nodes1 >= 0, np.searchsorted(sorted2, nodes1, "right") - first, 0)
+    if max_pairs is not None and int(count.sum()) > max_pairs:
+        return None
     r = np.repeat(np.arange(len(nodes1)), count)
     # the k-th pair of row r takes the k-th of its node's entries in sorted2
     at = np.arange(len(r)) + np.repeat(first - (np.cumsum(count) - count), count)
@@ -99,8 +102,16 @@ def _same_node_pairs(nodes1: np.ndarray, nodes2: np.ndarray) -> tuple[np.ndarray
 
 def _epipolar_pairs_in_nodes(kf1, idx1, kf2, idx2, F12, config, nodes1, nodes2) -> tuple[np.ndarray, np.ndarray]:
     """As ``_epipolar_pairs``, among the pairs under the same vocabulary node (``nodes1`` of kf1's
-    keypoints, ``nodes2`` of kf2's): few enough to test one by one, in float64."""
-    r, c = _same_node_pairs(nodes1[idx1], nodes2[idx2])
+    keypoints, ``nodes2`` of kf2's): few enough to test one by one, in float64. With a vocabulary of
+    few nodes at that level (more pairs than one block of the dense test), the dense test, kept to
+    the pairs under one node."""
+    node1, node2 = nodes1[idx1], nodes2[idx2]
+    pairs = _same_node_pairs(node1, node2, max_pairs=config.block_rows * len(idx2))
+    if pairs is None:
+        r, c = _epipolar_pairs(kf1, idx1, kf2, idx2, F12, config)
+        same = (node1[r] == node2[c]) & (node1[r] >= 0)
+        return r[same], c[same]
+    r, c = pairs
     lines = np.column_stack([kf1.keypoints_px[idx1], np.ones(len(idx1))]) @ F12  # (N1, 3): a x + b y + c = 0 in kf2
     gate2 = (config.epipolar_chi2 * kf2.level_sigma2[kf2.levels[idx2]])[c] * (lines[:, 0] ** 2 + lines[:, 1] ** 2)[r]
     x2, line = kf2.keypoints_px[idx2][c], lines[r]

@@ -110,8 +110,12 @@ def yield_cpu(increment: int) -> None:
     """Lower this process's scheduling priority by ``increment`` (a POSIX niceness increment, 0-19; 0
     leaves it as is) and log the niceness it now runs at: the stages whose input waits in a queue
     (mapping, recording) yield the CPU to tracking, which a camera does not wait for."""
-    if increment:
+    if not increment:
+        return
+    try:
         logger.info("niceness %d: the CPU goes to tracking first", os.nice(increment))
+    except OSError as exc:  # a sandbox without setpriority: run at the priority we have
+        logger.warning("could not lower this process's priority by %d (%s); running at its own", increment, exc)
 
 
 def log_cpu_times(when: str = "at exit") -> None:
