@@ -7,6 +7,8 @@ backend/map while the stages are still running.
 
 from __future__ import annotations
 
+import os
+import re
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -14,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from zenslam.backend.config import BackendConfig
 from zenslam.backend.queries import query_map, query_trajectory
 from zenslam.runtime import bus
 from zenslam.runtime.stage import RunMode
@@ -138,3 +141,6 @@ def test_live_mode_processes_every_keyframe(tmp_path):
     assert sorted(run.updates) == sent and run.end_count == len(sent)
     assert run.final_trajectory is not None and run.final_trajectory.keyframes_processed == len(sent)
     assert run.exit_codes == {"backend": 0, "frontend": 0, "source": 0}
+    # A live camera does not wait for tracking: mapping yields the CPU to it (the niceness it logs is ours plus its increment).
+    said = re.findall(r"niceness (-?\d+): ", (tmp_path / "it-backend-live" / "logs" / "backend.log").read_text())
+    assert said == [str(min(os.nice(0) + BackendConfig().nice, 19))]

@@ -34,13 +34,14 @@ class BackendConfig:
     # After its input's end of stream the backend keeps answering backend/map and backend/trajectory
     # for this long (or until stopped: ``zenslam run`` stops it once it has the final trajectory).
     linger_s: float = 60.0  # seconds
-    # Added to the backend process's nice value (0-19, POSIX niceness) in pipelined and live runs:
-    # mapping yields the CPU to tracking, as ORB-SLAM's tracking is its real-time thread (lockstep
-    # tracking waits for mapping, which keeps its priority there). Scheduling only: the numerics are
-    # the same at any value. Live at 2x on two cores, 5 (with ``recorder.nice`` 19) kept every KITTI
-    # frame in 19 of 20 runs, against 9 of 15 with 0; 10 and 19 starve mapping (ATE up to 12 cm), and
-    # a mapping far behind makes the keyframe throttle hold keyframes back until tracking runs out
-    # of points (benchmarks/README.md, "Stage priorities").
+    # Added to the backend process's nice value (0-19, POSIX niceness) in live runs: mapping yields
+    # the CPU to tracking, which must keep up with its camera, as ORB-SLAM's tracking is its
+    # real-time thread. Scheduling only: the numerics are the same at any value. Live at 2x on two
+    # cores, 5 (with ``recorder.nice`` 19) kept every KITTI frame in 19 of 20 runs, against 9 of 15
+    # with 0; 10 and 19 starve mapping (ATE up to 12 cm). Where frames wait for tracking (lockstep,
+    # pipelined) mapping keeps its priority: pipelined at 5, mapping fell behind, the keyframe
+    # throttle held keyframes back and 3 of 10 KITTI runs lost scale (ATE 4.1-6.1 cm); at 0, 20 of
+    # 20 within 3.5 cm (benchmarks/README.md, "Stage priorities").
     nice: int = 5  # niceness increment
     # Append every keyframe mapped to backend.journal in the run folder, so that a backend restarted
     # after a crash rebuilds the same map (backend/journal.py); false: a restarted backend starts empty.

@@ -671,8 +671,9 @@ def main(argv: list[str] | None = None) -> int:
         config = load_section(args.config, STAGE, BackendConfig)
         bus_config = load_section(args.config, "bus", bus.BusConfig)
         rerun_config = load_section(args.config, "rerun", rerun_log.RerunConfig)
-        lockstep = load_mode(args.config) == "lockstep"
-        yield_cpu(0 if lockstep else config.nice)  # lockstep tracking waits for mapping: no one to yield to
+        mode = load_mode(args.config)
+        lockstep = mode == "lockstep"
+        yield_cpu(config.nice if mode == "live" else 0)  # only a live camera does not wait for tracking
         node = BackendNode.from_config(config, global_ba_in_background=not lockstep)
         if stopped_before_joining(stop):
             return 0

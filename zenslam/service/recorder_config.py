@@ -40,8 +40,8 @@ class RecorderConfig:
     # Messages waiting for the writer thread; when full, publishers block (lossless: nothing is dropped).
     queue: int = 64  # messages
     quiet_s: float = 0.3  # seconds without a message that count as drained, at the end
-    # Added to the recorder process's nice value (0-19, POSIX niceness) in pipelined and live runs, as
-    # ``backend.nice``: recording (decoding every message, PNG-encoding every image: a fifth of a live
+    # Added to the recorder process's nice value (0-19, POSIX niceness) in pipelined and live runs:
+    # recording (decoding every message, PNG-encoding every image: a fifth of a live
     # KITTI run's CPU) yields the CPU to tracking, which must keep up with its camera, and catches up
     # from its queue while tracking waits; a recorder ``queue`` messages behind blocks the publishers,
     # so nothing is left out. What it holds unwritten (the open chunk, and that backlog) is what a
