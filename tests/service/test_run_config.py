@@ -209,7 +209,8 @@ def test_yaml_is_readable_by_people():
 
 
 def test_backend_and_recorder_nice_are_niceness_increments():
-    # Mapping and recording yield the CPU to tracking by default, recording most.
+    # Where they yield the CPU to tracking (the recorder in pipelined and live runs, the backend in
+    # live runs), recording yields most.
     assert 0 < BackendConfig().nice < RecorderConfig().nice <= 19
     assert BackendConfig(nice=0).nice == 0 and RecorderConfig(nice=19).nice == 19
     for bad in (-1, 20):

@@ -38,7 +38,8 @@ class BackendConfig:
     # the CPU to tracking, which must keep up with its camera, as ORB-SLAM's tracking is its
     # real-time thread. Scheduling only: the numerics are the same at any value. Live at 2x on two
     # cores, 5 (with ``recorder.nice`` 19) kept every KITTI frame in 19 of 20 runs, against 9 of 15
-    # with 0; 10 and 19 starve mapping (ATE up to 12 cm). Where frames wait for tracking (lockstep,
+    # with 0 (with the cheaper triangulation since, 0 and 5 both kept every frame in 10 runs); 10 and
+    # 19 starve mapping (ATE up to 12 cm). Where frames wait for tracking (lockstep,
     # pipelined) mapping keeps its priority: pipelined at 5, mapping fell behind, the keyframe
     # throttle held keyframes back and 3 of 10 KITTI runs lost scale (ATE 4.1-6.1 cm); at 0, 20 of
     # 20 within 3.5 cm (benchmarks/README.md, "Stage priorities").
