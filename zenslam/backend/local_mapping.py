@@ -16,6 +16,7 @@ from collections import Counter
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from itertools import chain
 from typing import Protocol
 
 import numpy as np
@@ -381,7 +382,9 @@ def local_ba_window(
     point_ids = sorted({int(p) for k in local for p in bmap.keyframe_point_ids(k).tolist()})
     if not point_ids:
         return None
-    seen_by = Counter(k for p in point_ids for k in bmap.points[p].observations if k not in local_set)
+    seen_by = Counter(chain.from_iterable(bmap.points[p].observations for p in point_ids))
+    for k in local_set:
+        seen_by.pop(k, None)
     fixed = sorted(seen_by, key=lambda k: (-seen_by[k], k))[: config.max_fixed_keyframes]
     first = bmap.first_keyframe_id
     if first is not None and first in seen_by and first not in fixed:
