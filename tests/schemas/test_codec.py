@@ -6,8 +6,10 @@ import dataclasses
 import importlib.util
 import subprocess
 import sys
+import zlib
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
@@ -93,6 +95,22 @@ def test_png_frames_decode_to_the_same_pixels_and_keep_everything_else():
     assert codec.sensor_frame_as_png(as_png) == as_png  # already PNG: unchanged
     end = codec.encode_end_of_stream(codec.SENSOR_FRAME, 3)
     assert codec.sensor_frame_as_png(end) == end
+
+
+@pytest.mark.skipif(not hasattr(cv2, "IMWRITE_PNG_FILTER"), reason="OpenCV before 4.11 chooses the PNG filter itself")
+def test_pngs_filter_every_row_with_sub_and_decode_to_the_same_pixels():
+    image = _textured(np.random.default_rng(7))
+    data = codec.png_bytes(image)
+    np.testing.assert_array_equal(cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED), image)
+    # The image data: the IDAT chunks' deflate stream, one filter-type byte before each row (1: Sub).
+    idat, at = b"", 8
+    while at < len(data):
+        length, kind = int.from_bytes(data[at : at + 4], "big"), data[at + 4 : at + 8]
+        if kind == b"IDAT":
+            idat += data[at + 8 : at + 8 + length]
+        at += 12 + length
+    rows = np.frombuffer(zlib.decompress(idat), np.uint8).reshape(image.shape[0], image.shape[1] + 1)
+    assert set(rows[:, 0].tolist()) == {1}
 
 
 def test_a_png_of_the_wrong_size_names_the_frame():
