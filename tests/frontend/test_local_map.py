@@ -281,6 +281,22 @@ def test_map_update_replaces_keyframe_pose_and_associations() -> None:
         assert lm.tracked_points(1, 2) == 30
 
 
+def test_a_point_associated_with_two_keypoints_of_a_keyframe_is_observed_once_at_the_first() -> None:
+    lm = LocalMap()
+    kf0 = add_keyframe(lm, [], 30)
+    kf1 = add_keyframe(lm, kf0.new_point_ids[:10], 10)
+    assoc1 = kf1.map_point_ids.copy()
+    assoc1[12] = assoc1[3]  # a damaged or merged association: the same point at keypoints 3 and 12
+    assoc1[15] = kf0.new_point_ids[20]
+    update = _update(lm, np.zeros(0, dtype=np.int64), np.zeros((0, 3)), keyframes=(KeyframeCorrection(kf1.id, np.eye(4), assoc1),))
+    lm.apply_map_update(update)
+    row = int(lm.rows_of_ids([assoc1[3]])[0])
+    assert lm.observations(row) == {kf0.id: 3, kf1.id: 3}
+    assert lm.n_observations[row] == 2
+    assert lm.observations(int(lm.rows_of_ids([kf0.new_point_ids[20]])[0])) == {kf0.id: 20, kf1.id: 15}
+    assert lm.covisibility_weight(0, 1) == 10 + 1
+
+
 def test_keyframes_the_backend_has_not_mapped_follow_their_parents_correction() -> None:
     lm = LocalMap()
     kf0 = add_keyframe(lm, [], 40)

@@ -663,15 +663,17 @@ class LocalMap:
                 self._kf_centres[slot] = self._keyframes[slot].centre_world
                 replaced.append(slot)
         self._drop_observations(replaced)
-        for slot in replaced:
-            keyframe = self._keyframes[slot]
-            rows = self.rows_of_ids(keyframe.map_point_ids)
-            rows[rows >= 0] = np.where(self.valid[rows[rows >= 0]], rows[rows >= 0], -1)
+        if not replaced:
+            return
+        associations = [self._keyframes[slot].map_point_ids for slot in replaced]
+        all_rows = self.rows_of_ids(np.concatenate(associations))  # one lookup for every keyframe
+        known = np.flatnonzero(all_rows >= 0)
+        all_rows[known[~self.valid[all_rows[known]]]] = -1
+        for slot, rows in zip(replaced, np.split(all_rows, np.cumsum([len(ids) for ids in associations])[:-1])):
             keypoints = np.flatnonzero(rows >= 0)
-            _, first = np.unique(rows[keypoints], return_index=True)
-            keypoints = keypoints[np.sort(first)]
+            keypoints = keypoints[_first_of_each(rows[keypoints])]  # a point seen by two keypoints: the first
             observed = rows[keypoints]
-            self._append_observations(slot, observed, keypoints, keyframe.descriptors[keypoints])
+            self._append_observations(slot, observed, keypoints, self._keyframes[slot].descriptors[keypoints])
             self._pts["n_observations"][observed] += 1
             self._kf_rows[slot] = observed
         for slot in replaced:
@@ -702,3 +704,11 @@ class LocalMap:
         self._graph.remove(slot)
         self._keyframes[slot] = None
         del self._slot_of_id[int(keyframe_id)]
+
+
+def _first_of_each(values: np.ndarray) -> np.ndarray:
+    """Ascending indices of the first occurrence of each distinct value in ``values``."""
+    if len(values) < 2 or np.all(np.diff(np.sort(values))):
+        return np.arange(len(values))  # all distinct (the common case): no unique pass
+    _, first = np.unique(values, return_index=True)
+    return np.sort(first)
