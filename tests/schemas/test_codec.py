@@ -97,7 +97,7 @@ def test_png_frames_decode_to_the_same_pixels_and_keep_everything_else():
     assert codec.sensor_frame_as_png(end) == end
 
 
-@pytest.mark.skipif(not hasattr(cv2, "IMWRITE_PNG_FILTER"), reason="OpenCV before 4.11 chooses the PNG filter itself")
+@pytest.mark.skipif(not hasattr(cv2, "IMWRITE_PNG_FILTER"), reason="this OpenCV has no IMWRITE_PNG_FILTER: libpng chooses each row's filter")
 def test_pngs_filter_every_row_with_sub_and_decode_to_the_same_pixels():
     image = _textured(np.random.default_rng(7))
     data = codec.png_bytes(image)
