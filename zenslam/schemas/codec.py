@@ -332,9 +332,7 @@ def png_bytes(image: np.ndarray, compression: int = 1) -> bytes:
     return data.tobytes()
 
 
-_PNG_SUB_FILTER = (
-    [cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_SUB] if hasattr(cv2, "IMWRITE_PNG_FILTER") else []
-)  # fmt: skip
+_PNG_SUB_FILTER = (cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_SUB) if hasattr(cv2, "IMWRITE_PNG_FILTER") else ()
 
 
 def _encode_image(image: np.ndarray, encoding: ImageEncodingName, png_compression: int) -> bytes:
