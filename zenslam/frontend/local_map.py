@@ -279,10 +279,7 @@ class LocalMap:
         (-1 none; culled points are skipped, one observation per point); returns the rows observed."""
         rows = rows.copy()
         rows[rows >= 0] = np.where(self.valid[rows[rows >= 0]], rows[rows >= 0], -1)
-        keypoints = np.flatnonzero(rows >= 0)
-        _, first = np.unique(rows[keypoints], return_index=True)  # one observation per point
-        keypoints = keypoints[np.sort(first)]
-        observed = rows[keypoints]
+        keypoints, observed = _one_observation_per_point(rows)
         self._append_observations(slot, observed, keypoints, keyframe.descriptors[keypoints])
         self._kf_rows.append(observed)
         return observed
@@ -670,9 +667,7 @@ class LocalMap:
         known = np.flatnonzero(all_rows >= 0)
         all_rows[known[~self.valid[all_rows[known]]]] = -1
         for slot, rows in zip(replaced, np.split(all_rows, np.cumsum([len(ids) for ids in associations])[:-1])):
-            keypoints = np.flatnonzero(rows >= 0)
-            keypoints = keypoints[_first_of_each(rows[keypoints])]  # a point seen by two keypoints: the first
-            observed = rows[keypoints]
+            keypoints, observed = _one_observation_per_point(rows)
             self._append_observations(slot, observed, keypoints, self._keyframes[slot].descriptors[keypoints])
             self._pts["n_observations"][observed] += 1
             self._kf_rows[slot] = observed
@@ -706,9 +701,13 @@ class LocalMap:
         del self._slot_of_id[int(keyframe_id)]
 
 
-def _first_of_each(values: np.ndarray) -> np.ndarray:
-    """Ascending indices of the first occurrence of each distinct value in ``values``."""
-    if len(values) < 2 or np.all(np.diff(np.sort(values))):
-        return np.arange(len(values))  # all distinct (the common case): no unique pass
-    _, first = np.unique(values, return_index=True)
-    return np.sort(first)
+def _one_observation_per_point(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The keypoints (ascending) and point rows a keyframe observes, from each keypoint's point row
+    ``rows`` (-1 none): a point associated with two keypoints is observed at the first."""
+    keypoints = np.flatnonzero(rows >= 0)
+    observed = rows[keypoints]
+    if len(observed) > 1 and not np.all(np.diff(np.sort(observed))):  # not all distinct (rare): unique pass
+        _, first = np.unique(observed, return_index=True)
+        keypoints = keypoints[np.sort(first)]
+        observed = rows[keypoints]
+    return keypoints, observed
