@@ -31,7 +31,7 @@ from typing import Any, Literal
 
 import zenoh
 
-from zenslam.backend.queries import query_map, query_trajectory
+from zenslam.runtime.backend_queries import query_map, query_trajectory
 from zenslam.camera import PinholeCalibration, SensorKind
 from zenslam.errors import ZenslamError
 from zenslam.runtime import bus

@@ -14,7 +14,7 @@ from zenslam.backend.journal import Answered, JournaledKeyframe, JournalWriter, 
 from zenslam.backend.local_ba import BAProblem, BAResult
 from zenslam.backend.local_mapping import TIMING_STEPS, LocalMapper, LocalMappingConfig, new_backend_map
 from zenslam.backend.node import BackendNode, serve
-from zenslam.backend.queries import query_map, query_trajectory
+from zenslam.runtime.backend_queries import query_map, query_trajectory
 from zenslam.camera import PinholeCalibration
 from zenslam.geometry import invert_T, make_T, transform_points
 from zenslam.runtime import bus

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from zenslam.backend.config import BackendConfig
-from zenslam.backend.queries import query_map, query_trajectory
+from zenslam.runtime.backend_queries import query_map, query_trajectory
 from zenslam.runtime import bus
 from zenslam.runtime.stage import RunMode
 from zenslam.runtime.supervisor import ProcessSpec, Supervisor

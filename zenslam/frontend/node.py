@@ -617,7 +617,7 @@ def continuing_config(session: zenoh.Session, session_name: str, config: Fronten
     """A restarted frontend's configuration, and the keyframes the backend has processed: it enters
     the backend's map by relocalising, as a run from a saved map does, with keyframe and point ids
     past every id the backend knows (its backend/trajectory reply names them)."""
-    from zenslam.backend.queries import query_trajectory
+    from zenslam.runtime.backend_queries import query_trajectory
 
     trajectory = query_trajectory(session, session_name, timeout_s)
     if trajectory is None:

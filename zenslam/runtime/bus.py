@@ -109,22 +109,70 @@ def quiet_zenoh_logs() -> None:
     zenoh.init_log_from_env_or("error")
 
 
+def protobuf_encoding(schema: str) -> zenoh.Encoding:
+    """The zenoh encoding of a payload that is a protobuf ``schema`` message (the name travels with it)."""
+    return zenoh.Encoding.APPLICATION_PROTOBUF.with_schema(schema)
+
+
 def declare_publisher(session: zenoh.Session, key: str, schema: str, delivery: Delivery) -> zenoh.Publisher:
     """A publisher on ``key`` whose payloads are protobuf ``schema`` messages, with ``delivery``'s QoS."""
-    encoding = zenoh.Encoding.APPLICATION_PROTOBUF.with_schema(schema)
-    if delivery == "lossless":
-        return session.declare_publisher(
-            key,
-            encoding=encoding,
-            congestion_control=zenoh.CongestionControl.BLOCK,
-            reliability=zenoh.Reliability.RELIABLE,
-        )
+    lossless = delivery == "lossless"
+    return declare_raw_publisher(session, key, reliable=lossless, block=lossless, encoding=protobuf_encoding(schema))
+
+
+def declare_raw_publisher(
+    session: zenoh.Session, key: str, *, reliable: bool, block: bool, encoding: zenoh.Encoding | None = None
+) -> zenoh.Publisher:
+    """A publisher on ``key`` for payloads that are not zenslam messages (ROS 2 CDR, foxglove protobufs),
+    with the QoS their peers expect: RELIABLE or BEST_EFFORT, congestion BLOCK or DROP; ``encoding``
+    names the payloads, or none is declared (as rmw_zenoh declares none)."""
+    options = {} if encoding is None else {"encoding": encoding}
     return session.declare_publisher(
         key,
-        encoding=encoding,
-        congestion_control=zenoh.CongestionControl.DROP,
-        reliability=zenoh.Reliability.BEST_EFFORT,
+        congestion_control=zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP,
+        reliability=zenoh.Reliability.RELIABLE if reliable else zenoh.Reliability.BEST_EFFORT,
+        **options,
     )
+
+
+def declare_callback_subscriber(session: zenoh.Session, key: str, on_sample: Callable[[zenoh.Sample], None]) -> zenoh.Subscriber:
+    """A subscriber on ``key`` that hands each sample to ``on_sample`` on zenoh's thread: the callback
+    must only decode and enqueue (the recorder, a bus source); the caller undeclares it."""
+    return session.declare_subscriber(key, on_sample)
+
+
+def declare_token(session: zenoh.Session, key: str) -> zenoh.LivelinessToken:
+    """A liveliness token on ``key`` (any key: a ROS 2 graph entity, a camera publisher); it vanishes when
+    undeclared or when the session closes or dies. ``declare_alive`` is the one a stage announces itself with."""
+    return session.liveliness().declare_token(key)
+
+
+def watch_tokens(session: zenoh.Session, key: str, on_sample: Callable[[zenoh.Sample], None] | None = None, capacity: int = 64):
+    """Follow the liveliness tokens under ``key``, those present now included (history): each appearing
+    (PUT) or vanishing (DELETE) token is a sample handed to ``on_sample`` on zenoh's thread, or, without
+    it, queued in a FifoChannel of ``capacity`` samples to ``try_recv``. The caller undeclares it."""
+    handler = on_sample if on_sample is not None else zenoh.handlers.FifoChannel(capacity)
+    return session.liveliness().declare_subscriber(key, handler, history=True)
+
+
+def declare_queryable(session: zenoh.Session, key: str, capacity: int = 16) -> zenoh.Queryable:
+    """A queryable on ``key`` whose queries wait (up to ``capacity``) in a FifoChannel until the owner's
+    worker answers them with ``reply``; the caller drops the unanswered ones and undeclares it."""
+    return session.declare_queryable(key, zenoh.handlers.FifoChannel(capacity))
+
+
+def reply(query: zenoh.Query, key: str, payload: bytes, schema: str) -> None:
+    """Answer ``query`` with the protobuf ``schema`` message ``payload`` on ``key``."""
+    query.reply(key, payload, encoding=protobuf_encoding(schema))
+
+
+def query(
+    session: zenoh.Session, key: str, timeout_s: float, payload: bytes | None = None, schema: str | None = None
+) -> Iterator[zenoh.Reply]:
+    """Ask the queryables on ``key`` (with the protobuf ``schema`` message ``payload``, if any) and yield
+    their replies as they come, until all have answered or ``timeout_s`` seconds have passed."""
+    options = {} if payload is None else {"payload": payload, "encoding": protobuf_encoding(schema)}
+    yield from session.get(key, timeout=timeout_s, **options)
 
 
 class Inbox(Generic[T]):
@@ -229,7 +277,7 @@ def subscribe(session: zenoh.Session, key: str, decode: Callable[[bytes], T], de
 
 def declare_alive(session: zenoh.Session, session_name: str, process: str) -> zenoh.LivelinessToken:
     """Announce that ``process`` is up; the token vanishes when the process's session closes or dies."""
-    return session.liveliness().declare_token(keys.alive(session_name, process))
+    return declare_token(session, keys.alive(session_name, process))
 
 
 def alive_processes(session: zenoh.Session, session_name: str, timeout_s: float = 0.5) -> set[str]:

@@ -520,7 +520,7 @@ def _record_run(
 ) -> None:
     """Record to ``args.run_dir``/run.mcap, ask the backend for its final keyframe poses when its stream
     ends, then write the run's outputs from the recording."""
-    from zenslam.backend.queries import query_trajectory
+    from zenslam.runtime.backend_queries import query_trajectory
     from zenslam.service.recorded_run import write_recorded_outputs
     from zenslam.service.run_config import load_run_config
     from zenslam.service.run_output import write_config

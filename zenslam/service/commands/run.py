@@ -32,7 +32,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from zenslam.backend.journal import JOURNAL_NAME
-from zenslam.backend.queries import query_trajectory
+from zenslam.runtime.backend_queries import query_trajectory
 from zenslam.config import load_yaml
 from zenslam.errors import ConfigError, ProcessError
 from zenslam.runtime import bus, environment

@@ -1,6 +1,7 @@
 """Asking the backend over the bus (from any process of the session): its keyframe trajectory and a map snapshot.
 
-Kept apart from the node so that a client asking the backend loads neither gtsam nor local mapping.
+The query side of the backend's queryables, below both stages: a client, the recorder or the frontend
+asks without loading gtsam or local mapping.
 """
 
 from __future__ import annotations
@@ -9,11 +10,12 @@ from collections.abc import Callable
 
 import zenoh
 
+from zenslam.runtime import bus
 from zenslam.schemas import codec, keys
 
 
 def _query(session: zenoh.Session, key: str, decode: Callable[[bytes], object], timeout_s: float):
-    for reply in session.get(key, timeout=timeout_s):
+    for reply in bus.query(session, key, timeout_s):
         if reply.ok is not None:
             return decode(reply.ok.payload.to_bytes())
     return None
