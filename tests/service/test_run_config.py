@@ -325,7 +325,10 @@ def test_the_map_section_sets_the_covisibility_threshold_of_both_stages(tmp_path
 
 def test_a_stage_copy_of_the_map_section_cannot_differ_from_it(tmp_path):
     path = tmp_path / "config.yaml"
-    path.write_text("map:\n  min_covisibility_weight: 20\nbackend:\n  local_mapping:\n    map_rules:\n      min_covisibility_weight: 25\n")
+    path.write_text(
+        "map:\n  min_covisibility_weight: 20\n"
+        "backend:\n  local_mapping:\n    map_rules:\n      min_covisibility_weight: 25\n"
+    )
     with pytest.raises(ConfigError, match=r"backend.local_mapping.map_rules=.*differs from map"):
         load_run_config(path)
     backend = BackendConfig(local_mapping=LocalMappingConfig(map_rules=MapRulesConfig(min_covisibility_weight=25)))
