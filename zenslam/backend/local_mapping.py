@@ -83,7 +83,7 @@ class BAWindowConfig:
 class LocalMappingConfig:
     """Settings of the backend's local mapping, one section per step."""
 
-    map_rules: MapRulesConfig = field(default_factory=MapRulesConfig)  # the run's ``map`` section (covisibility edges)
+    map_rules: MapRulesConfig = field(default_factory=MapRulesConfig)  # copy of the run's ``map`` section (covisibility edges)
     essential_min_weight: int = 100  # shared points for a covisibility edge of the essential graph
     min_keyframes_per_point: int = 2  # a point losing observations (BA outliers, culled keyframe) below this goes
     # ORB-SLAM's CheckNewKeyFrames: while more keyframes wait in the inbox, a keyframe is inserted,

@@ -50,7 +50,7 @@ class LocalMapConfig:
     keyframe_id_step: int = 1  # increment between consecutive keyframe ids
     max_local_keyframes: int = 80  # stop adding covisible neighbours past this many local keyframes
     best_covisible: int = 10  # neighbours examined per local keyframe (ORB-SLAM: 10)
-    map_rules: MapRulesConfig = dataclasses.field(default_factory=MapRulesConfig)  # the run's ``map`` section
+    map_rules: MapRulesConfig = dataclasses.field(default_factory=MapRulesConfig)  # copy of the run's ``map`` section
     cull_recent_points: bool = True  # apply ORB-SLAM's recent map point culling at each keyframe
     cull_min_found_ratio: float = 0.25  # found / visible below this -> point removed
     cull_min_keyframe_observations: int = 2  # keyframes that must see a point 2 keyframes after its birth
