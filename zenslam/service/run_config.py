@@ -1,9 +1,10 @@
 """The configuration of one run: a YAML file with one section per stage, and ORB-SLAM3 settings files.
 
-``load_run_config`` reads the YAML (the run ``mode`` and one section per stage: ``bus``, ``source``,
-``frontend``, ``backend``, ``rerun``, ``evaluation``, ``recorder``; unknown keys are an error). Each
-stage's section is defined with its stage; a stage process reads only its own sections of the
-resolved file (``runtime.stage.load_section``).
+``load_run_config`` reads the YAML (the run ``mode``, the ``map`` rules both stages share, and one
+section per stage: ``bus``, ``source``, ``frontend``, ``backend``, ``rerun``, ``evaluation``,
+``recorder``; unknown keys are an error). Each stage's section is defined with its stage; a stage
+process reads only its own sections of the resolved file (``runtime.stage.load_section``), so the
+``map`` section is copied into the frontend's and the backend's sections (``with_map_rules``).
 
 ``read_orbslam_settings`` reads an ORB-SLAM3 (or ORB-SLAM2) settings file with OpenCV's FileStorage,
 and ``apply_orbslam_settings`` makes its rectified calibration override the source's and its
@@ -13,6 +14,7 @@ ORB/threshold values override the frontend's, so users can bring their existing 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,11 +23,14 @@ from typing import Any
 import cv2
 import numpy as np
 
+from zenslam.backend.config import MAP_RULES_PATH as BACKEND_MAP_RULES_PATH
 from zenslam.backend.config import BackendConfig
 from zenslam.camera import PinholeCalibration
 from zenslam.config import from_mapping, load_yaml, to_mapping
 from zenslam.errors import CalibrationError, ConfigError
+from zenslam.frontend.config import MAP_RULES_PATH as FRONTEND_MAP_RULES_PATH
 from zenslam.frontend.config import FrontendConfig
+from zenslam.map_rules_config import MapRulesConfig
 from zenslam.runtime.bus import BusConfig
 from zenslam.runtime.rerun_config import RerunConfig
 from zenslam.runtime.stage import RunMode
@@ -42,6 +47,8 @@ class RunConfig:
     """Everything a run needs, one section per stage; written resolved next to the run's outputs."""
 
     mode: RunMode = "lockstep"  # how the stages are paced: lockstep | pipelined | live (runtime.stage.RunMode)
+    # The map rules both stages apply; the frontend and backend sections carry copies (``with_map_rules``).
+    map: MapRulesConfig = field(default_factory=MapRulesConfig)
     bus: BusConfig = field(default_factory=BusConfig)
     source: SourceConfig = field(default_factory=SourceConfig)
     frontend: FrontendConfig = field(default_factory=FrontendConfig)
@@ -52,16 +59,47 @@ class RunConfig:
     recorder: RecorderConfig = field(default_factory=RecorderConfig)
     supervision: SupervisionConfig = field(default_factory=SupervisionConfig)
 
+    def __post_init__(self) -> None:
+        for section, path in _MAP_RULES_COPIES.items():
+            copy = functools.reduce(getattr, path, getattr(self, section))
+            if copy != self.map:
+                raise ConfigError(
+                    f"{_dotted(section, *path)}={copy} differs from map={self.map}: it is the {section}'s copy of the "
+                    "map section; set the map section (run_config.with_map_rules) instead"
+                )
+
+
+# The copies of the ``map`` section in the stages' sections, which stage processes read.
+_MAP_RULES_COPIES = {"frontend": FRONTEND_MAP_RULES_PATH, "backend": BACKEND_MAP_RULES_PATH}
+
+
+def with_map_rules(config: RunConfig, rules: MapRulesConfig) -> RunConfig:
+    """``config`` with the map rules ``rules``, in its ``map`` section and in the stages' copies."""
+    stages = {section: _replaced(getattr(config, section), path, rules) for section, path in _MAP_RULES_COPIES.items()}
+    return dataclasses.replace(config, map=rules, **stages)
+
+
+def _replaced(obj: Any, path: tuple[str, ...], value: Any) -> Any:
+    """The frozen dataclass ``obj`` with the field at ``path`` (names, outermost first) set to ``value``."""
+    inner = value if len(path) == 1 else _replaced(getattr(obj, path[0]), path[1:], value)
+    return dataclasses.replace(obj, **{path[0]: inner})
+
+
+def _dotted(*names: str) -> str:
+    return ".".join(names)
+
 
 def load_run_config(path: str | Path | None) -> RunConfig:
     """The run configuration in the YAML file ``path`` (defaults for missing keys), or all defaults for None.
 
     Files written before the run mode and the per-stage sections (``source.lockstep``,
-    ``backend.wait_for_map_updates`` and the keys of ``_MOVED_KEYS``) are read with a warning.
+    ``backend.wait_for_map_updates`` and the keys of ``_MOVED_KEYS``), or before the ``map`` section,
+    are read with a warning. The stages' copies of the ``map`` section are filled from it.
     """
     if path is None:
         return RunConfig()
-    return from_mapping(RunConfig, _upgrade_earlier_keys(load_yaml(Path(path)), Path(path)), "")
+    data = _upgrade_earlier_keys(load_yaml(Path(path)), Path(path))
+    return from_mapping(RunConfig, _with_map_rules_copies(data, Path(path)), "")
 
 
 # Keys of earlier configuration files and where they live now: (section, key) -> (section, key).
@@ -73,7 +111,8 @@ _MOVED_KEYS = {
 
 
 def _upgrade_earlier_keys(data: dict[str, Any], path: Path) -> dict[str, Any]:
-    """``data`` with the keys of earlier files moved to their place today (a copy; ``data`` is kept)."""
+    """``data`` with the keys of earlier files moved to their place today, and those without a place
+    dropped, each with a warning (a copy; ``data`` is kept)."""
     data = {k: dict(v) if isinstance(v, dict) else v for k, v in data.items()}
     moved: list[str] = []
     source, backend = data.get("source"), data.get("backend")
@@ -88,9 +127,86 @@ def _upgrade_earlier_keys(data: dict[str, Any], path: Path) -> dict[str, Any]:
         if isinstance(old, dict) and key in old:
             moved.append(f"{section}.{key} -> {new_section}.{new_key}")
             data.setdefault(new_section, {}).setdefault(new_key, old.pop(key))
+    moved += _move_map_rules(data, path)
     if moved:
         logger.warning("%s uses keys of an earlier zenslam, read as: %s", path, "; ".join(moved))
+    local_map = _section(data, _LOCAL_MAP) or {}
+    dropped = [key for key in _FRONTEND_CULLING_KEYS if key in local_map]
+    for key in dropped:
+        del local_map[key]
+    if dropped:
+        logger.warning(
+            "%s: %s dropped: the frontend no longer culls map points, the backend culls them (backend.point_culling)",
+            path, ", ".join(_dotted(*_LOCAL_MAP, key) for key in dropped),
+        )  # fmt: skip
     return data
+
+
+# Earlier files set the covisibility threshold once per stage; it is the ``map`` section's now.
+_LOCAL_MAP = ("frontend", "tracking", "local_map")
+_EARLIER_MAP_RULES_SECTIONS = (_LOCAL_MAP, ("backend", "local_mapping"))
+_MAP_RULES_KEY = "min_covisibility_weight"
+# Keys of the frontend's recent-point culling in earlier files; the backend's map owns its points.
+_FRONTEND_CULLING_KEYS = ("cull_recent_points", "cull_min_found_ratio", "cull_min_keyframe_observations", "cull_window_keyframes")
+
+
+def _move_map_rules(data: dict[str, Any], path: Path) -> list[str]:
+    """Move the earlier per-stage ``min_covisibility_weight`` keys of ``data`` to ``map``; the moves
+    made, as "old -> new". Values that disagree (with each other or with ``map``) are a ConfigError."""
+    new_key = _dotted("map", _MAP_RULES_KEY)
+    given: dict[str, Any] = {}
+    for names in _EARLIER_MAP_RULES_SECTIONS:
+        section = _section(data, names)
+        if section is not None and _MAP_RULES_KEY in section:
+            given[_dotted(*names, _MAP_RULES_KEY)] = section.pop(_MAP_RULES_KEY)
+    if not given:
+        return []
+    rules = _section(data, ("map",), create=True)
+    if rules is None:
+        raise ConfigError(f"{path}: map={data['map']!r} must be a mapping")
+    if _MAP_RULES_KEY in rules:
+        given[new_key] = rules[_MAP_RULES_KEY]
+    if len({repr(v) for v in given.values()}) > 1:
+        raise ConfigError(
+            f"{path}: {' and '.join(f'{k}={v!r}' for k, v in given.items())} disagree; the covisibility threshold is "
+            f"one setting now: give {new_key} alone"
+        )
+    rules[_MAP_RULES_KEY] = next(iter(given.values()))
+    return [f"{old} -> {new_key}" for old in given if old != new_key]
+
+
+def _with_map_rules_copies(data: dict[str, Any], path: Path) -> dict[str, Any]:
+    """``data`` with the stages' copies of the ``map`` section set to it; a copy the file gives
+    that differs from ``map`` is a ConfigError (the copies are written by zenslam, not set by hand)."""
+    rules = from_mapping(MapRulesConfig, data.get("map"), "map")
+    for section, names in _MAP_RULES_COPIES.items():
+        *parents, leaf = (section, *names)
+        given = (_section(data, tuple(parents)) or {}).get(leaf)
+        if given is not None and from_mapping(MapRulesConfig, given, _dotted(section, *names)) != rules:
+            raise ConfigError(
+                f"{path}: {_dotted(section, *names)}={given!r} differs from map={data.get('map')!r}: it is the "
+                f"{section}'s copy of the map section, filled from it; set map alone"
+            )
+        target = _section(data, tuple(parents), create=True)
+        if target is None:
+            raise ConfigError(f"{path}: {_dotted(*parents)} must be a mapping")
+        target[leaf] = to_mapping(rules)
+    return data
+
+
+def _section(data: dict[str, Any], names: tuple[str, ...], create: bool = False) -> dict[str, Any] | None:
+    """The mapping at ``names`` in ``data``, copied on the way so that no mapping ``data`` shares
+    with its caller's is changed; None when one on the way is missing (and not ``create``d) or not a mapping."""
+    node = data
+    for name in names:
+        child = node.get(name)
+        if child is None and create:
+            child = {}
+        if not isinstance(child, dict):
+            return None
+        node[name] = child = dict(child)
+        node = child
+    return node
 
 
 def run_config_to_yaml(config: RunConfig) -> str:
