@@ -237,8 +237,12 @@ _ORB_KEYS = {
 }
 
 
-def _read_node(fs: cv2.FileStorage, *names: str) -> Any:
-    """The first of ``names`` present in the file: a float, a string, or a matrix; None if none is."""
+def _read_node(fs: cv2.FileStorage, path: Path, *names: str) -> Any:
+    """The first of ``names`` present in the file: a float, a string, or a matrix; None if none is.
+
+    ConfigError naming the key when its value is none of those (a sequence, or a mapping that is
+    not an ``!!opencv-matrix``).
+    """
     for name in names:
         node = fs.getNode(name)
         if node.empty() or node.isNone():
@@ -246,9 +250,59 @@ def _read_node(fs: cv2.FileStorage, *names: str) -> Any:
         if node.isString():
             return node.string()
         if node.isMap():
-            return node.mat()
+            try:
+                return node.mat()
+            except (cv2.error, SystemError) as exc:  # SystemError: how the cv2 bindings relay some cv2.errors
+                raise ConfigError(
+                    f"ORB-SLAM settings file {path}: {name} is a mapping but not an !!opencv-matrix "
+                    "(rows, cols, dt, data); give a number or a matrix"
+                ) from exc
+        if node.isSeq():
+            raise ConfigError(f"ORB-SLAM settings file {path}: {name} is a list; give a number or an !!opencv-matrix")
         return node.real()
     return None
+
+
+def _read_number(fs: cv2.FileStorage, path: Path, *names: str) -> float | None:
+    """The first of ``names`` present in the file as a float; None if none is; ConfigError if it is not a number."""
+    for name in names:
+        value = _read_node(fs, path, name)
+        if value is None:
+            continue
+        if not isinstance(value, float):
+            shown = repr(value) if isinstance(value, str) else f"a {value.shape[0]}x{value.shape[1]} matrix"
+            raise ConfigError(f"ORB-SLAM settings file {path}: {name} is {shown}; it must be a number")
+        return value
+    return None
+
+
+def _open_settings(path: Path) -> cv2.FileStorage:
+    """``path`` opened with OpenCV's FileStorage; ConfigError naming the file when it is not an OpenCV YAML file."""
+    what_to_do = "pass an ORB-SLAM2/3 settings file (OpenCV YAML, starting with %YAML:1.0) to --orbslam-settings"
+    if not path.exists():
+        raise ConfigError(f"ORB-SLAM settings file {path} does not exist; {what_to_do}")
+    if not path.is_file():
+        raise ConfigError(f"ORB-SLAM settings file {path} is not a file; {what_to_do}")
+    if path.stat().st_size == 0:
+        raise ConfigError(f"ORB-SLAM settings file {path} is empty; {what_to_do}")
+    try:
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_FORMAT_YAML)
+    except (cv2.error, SystemError) as exc:  # the bindings raise SystemError with the cv2.error as its cause
+        raise ConfigError(
+            f"ORB-SLAM settings file {path} is not an OpenCV YAML file{_parse_error(exc, path)}; {what_to_do}"
+        ) from exc
+    if not fs.isOpened():
+        raise ConfigError(f"ORB-SLAM settings file {path} cannot be opened as an OpenCV YAML file; {what_to_do}")
+    return fs
+
+
+def _parse_error(exc: BaseException, path: Path) -> str:
+    """`` (line N: what)`` from OpenCV's parsing error behind ``exc``, or "" when it is another error."""
+    import re
+
+    cause = exc if isinstance(exc, cv2.error) else exc.__cause__ or exc.__context__
+    match = re.search(r"Parsing error\) \w+ in function '.*\((\d+)\): (.*)'", str(cause or ""))
+    return f" (line {match.group(1)}: {match.group(2).strip()})" if match else ""
 
 
 def read_orbslam_settings(path: str | Path) -> OrbSlamSettings:
@@ -257,28 +311,23 @@ def read_orbslam_settings(path: str | Path) -> OrbSlamSettings:
     The calibration must describe rectified images, as zenslam's sources deliver them: either the
     ``Camera`` intrinsics with zero distortion, or the stereo rectification ``LEFT.P``/``RIGHT.P``.
     The baseline comes from ``Stereo.b`` (metres), ``Camera.bf`` (metres x fx) or ``RIGHT.P``.
+    ConfigError names the file when it is missing or not an OpenCV YAML file, and the key whose
+    value is not what it must be.
     """
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"ORB-SLAM settings file {path} does not exist")
-    try:
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_FORMAT_YAML)
-    except cv2.error as exc:
-        raise ConfigError(f"ORB-SLAM settings file {path} cannot be parsed by OpenCV: {exc}") from exc
-    if not fs.isOpened():
-        raise ConfigError(f"ORB-SLAM settings file {path} cannot be opened as an OpenCV YAML file")
+    fs = _open_settings(path)
     try:
         calibration = _read_calibration(fs, path)
         orb = {}
         for key, (name, kind) in _ORB_KEYS.items():
-            value = _read_node(fs, key)
+            value = _read_number(fs, path, key)
             if value is not None:
                 orb[name] = kind(value)
         return OrbSlamSettings(
             calibration=calibration,
-            fps=_read_node(fs, "Camera.fps"),
-            th_depth=_read_node(fs, "Stereo.ThDepth", "ThDepth"),
-            depth_map_factor=_read_node(fs, "RGBD.DepthMapFactor", "DepthMapFactor"),
+            fps=_read_number(fs, path, "Camera.fps"),
+            th_depth=_read_number(fs, path, "Stereo.ThDepth", "ThDepth"),
+            depth_map_factor=_read_number(fs, path, "RGBD.DepthMapFactor", "DepthMapFactor"),
             orb=orb,
         )
     finally:
@@ -286,39 +335,44 @@ def read_orbslam_settings(path: str | Path) -> OrbSlamSettings:
 
 
 def _read_calibration(fs: cv2.FileStorage, path: Path) -> PinholeCalibration:
-    size = [_read_node(fs, f"Camera.{k}", f"Camera1.{k}") for k in ("width", "height")]
+    size = [_read_number(fs, path, f"Camera.{k}", f"Camera1.{k}") for k in ("width", "height")]
     if None in size:
         raise CalibrationError(f"{path}: Camera.width and Camera.height are required to check the images' size")
     width, height = int(size[0]), int(size[1])
-    left_p, right_p = _read_node(fs, "LEFT.P"), _read_node(fs, "RIGHT.P")
+    left_p, right_p = _read_node(fs, path, "LEFT.P"), _read_node(fs, path, "RIGHT.P")
     if isinstance(left_p, np.ndarray) and left_p.shape == (3, 4):
         # Stereo rectification given: the rectified projection is what the images will have.
         fx, fy, cx, cy = left_p[0, 0], left_p[1, 1], left_p[0, 2], left_p[1, 2]
         baseline = None
         if isinstance(right_p, np.ndarray) and right_p.shape == (3, 4) and right_p[0, 3] != 0:
             baseline = -float(right_p[0, 3]) / float(right_p[0, 0])
-        return PinholeCalibration(float(fx), float(fy), float(cx), float(cy), width, height, baseline or _baseline(fs, fx))
-    values = {k: _read_node(fs, f"Camera1.{k}", f"Camera.{k}") for k in ("fx", "fy", "cx", "cy")}
+        return PinholeCalibration(
+            float(fx), float(fy), float(cx), float(cy), width, height, baseline or _baseline(fs, path, fx)
+        )
+    values = {k: _read_number(fs, path, f"Camera1.{k}", f"Camera.{k}") for k in ("fx", "fy", "cx", "cy")}
     missing = [k for k, v in values.items() if v is None]
     if missing:
         raise CalibrationError(f"{path}: missing Camera.{missing[0]} (or Camera1.{missing[0]}); cannot build the calibration")
-    distortion = {k: _read_node(fs, f"Camera1.{k}", f"Camera.{k}") for k in ("k1", "k2", "p1", "p2", "k3")}
-    nonzero = {k: v for k, v in distortion.items() if isinstance(v, float) and v != 0.0}
+    distortion = {k: _read_number(fs, path, f"Camera1.{k}", f"Camera.{k}") for k in ("k1", "k2", "p1", "p2", "k3")}
+    nonzero = {k: v for k, v in distortion.items() if v is not None and v != 0.0}
     if nonzero:
         raise CalibrationError(
             f"{path}: distortion {nonzero} is not zero, but zenslam's sources deliver rectified images; give the "
             "rectified intrinsics (LEFT.P/RIGHT.P, or Camera.* with zero distortion)"
         )
     fx = float(values["fx"])
-    return PinholeCalibration(fx, float(values["fy"]), float(values["cx"]), float(values["cy"]), width, height, _baseline(fs, fx))
+    return PinholeCalibration(
+        fx, float(values["fy"]), float(values["cx"]), float(values["cy"]), width, height, _baseline(fs, path, fx)
+    )
 
 
-def _baseline(fs: cv2.FileStorage, fx: float) -> float | None:
-    b = _read_node(fs, "Stereo.b")
-    if isinstance(b, float):
+def _baseline(fs: cv2.FileStorage, path: Path, fx: float) -> float | None:
+    """Stereo baseline in metres from ``Stereo.b`` (metres) or ``Camera.bf`` (metres x fx); None without either."""
+    b = _read_number(fs, path, "Stereo.b")
+    if b is not None:
         return b
-    bf = _read_node(fs, "Camera.bf")
-    return float(bf) / fx if isinstance(bf, float) else None
+    bf = _read_number(fs, path, "Camera.bf")
+    return bf / fx if bf is not None else None
 
 
 def apply_orbslam_settings(config: RunConfig, settings: OrbSlamSettings) -> RunConfig:
