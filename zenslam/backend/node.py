@@ -68,7 +68,7 @@ if TYPE_CHECKING:
     from zenslam.backend.map_file import MapHeader
     from zenslam.backend.loop_closing import LoopCloser
     from zenslam.backend.place_recognition import PlaceRecognition
-    from zenslam.runtime.rerun_log import BackendLog
+    from zenslam.backend.rerun_log import BackendLog
 
 logger = logging.getLogger(__name__)
 
@@ -222,7 +222,7 @@ class BackendNode:
         if self.loop_closer is not None and kf_id in self.map.keyframes:
             corrections, loops = self._close_loops(kf_id, update)
         if self.rerun is not None:
-            self.rerun.log_keyframe(keyframe, self.mapper)
+            self.rerun.log_keyframe(keyframe, self.map, self.mapper.last_ba_stats, self.mapper.last_timings_ms)
         return corrections, loops
 
     def refusal(self, keyframe: codec.KeyframeMessage) -> str | None:
@@ -666,6 +666,7 @@ def main(argv: list[str] | None = None) -> int:
     if stopped_before_joining(stop):  # a stop held while the modules above were imported
         return 0
     try:
+        from zenslam.backend.rerun_log import BackendLog
         from zenslam.runtime import rerun_log
 
         config = load_section(args.config, STAGE, BackendConfig)
@@ -682,7 +683,7 @@ def main(argv: list[str] | None = None) -> int:
             rerun_log.open_stage_recording(STAGE, args.session, args.config, rerun_config, args.restart) as recording,
             bus.open_session(bus_config_with(bus_config, args.connect, args.bus_config)) as session,
         ):
-            node.rerun = rerun_log.BackendLog(recording) if recording is not None else None
+            node.rerun = BackendLog(recording) if recording is not None else None
             bus.require_alive(session, args.session, args.wait_for, bus_config.start_timeout_s, stop.keep_going)
             # The journal lives in the run folder, beside the run's config.yaml; no folder, no journal.
             journal = Path(args.config).parent / JOURNAL_NAME if config.journal and args.config is not None else None
