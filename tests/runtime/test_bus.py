@@ -6,6 +6,7 @@ import json
 import threading
 import time
 from collections.abc import Iterator
+from contextlib import contextmanager
 
 import pytest
 import zenoh
@@ -181,9 +182,11 @@ def _wait_for(condition, timeout_s: float = 10.0, what: str = "the condition") -
 
 def _next_sample(channel, timeout_s: float = 10.0) -> zenoh.Sample:
     """The next sample of a FifoChannel-backed subscriber, waiting up to ``timeout_s`` seconds."""
-    received: list[zenoh.Sample] = []
-    _wait_for(lambda: (sample := channel.try_recv()) is not None and not received.append(sample), timeout_s, "a sample")
-    return received[0]
+    deadline = time.monotonic() + timeout_s
+    while (sample := channel.try_recv()) is None:
+        assert time.monotonic() < deadline, f"no sample arrived within {timeout_s} s"
+        time.sleep(0.005)
+    return sample
 
 
 def test_protobuf_encoding_names_the_schema():
@@ -273,8 +276,11 @@ def test_watched_tokens_can_go_to_a_callback(two_sessions):
     watch.undeclare()
 
 
-def _answering(queryable: zenoh.Queryable, handle, stop: threading.Event) -> threading.Thread:
-    """A worker thread handling each waiting query of ``queryable`` with ``handle(query)`` until ``stop``."""
+@contextmanager
+def _answering(queryable: zenoh.Queryable, handle) -> Iterator[None]:
+    """A worker thread handling each waiting query of ``queryable`` with ``handle(query)``, for the
+    ``with`` block."""
+    stop = threading.Event()
 
     def work() -> None:
         while not stop.is_set():
@@ -284,14 +290,20 @@ def _answering(queryable: zenoh.Queryable, handle, stop: threading.Event) -> thr
 
     worker = threading.Thread(target=work, daemon=True)
     worker.start()
-    return worker
+    try:
+        yield
+    finally:
+        stop.set()
+        worker.join(timeout=10.0)
 
 
 def _replies_once_routed(session: zenoh.Session, key: str, **query_args) -> list[zenoh.Reply]:
     """The replies to a query on ``key``, asked again until some arrive (the queryable's declaration
     may not have reached ``session`` yet; a query no queryable matches ends at once, with none)."""
-    replies: list[zenoh.Reply] = []
-    _wait_for(lambda: bool(replies.extend(bus.query(session, key, timeout_s=10.0, **query_args)) or replies), what="a reply")
+    deadline = time.monotonic() + 10.0
+    while not (replies := list(bus.query(session, key, timeout_s=10.0, **query_args))):
+        assert time.monotonic() < deadline, f"no reply on {key} within 10 s"
+        time.sleep(0.005)
     return replies
 
 
@@ -305,13 +317,8 @@ def test_a_query_with_a_payload_gets_the_queryables_reply(two_sessions):
         asked.append((query.payload.to_bytes(), str(query.encoding)))
         bus.reply(query, key, b"re:" + query.payload.to_bytes(), codec.KEYFRAME_TRAJECTORY)
 
-    stop = threading.Event()
-    worker = _answering(queryable, echo, stop)
-    try:
+    with _answering(queryable, echo):
         (reply,) = _replies_once_routed(peer, key, payload=b"hello", schema=codec.RELOCALISATION_QUERY)
-    finally:
-        stop.set()
-        worker.join(timeout=10.0)
     assert asked[-1] == (b"hello", f"application/protobuf;{codec.RELOCALISATION_QUERY}")
     assert reply.ok is not None and reply.ok.payload.to_bytes() == b"re:hello"
     assert str(reply.ok.encoding) == f"application/protobuf;{codec.KEYFRAME_TRAJECTORY}"
@@ -323,13 +330,8 @@ def test_a_refused_query_gets_an_error_reply(two_sessions):
     hub, peer = two_sessions
     key = "zenslam/t/query/refuse"
     queryable = bus.declare_queryable(hub, key)
-    stop = threading.Event()
-    worker = _answering(queryable, lambda query: bus.reply_error(query, "not a relocalisation query"), stop)
-    try:
+    with _answering(queryable, lambda query: bus.reply_error(query, "not a relocalisation query")):
         (reply,) = _replies_once_routed(peer, key)
-    finally:
-        stop.set()
-        worker.join(timeout=10.0)
     assert reply.ok is None
     assert reply.err.payload.to_bytes() == b"not a relocalisation query"
     bus.close_queryable(queryable)
@@ -362,18 +364,14 @@ def test_a_query_taken_but_not_answered_is_finalised_when_the_worker_moves_on(tw
     hub, peer = two_sessions
     key = "zenslam/t/query/unanswered"
     queryable = bus.declare_queryable(hub, key)
-    taken, stop = threading.Event(), threading.Event()
-    worker = _answering(queryable, lambda query: taken.set(), stop)  # takes each query, answers none
+    taken = threading.Event()
     replies: list[zenoh.Reply] = []
-    try:
+    with _answering(queryable, lambda query: taken.set()):  # takes each query, answers none
         querier = _ask_until_taken(peer, key, taken, replies)
         # Finalised by the worker's loop, the query ends long before its 60 s timeout, with no reply.
         querier.join(timeout=20.0)
-        assert not querier.is_alive(), "the querier still waits: the unanswered query was not finalised"
-        assert replies == []
-    finally:
-        stop.set()
-        worker.join(timeout=10.0)
+    assert not querier.is_alive(), "the querier still waits: the unanswered query was not finalised"
+    assert replies == []
     bus.close_queryable(queryable)
 
 
@@ -384,17 +382,13 @@ def test_closing_a_queryable_finalises_the_queries_still_waiting_and_answers_no_
     # A second queryable of the same session on the same key: a query it takes has been handed to
     # ``closed`` as well, in the same routing step.
     detector = bus.declare_queryable(hub, key)
-    taken, stop = threading.Event(), threading.Event()
-    worker = _answering(detector, lambda query: taken.set(), stop)
+    taken = threading.Event()
     replies: list[zenoh.Reply] = []
-    try:
+    with _answering(detector, lambda query: taken.set()):
         querier = _ask_until_taken(peer, key, taken, replies)
         bus.close_queryable(closed)
         querier.join(timeout=20.0)
-        assert not querier.is_alive(), "the querier still waits: the query left in the closed queryable was not finalised"
-        assert replies == []
-    finally:
-        stop.set()
-        worker.join(timeout=10.0)
+    assert not querier.is_alive(), "the querier still waits: the query left in the closed queryable was not finalised"
+    assert replies == []
     bus.close_queryable(detector)
     assert list(bus.query(peer, key, timeout_s=5.0)) == []  # nothing answers on the key any more
