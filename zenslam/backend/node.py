@@ -14,8 +14,9 @@ CheckNewKeyFrames: a backlog defers fusion, local BA and keyframe culling to the
 keyframe; the end-of-stream marker does not count, so the last keyframe always gets them),
 publishes each keyframe's updates and a backend/status with the step time, the per-step timings
 and the queue depth, and answers the queryables between steps, on the same thread, so a reply
-always shows the map between two keyframes. After the frontend's end of stream it forwards the end of stream on backend/map_update
-and keeps answering queries for ``BackendConfig.linger_s`` seconds or until stopped.
+always shows the map between two keyframes. After the frontend's end of stream it forwards the end
+of stream on backend/map_update and keeps answering queries for ``BackendConfig.linger_s`` seconds
+or until stopped.
 
 With ``backend.map_file`` the node starts from a saved map (``map_file``: its keyframe database
 answers relocalisation queries at once); with ``backend.save_map`` it writes its map when its
