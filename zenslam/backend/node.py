@@ -649,11 +649,8 @@ def _run(stage: StageStart) -> None:
     """The backend process: its node built from its section, then served on the run's session."""
     if stage.stopped_before_joining():  # a stop held while the modules above were imported
         return
-    from zenslam.runtime import rerun_log
-
     args = stage.args
     config = stage.section(STAGE, BackendConfig)
-    rerun_config = stage.section("rerun", rerun_log.RerunConfig)
     mode = stage.mode()
     lockstep = mode == "lockstep"
     yield_cpu(config.nice if mode == "live" else 0)  # only a live camera does not wait for tracking
@@ -661,8 +658,10 @@ def _run(stage: StageStart) -> None:
     if stage.stopped_before_joining():
         return
 
-    with stage.rerun_recording(rerun_config) as recording, stage.open_session() as session:
-        node.rerun = rerun_log.BackendLog(recording) if recording is not None else None
+    from zenslam.runtime.rerun_log import BackendLog
+
+    with stage.rerun_recording() as recording, stage.open_session() as session:
+        node.rerun = BackendLog(recording) if recording is not None else None
         stage.require_alive(session, args.wait_for)
         # The journal lives in the run folder, beside the run's config.yaml; no folder, no journal.
         journal = Path(args.config).parent / JOURNAL_NAME if config.journal and args.config is not None else None

@@ -642,14 +642,12 @@ def _run(stage: StageStart) -> None:
     """The frontend process: its vocabulary loaded, then its node served on the run's session."""
     if stage.stopped_before_joining():  # a stop held while the modules above were imported
         return
-    from zenslam.runtime import rerun_log
-
     args = stage.args
     config = stage.section(STAGE, FrontendConfig)
-    rerun_config = stage.section("rerun", rerun_log.RerunConfig)
     import cv2
 
-    # OpenCV's pool slowed small calls 3x here; the extractor runs left/right on its own threads.
+    # OpenCV's thread pool costs more than it saves on the small calls here; the extractor runs left/right
+    # on its own threads.
     cv2.setNumThreads(1)
     # Relocalisation asks the backend: without its map updates there is no backend to ask.
     vocabulary = load_relocalisation_vocabulary(config) if args.map_updates else None
@@ -661,7 +659,9 @@ def _run(stage: StageStart) -> None:
     if stage.stopped_before_joining():
         return
 
-    with stage.rerun_recording(rerun_config) as recording, stage.open_session() as session:
+    from zenslam.runtime.rerun_log import FrontendLog
+
+    with stage.rerun_recording() as recording, stage.open_session() as session:
         stage.require_alive(session, args.wait_for)
         keyframes_before = 0
         if args.restart:
@@ -673,7 +673,7 @@ def _run(stage: StageStart) -> None:
             )  # fmt: skip
         node = FrontendNode(default_pipeline_factory(config, vocabulary))
         node.keyframes_before = keyframes_before
-        node.rerun = rerun_log.FrontendLog(recording) if recording is not None else None
+        node.rerun = FrontendLog(recording) if recording is not None else None
         map_updates = config if args.map_updates else None
         serve(session, args.session, node, stage.mode(), stage.bus_config, stage.stop, map_updates=map_updates)
 

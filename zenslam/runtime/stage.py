@@ -24,13 +24,13 @@ from typing import TYPE_CHECKING, Literal, TypeVar, get_args
 from zenslam.config import from_mapping, load_yaml
 from zenslam.errors import ConfigError, ZenslamError
 from zenslam.runtime import bus
+from zenslam.runtime.rerun_config import RerunConfig
 
 # The stop flag lives in runtime.stop (the CLI installs it before any heavy import); a stage's
 # start-up takes it from here with the rest.
 from zenslam.runtime.stop import STOPPED, StopFlag  # noqa: F401
 
 if TYPE_CHECKING:
-    from zenslam.runtime.rerun_config import RerunConfig
     from zenslam.runtime.rerun_log import StageRecording
 
 logger = logging.getLogger(__name__)
@@ -179,11 +179,12 @@ class StageStart:
         BusError naming those missing then), unless the stage is stopped meanwhile."""
         bus.require_alive(session, self.args.session, stages, self.bus_config.start_timeout_s, self.stop.keep_going)
 
-    def rerun_recording(self, config: RerunConfig) -> AbstractContextManager[StageRecording | None]:
-        """The stage's rerun recording in the run folder (None when ``config`` disables it or there is no
-        run folder); a restarted stage writes one of its own beside its predecessor's."""
+    def rerun_recording(self) -> AbstractContextManager[StageRecording | None]:
+        """The stage's rerun recording in the run folder (None when the ``rerun`` section disables it or
+        there is no run folder); a restarted stage writes one of its own beside its predecessor's."""
         from zenslam.runtime import rerun_log  # the rerun SDK only in the stages that log to it
 
+        config = self.section("rerun", RerunConfig)
         return rerun_log.open_stage_recording(self.name, self.args.session, self.args.config, config, self.args.restart)
 
 
