@@ -77,6 +77,7 @@ from zenslam.service.run_stages import (
 from zenslam.service.saved_map import check_map_fits, with_map_options
 from zenslam.service.sources import Source, is_bus_spec
 from zenslam.service.sources.config import DEFAULT_BUS_INPUT
+from zenslam.service.vocabulary_check import check_vocabularies
 from zenslam.trajectory import Trajectory
 
 logger = logging.getLogger(__name__)
@@ -358,6 +359,7 @@ def run(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace, stop: StopFlag) -> int:
     """``run`` with the installed stop flag ``stop``."""
     config = resolve_config(args)
+    check_vocabularies(config)  # a bad file would stop a stage only once the others are up
     given = run_input(config.source.spec, config.source.sensor, config.source.max_frames, getattr(args, "ground_truth", None))
     if given.image_size is not None:
         config = fit_calibration_to_images(config, *given.image_size)  # a bus source's is fitted to its first frame
