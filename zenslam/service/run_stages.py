@@ -33,7 +33,7 @@ def watch_for_hang(follower: RunFollower, supervisor: Supervisor, hang_timeout_s
     """Kill a stage whose input waits while it has said nothing for ``hang_timeout_s`` seconds (0:
     never; a stage still starting gets ``bus.start_timeout_s``), counted from ``since`` at the latest
     (when following began): the backend while keyframes or announced corrections wait for it; the frontend while frames the
-    source sent wait for it, unless it waits for the backend's answers itself. The next ``check_restarts``
+    source sent wait for it, unless it waits for the backend's answers itself. The next ``_check_restarts``
     then restarts it or fails the run, as for a crash. The frontend's silence counts from the
     backend's last answer at the latest: in lockstep it is silent while it waits for one (for as long
     as a hung backend takes to be caught and rebuilt), and it needs a moment to go on once one came."""
@@ -59,7 +59,7 @@ def watch_for_hang(follower: RunFollower, supervisor: Supervisor, hang_timeout_s
         supervisor.kill_hung("frontend", frontend_silent_s)
 
 
-def check_restarts(supervisor: Supervisor, stop: StopFlag, follower: RunFollower, supervision: SupervisionConfig) -> None:
+def _check_restarts(supervisor: Supervisor, stop: StopFlag, follower: RunFollower, supervision: SupervisionConfig) -> None:
     """Restart a failed stage that can recover (``supervision.max_restarts``), noting it in the log;
     raise for any other failed stage. Interrupted, neither: the run winds down and ``report_exits`` says."""
     if stop():
@@ -77,13 +77,13 @@ def check_restarts(supervisor: Supervisor, stop: StopFlag, follower: RunFollower
         follower.progressed.discard(stage)  # starting again: watched as a stage that starts
 
 
-def check_source(log: RunLog) -> None:
+def _check_source(log: RunLog) -> None:
     """Raise ProcessError with the source's own words when it reported a failure (e.g. a bad frame in strict mode)."""
     if log.source_failure is not None:
         raise ProcessError(f"the source stopped the run: {log.source_failure}")
 
 
-def start_recorder(supervisor: Supervisor, session, config: RunConfig, run_dir: Path, keep_waiting) -> None:
+def _start_recorder(supervisor: Supervisor, session, config: RunConfig, run_dir: Path, keep_waiting) -> None:
     """Start the recorder (before any other stage) and wait for it to listen.
 
     It follows the source, frontend and backend and exits by itself once they have all exited, so
@@ -107,14 +107,14 @@ def start_stages(
     if not stop() and config.recorder.enabled:
         # The recorder comes first, and each stage waits until it sees the recorder's token before
         # publishing: then the recorder's subscription has reached it too.
-        start_recorder(supervisor, session, config, run_dir, stop.keep_going)
+        _start_recorder(supervisor, session, config, run_dir, stop.keep_going)
         if ground_truth is not None:
             publish_ground_truth(session, supervisor.session_name, ground_truth)
     recorder = config.recorder.enabled
     # A restarted backend rebuilds its map from its journal; a restarted frontend relocalises into the
     # backend's map (the source sends it the frames in flight again); a restarted source resumes at
     # the first frame not yet tracked (a bus source takes the frames published from then on). The
-    # recorder's restarts are set up with it (``start_recorder``).
+    # recorder's restarts are set up with it (``_start_recorder``).
     restartable = {"backend", "source"} if config.backend.journal else {"source"}
     if config.frontend.tracking.relocalisation.enabled:
         restartable.add("frontend")
@@ -134,7 +134,7 @@ def start_stages(
             except ProcessError:
                 if stop() or not supervisor.failures():  # interrupted, or up too slowly: not a crash
                     raise
-                check_restarts(supervisor, stop, follower, config.supervision)  # a stage that died starting: restarted, or raised
+                _check_restarts(supervisor, stop, follower, config.supervision)  # a stage that died starting: restarted, or raised
     return True
 
 
@@ -160,16 +160,16 @@ def follow_frontend(follower: RunFollower, supervisor: Supervisor, stop: StopFla
             logger.warning("the frontend did not end its stream within %.0f s of being told to stop", _STOP_GRACE_S)
             break
         watch_for_hang(follower, supervisor, supervision.hang_timeout_s, since, stop)
-        check_restarts(supervisor, stop, follower, supervision)
+        _check_restarts(supervisor, stop, follower, supervision)
         if supervisor.returncode("frontend") == 0 or (stop() and supervisor.returncode("frontend") is not None):
             follower.drain(time.monotonic() + 1.0)
             if not follower.log.ended and not stop():
                 raise ProcessError(f"the frontend exited before the end of stream:\n{supervisor.log_tail('frontend')}")
             break
-        check_source(follower.log)
+        _check_source(follower.log)
         follower.poll(0.05)
     follower.drain(time.monotonic() + POSE_GRACE_S)
-    check_source(follower.log)
+    _check_source(follower.log)
 
 
 def follow_backend(follower: RunFollower, supervisor: Supervisor, stop: StopFlag, supervision: SupervisionConfig) -> None:
@@ -188,7 +188,7 @@ def follow_backend(follower: RunFollower, supervisor: Supervisor, stop: StopFlag
             if counts["processed"] < counts["sent"] or time.monotonic() - stopped_at > _CAUGHT_UP_WAIT_S:
                 return
         watch_for_hang(follower, supervisor, supervision.hang_timeout_s, since, stop)
-        check_restarts(supervisor, stop, follower, supervision)
+        _check_restarts(supervisor, stop, follower, supervision)
         if supervisor.returncode("backend") == 0 or (stop() and supervisor.returncode("backend") is not None):
             follower.poll_backend()
             if not follower.log.backend_ended and not stop():

@@ -17,6 +17,10 @@ stops the stages in the order the data flows, so nothing already sent is lost: t
 ends its stream after the keyframe in hand; the recorder ends once they are gone. The outputs are
 written as for a finished run, with ``run.completed: false``. A stage that dies or fails ends the run
 the same way, with exit status 2 and the failed stages in ``run.failures``.
+
+The run's configuration is resolved and checked here (its vocabulary files too, by
+``service.vocabulary_check``) before any process starts; ``service.run_stages`` starts, follows
+and stops the stages, and ``service.run_follower`` takes what they publish into the run's log.
 """
 
 from __future__ import annotations
