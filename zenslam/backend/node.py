@@ -29,7 +29,6 @@ map's owner and the loop that drives it.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import logging
 import sys
@@ -60,18 +59,7 @@ from zenslam.backend.queryables import BackendQueryables
 from zenslam.backend.relocalisation_candidates import relocalisation_reply
 from zenslam.errors import ZenslamError
 from zenslam.runtime import bus
-from zenslam.runtime.stage import (
-    STOPPED,
-    StopFlag,
-    add_process_arguments,
-    bus_config_with,
-    load_mode,
-    load_section,
-    log_cpu_times,
-    setup_process_logging,
-    stopped_before_joining,
-    yield_cpu,
-)
+from zenslam.runtime.stage import STOPPED, StageStart, add_wait_for_argument, log_cpu_times, run_stage, yield_cpu
 from zenslam.schemas import codec
 from zenslam.schemas.map_update import MapUpdate
 from zenslam.schemas.relocalisation import RelocalisationCandidates, RelocalisationQuery
@@ -512,55 +500,42 @@ def _linger(queryables: BackendQueryables, node: BackendNode, linger_s: float, s
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point: ``python -m zenslam.backend.node --session S [--config FILE] [--connect EP] ...``."""
-    parser = argparse.ArgumentParser(prog="zenslam-backend", description=__doc__.splitlines()[0])
-    add_process_arguments(parser)
-    parser.add_argument(
-        "--wait-for", action="append", default=[], metavar="STAGE",
-        help="stage whose liveliness token must be present before the backend starts (repeatable)",
-    )
-    args = parser.parse_args(argv)
-    setup_process_logging(args.verbose, STAGE)
-    stop = StopFlag(args.parent_pid).install()
-    if stopped_before_joining(stop):  # a stop held while the modules above were imported
-        return 0
-    try:
-        from zenslam.backend.rerun_log import BackendLog
-        from zenslam.runtime import rerun_log
+    return run_stage(STAGE, __doc__, _run, argv, lambda parser: add_wait_for_argument(parser, "the backend starts"))
 
-        config = load_section(args.config, STAGE, BackendConfig)
-        bus_config = load_section(args.config, "bus", bus.BusConfig)
-        rerun_config = load_section(args.config, "rerun", rerun_log.RerunConfig)
-        mode = load_mode(args.config)
-        lockstep = mode == "lockstep"
-        yield_cpu(config.nice if mode == "live" else 0)  # only a live camera does not wait for tracking
-        node = BackendNode.from_config(config, global_ba_in_background=not lockstep)
-        if stopped_before_joining(stop):
-            return 0
 
-        with (
-            rerun_log.open_stage_recording(STAGE, args.session, args.config, rerun_config, args.restart) as recording,
-            bus.open_session(bus_config_with(bus_config, args.connect, args.bus_config)) as session,
-        ):
-            node.rerun = BackendLog(recording) if recording is not None else None
-            bus.require_alive(session, args.session, args.wait_for, bus_config.start_timeout_s, stop.keep_going)
-            # The journal lives in the run folder, beside the run's config.yaml; no folder, no journal.
-            journal = Path(args.config).parent / JOURNAL_NAME if config.journal and args.config is not None else None
-            if args.restart:
-                logger.info("restart %d: rebuilding the map from %s", args.restart, journal)
-                # What this backend publishes must reach the frontend, which waits for the answers
-                # the journal lacks: its token seen here means its subscriptions have reached us too.
-                if bus.wait_for_alive(session, args.session, ["frontend"], bus_config.start_timeout_s, stop.keep_going):
-                    logger.warning("restart %d: no frontend within %.0f s; mapping on without it", args.restart, bus_config.start_timeout_s)
-            try:
-                serve(session, args.session, node, config, stop, journal=journal, rebuild=args.restart > 0, lockstep=lockstep)
-            finally:
-                node.close()
-            if node.rerun is not None:
-                node.rerun.finish()
-    except ZenslamError as exc:
-        logger.error("%s", exc)
-        return 2
-    return 0
+def _run(stage: StageStart) -> None:
+    """The backend process: its node built from its section, then served on the run's session."""
+    if stage.stopped_before_joining():  # a stop held while the modules above were imported
+        return
+    args = stage.args
+    config = stage.section(STAGE, BackendConfig)
+    mode = stage.mode()
+    lockstep = mode == "lockstep"
+    yield_cpu(config.nice if mode == "live" else 0)  # only a live camera does not wait for tracking
+    node = BackendNode.from_config(config, global_ba_in_background=not lockstep)
+    if stage.stopped_before_joining():
+        return
+
+    from zenslam.backend.rerun_log import BackendLog
+
+    with stage.rerun_recording() as recording, stage.open_session() as session:
+        node.rerun = BackendLog(recording) if recording is not None else None
+        stage.require_alive(session, args.wait_for)
+        # The journal lives in the run folder, beside the run's config.yaml; no folder, no journal.
+        journal = Path(args.config).parent / JOURNAL_NAME if config.journal and args.config is not None else None
+        if args.restart:
+            logger.info("restart %d: rebuilding the map from %s", args.restart, journal)
+            # What this backend publishes must reach the frontend, which waits for the answers
+            # the journal lacks: its token seen here means its subscriptions have reached us too.
+            timeout_s = stage.bus_config.start_timeout_s
+            if bus.wait_for_alive(session, args.session, ["frontend"], timeout_s, stage.stop.keep_going):
+                logger.warning("restart %d: no frontend within %.0f s; mapping on without it", args.restart, timeout_s)
+        try:
+            serve(session, args.session, node, config, stage.stop, journal=journal, rebuild=args.restart > 0, lockstep=lockstep)
+        finally:
+            node.close()
+        if node.rerun is not None:
+            node.rerun.finish()
 
 
 if __name__ == "__main__":

@@ -45,18 +45,7 @@ from zenslam.camera import PinholeCalibration, SensorKind
 from zenslam.errors import CalibrationError, ZenslamError
 from zenslam.frontend.config import FrontendConfig, entering_map
 from zenslam.runtime import bus
-from zenslam.runtime.stage import (
-    STOPPED,
-    RunMode,
-    StopFlag,
-    add_process_arguments,
-    bus_config_with,
-    load_mode,
-    load_section,
-    log_cpu_times,
-    setup_process_logging,
-    stopped_before_joining,
-)
+from zenslam.runtime.stage import STOPPED, RunMode, StageStart, add_wait_for_argument, log_cpu_times, run_stage
 from zenslam.schemas import codec, keys
 from zenslam.schemas.map_update import MapUpdate
 from zenslam.schemas.relocalisation import RelocalisationCandidates, RelocalisationQuery
@@ -638,63 +627,55 @@ def load_relocalisation_vocabulary(config: FrontendConfig) -> Any:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point: ``python -m zenslam.frontend.node --session S [--config FILE] [--connect EP] ...``."""
-    parser = argparse.ArgumentParser(prog="zenslam-frontend", description=__doc__.splitlines()[0])
-    add_process_arguments(parser)
+    return run_stage(STAGE, __doc__, _run, argv, _add_arguments)
+
+
+def _add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--map-updates", action="store_true",
         help="apply the backend's map updates (lockstep: wait for the update of each keyframe before the next frame)",
     )
-    parser.add_argument(
-        "--wait-for", action="append", default=[], metavar="STAGE",
-        help="stage whose liveliness token must be present before the frontend starts (repeatable)",
-    )
-    args = parser.parse_args(argv)
-    setup_process_logging(args.verbose, STAGE)
-    stop = StopFlag(args.parent_pid).install()
-    if stopped_before_joining(stop):  # a stop held while the modules above were imported
-        return 0
-    try:
-        from zenslam.runtime import rerun_log
+    add_wait_for_argument(parser, "the frontend starts")
 
-        config = load_section(args.config, STAGE, FrontendConfig)
-        bus_config = load_section(args.config, "bus", bus.BusConfig)
-        rerun_config = load_section(args.config, "rerun", rerun_log.RerunConfig)
-        import cv2
 
-        # OpenCV's pool slowed small calls 3x here; the extractor runs left/right on its own threads.
-        cv2.setNumThreads(1)
-        # Relocalisation asks the backend: without its map updates there is no backend to ask.
-        vocabulary = load_relocalisation_vocabulary(config) if args.map_updates else None
-        if args.restart and vocabulary is None:
-            raise ZenslamError(
-                "a restarted frontend enters the backend's map by relocalising: it needs the backend (--map-updates) "
-                "and frontend.tracking.relocalisation.enabled"
-            )
-        if stopped_before_joining(stop):
-            return 0
+def _run(stage: StageStart) -> None:
+    """The frontend process: its vocabulary loaded, then its node served on the run's session."""
+    if stage.stopped_before_joining():  # a stop held while the modules above were imported
+        return
+    args = stage.args
+    config = stage.section(STAGE, FrontendConfig)
+    import cv2
 
-        with (
-            rerun_log.open_stage_recording(STAGE, args.session, args.config, rerun_config, args.restart) as recording,
-            bus.open_session(bus_config_with(bus_config, args.connect, args.bus_config)) as session,
-        ):
-            bus.require_alive(session, args.session, args.wait_for, bus_config.start_timeout_s, stop.keep_going)
-            keyframes_before = 0
-            if args.restart:
-                config, keyframes_before = continuing_config(session, args.session, config, bus_config.start_timeout_s)
-                logger.info(
-                    "restart %d: entering the backend's map (%d keyframes processed) by relocalising; keyframe ids from "
-                    "%d, point ids from %d", args.restart, keyframes_before, config.tracking.local_map.keyframe_id_start,
-                    config.tracking.local_map.point_id_start,
-                )  # fmt: skip
-            node = FrontendNode(default_pipeline_factory(config, vocabulary))
-            node.keyframes_before = keyframes_before
-            node.rerun = rerun_log.FrontendLog(recording) if recording is not None else None
-            map_updates = config if args.map_updates else None
-            serve(session, args.session, node, load_mode(args.config), bus_config, stop, map_updates=map_updates)
-    except ZenslamError as exc:
-        logger.error("%s", exc)
-        return 2
-    return 0
+    # OpenCV's thread pool costs more than it saves on the small calls here; the extractor runs left/right
+    # on its own threads.
+    cv2.setNumThreads(1)
+    # Relocalisation asks the backend: without its map updates there is no backend to ask.
+    vocabulary = load_relocalisation_vocabulary(config) if args.map_updates else None
+    if args.restart and vocabulary is None:
+        raise ZenslamError(
+            "a restarted frontend enters the backend's map by relocalising: it needs the backend (--map-updates) "
+            "and frontend.tracking.relocalisation.enabled"
+        )
+    if stage.stopped_before_joining():
+        return
+
+    from zenslam.runtime.rerun_log import FrontendLog
+
+    with stage.rerun_recording() as recording, stage.open_session() as session:
+        stage.require_alive(session, args.wait_for)
+        keyframes_before = 0
+        if args.restart:
+            config, keyframes_before = continuing_config(session, args.session, config, stage.bus_config.start_timeout_s)
+            logger.info(
+                "restart %d: entering the backend's map (%d keyframes processed) by relocalising; keyframe ids from "
+                "%d, point ids from %d", args.restart, keyframes_before, config.tracking.local_map.keyframe_id_start,
+                config.tracking.local_map.point_id_start,
+            )  # fmt: skip
+        node = FrontendNode(default_pipeline_factory(config, vocabulary))
+        node.keyframes_before = keyframes_before
+        node.rerun = FrontendLog(recording) if recording is not None else None
+        map_updates = config if args.map_updates else None
+        serve(session, args.session, node, stage.mode(), stage.bus_config, stage.stop, map_updates=map_updates)
 
 
 if __name__ == "__main__":

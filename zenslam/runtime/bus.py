@@ -400,3 +400,17 @@ def wait_for_subscribers(publisher: zenoh.Publisher, timeout_s: float, keep_wait
 def parent_alive(parent_pid: int | None) -> bool:
     """True while the process that started this one is still its parent (False once orphaned)."""
     return parent_pid is None or os.getppid() == parent_pid
+
+
+# The zenoh types that modules above the bus name in their signatures, so that only this module
+# imports zenoh.
+Session = zenoh.Session
+Sample = zenoh.Sample
+Encoding = zenoh.Encoding
+Publisher = zenoh.Publisher
+LivelinessToken = zenoh.LivelinessToken
+
+
+def token_appeared(sample: zenoh.Sample) -> bool:
+    """True when a sample of ``watch_tokens`` says its token appeared (PUT), False when it vanished."""
+    return sample.kind == zenoh.SampleKind.PUT

@@ -4,7 +4,8 @@ Every stage (source, frontend, backend, recorder) is started by the ``Supervisor
 ``python -m <module>`` with the arguments of ``add_process_arguments``; it reads its own section
 of the run's resolved YAML with ``load_section`` (the file holds every section; a stage reads
 only the ones it needs), polls a ``StopFlag`` (``runtime.stop``) between steps, and logs like every
-other stage.
+other stage. ``run_stage`` is that start-up, once for all four: a stage's ``main`` names only its
+own arguments and what it runs with the ``StageStart`` it is handed.
 """
 
 from __future__ import annotations
@@ -14,16 +15,23 @@ import atexit
 import dataclasses
 import logging
 import os
+from collections.abc import Callable, Iterable
+from contextlib import AbstractContextManager
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal, TypeVar, get_args
+from typing import TYPE_CHECKING, Literal, TypeVar, get_args
 
 from zenslam.config import from_mapping, load_yaml
-from zenslam.errors import ConfigError
+from zenslam.errors import ConfigError, ZenslamError
 from zenslam.runtime import bus
+from zenslam.runtime.rerun_config import RerunConfig
 
 # The stop flag lives in runtime.stop (the CLI installs it before any heavy import); a stage's
 # start-up takes it from here with the rest.
 from zenslam.runtime.stop import STOPPED, StopFlag  # noqa: F401
+
+if TYPE_CHECKING:
+    from zenslam.runtime.rerun_log import StageRecording
 
 logger = logging.getLogger(__name__)
 
@@ -123,3 +131,88 @@ def log_cpu_times(when: str = "at exit") -> None:
     ``cpu <when>: user U s system S s``; stages log it when their stream starts and at exit."""
     times = os.times()
     logger.info("cpu %s: user %.3f s system %.3f s", when, times.user, times.system)
+
+
+# The exit status of a stage that stopped on one of the project's errors (a bad configuration, a
+# stage it needs that never came up); the error is logged first.
+EXIT_STAGE_ERROR = 2
+
+
+def add_wait_for_argument(parser: argparse.ArgumentParser, before: str) -> None:
+    """``--wait-for STAGE`` (repeatable): the stages whose liveliness tokens must be present ``before``
+    this one goes on (what ``service.stages.stage_args`` passes)."""
+    parser.add_argument(
+        "--wait-for", action="append", default=[], metavar="STAGE",
+        help=f"stage whose liveliness token must be present before {before} (repeatable)",
+    )
+
+
+@dataclass(frozen=True)
+class StageStart:
+    """What a stage process's start-up hands to the stage: its name, its parsed command line, its
+    installed stop flag and the run's ``bus`` section."""
+
+    name: str
+    args: argparse.Namespace
+    stop: StopFlag
+    bus_config: bus.BusConfig
+
+    def section(self, section: str, cls: type[C]) -> C:
+        """The ``section`` of the run's YAML (``--config``) as the frozen dataclass ``cls``."""
+        return load_section(self.args.config, section, cls)
+
+    def mode(self) -> RunMode:
+        """The run mode of the run's YAML."""
+        return load_mode(self.args.config)
+
+    def stopped_before_joining(self) -> bool:
+        """True, and logged, when the stage was stopped before it joined the bus."""
+        return stopped_before_joining(self.stop)
+
+    def open_session(self, connect: Iterable[str] = ()) -> AbstractContextManager:
+        """The stage's zenoh session: the ``bus`` section with the process's ``--connect`` endpoints (and
+        ``connect``'s) added and its ``--bus-config`` file in place of the section's, if given."""
+        return bus.open_session(bus_config_with(self.bus_config, [*self.args.connect, *connect], self.args.bus_config))
+
+    def require_alive(self, session: bus.Session, stages: Iterable[str]) -> None:
+        """Wait for the ``stages``' liveliness tokens on the run's session (``bus.start_timeout_s`` at most,
+        BusError naming those missing then), unless the stage is stopped meanwhile."""
+        bus.require_alive(session, self.args.session, stages, self.bus_config.start_timeout_s, self.stop.keep_going)
+
+    def rerun_recording(self) -> AbstractContextManager[StageRecording | None]:
+        """The stage's rerun recording in the run folder (None when the ``rerun`` section disables it or
+        there is no run folder); a restarted stage writes one of its own beside its predecessor's."""
+        from zenslam.runtime import rerun_log  # the rerun SDK only in the stages that log to it
+
+        config = self.section("rerun", RerunConfig)
+        return rerun_log.open_stage_recording(self.name, self.args.session, self.args.config, config, self.args.restart)
+
+
+def run_stage(
+    name: str,
+    doc: str | None,
+    run: Callable[[StageStart], None],
+    argv: list[str] | None = None,
+    add_arguments: Callable[[argparse.ArgumentParser], None] | None = None,
+) -> int:
+    """Start the stage process ``name`` and run it; returns its exit status.
+
+    Parses the command line (``add_process_arguments`` and those ``add_arguments`` adds; the first
+    line of ``doc``, the stage module's docstring, describes it), sets up the process's logging,
+    installs its stop flag, reads the run's ``bus`` section and calls ``run``. A ZenslamError is
+    logged (by the logger of ``run``'s module) and ends the process with ``EXIT_STAGE_ERROR``; any
+    other error propagates, with its traceback, as a bug.
+    """
+    parser = argparse.ArgumentParser(prog=f"zenslam-{name}", description=(doc or name).splitlines()[0])
+    add_process_arguments(parser)
+    if add_arguments is not None:
+        add_arguments(parser)
+    args = parser.parse_args(argv)
+    setup_process_logging(args.verbose, name)
+    stop = StopFlag(args.parent_pid).install()
+    try:
+        run(StageStart(name, args, stop, load_section(args.config, "bus", bus.BusConfig)))
+    except ZenslamError as exc:
+        logging.getLogger(run.__module__).error("%s", exc)
+        return EXIT_STAGE_ERROR
+    return 0

@@ -17,10 +17,9 @@ from contextlib import ExitStack
 from dataclasses import dataclass
 from typing import Literal
 
-import zenoh
-
 from zenslam.camera import PinholeCalibration, SensorKind
 from zenslam.errors import FrameReadError
+from zenslam.runtime import bus
 from zenslam.schemas import codec
 from zenslam.schemas.sensor_data import SensorFrame
 from zenslam.service.pacer import Pacer
@@ -48,14 +47,14 @@ class PublishOptions:
 class CameraPublisher:
     """The publishers of one camera under ``key`` (declared on entering; a liveliness token with them)."""
 
-    def __init__(self, session: zenoh.Session, key: str, sensor: SensorKind, fmt: PublishFormat, image_format: ImageFormat):
+    def __init__(self, session: bus.Session, key: str, sensor: SensorKind, fmt: PublishFormat, image_format: ImageFormat):
         self._session = session
         self.key = key.strip("/")
         self.sensor = sensor
         self.format = fmt
         self.image_format = image_format
         self._stack = ExitStack()
-        self._publishers: dict[str, zenoh.Publisher] = {}
+        self._publishers: dict[str, bus.Publisher] = {}
 
     def keys(self) -> dict[str, str]:
         """Key -> schema of every message this camera publishes."""
@@ -81,16 +80,11 @@ class CameraPublisher:
 
     def __enter__(self) -> CameraPublisher:
         for key, schema in self.keys().items():
-            publisher = self._session.declare_publisher(
-                key,
-                encoding=zenoh.Encoding.APPLICATION_PROTOBUF.with_schema(schema),
-                # Every frame reaches a subscriber that keeps up (a zenoh: source's callback only queues the
-                # bytes, and drops and counts what tracking cannot take): frames lost in transit would go uncounted.
-                congestion_control=zenoh.CongestionControl.BLOCK,
-                reliability=zenoh.Reliability.RELIABLE,
-            )
+            # Lossless: every frame reaches a subscriber that keeps up (a zenoh: source's callback only queues
+            # the bytes, and drops and counts what tracking cannot take): frames lost in transit would go uncounted.
+            publisher = bus.declare_publisher(self._session, key, schema, "lossless")
             self._publishers[key] = self._stack.enter_context(publisher)
-        self._stack.enter_context(self._session.liveliness().declare_token(self.key))
+        self._stack.enter_context(bus.declare_token(self._session, self.key))
         return self
 
     def __exit__(self, *exc: object) -> None:

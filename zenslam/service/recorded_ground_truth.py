@@ -13,7 +13,6 @@ import logging
 from pathlib import Path
 
 import numpy as np
-import zenoh
 
 from zenslam.runtime import bus
 from zenslam.schemas import codec, keys
@@ -49,7 +48,7 @@ def decode_ground_truth(data: bytes) -> Trajectory:
     return Trajectory(message.stamps_ns, message.T_world_cam)
 
 
-def publish_ground_truth(session: zenoh.Session, session_name: str, ground_truth: Trajectory) -> None:
+def publish_ground_truth(session: bus.Session, session_name: str, ground_truth: Trajectory) -> None:
     """Send ``ground_truth`` once on source/ground_truth, lossless (the recorder must already listen)."""
     publisher = bus.declare_publisher(session, keys.source_ground_truth(session_name), SCHEMA, "lossless")
     try:

@@ -32,25 +32,14 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import zenoh
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
 from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
 from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 
-from zenslam.errors import ZenslamError
 from zenslam.runtime import bus
-from zenslam.runtime.stage import (
-    StopFlag,
-    add_process_arguments,
-    bus_config_with,
-    load_mode,
-    load_section,
-    log_cpu_times,
-    setup_process_logging,
-    yield_cpu,
-)
+from zenslam.runtime.stage import StageStart, StopFlag, log_cpu_times, run_stage, yield_cpu
 from zenslam.schemas import codec, keys
 from zenslam.schemas.map_update import MapUpdate
 from zenslam.service import mcap_io
@@ -275,7 +264,7 @@ class _Followed:
     ``restart_grace_s`` seconds without coming back (a supervisor restarts a crashed backend, and the
     new one's messages belong in the recording too)."""
 
-    def __init__(self, session: zenoh.Session, session_name: str, stages: Iterable[str], restart_grace_s: float = 60.0):
+    def __init__(self, session: bus.Session, session_name: str, stages: Iterable[str], restart_grace_s: float = 60.0):
         self.stages = set(stages)
         self.seen: set[str] = set()
         self.gone: dict[str, float] = {}  # stage -> when its token vanished (monotonic seconds)
@@ -284,14 +273,12 @@ class _Followed:
         self._streams = {stage: mcap_io.topic_for_key(_STREAM_OF[stage](session_name), session_name) for stage in self.stages if stage in _STREAM_OF}
         self._subscriber = None
         if self.stages:
-            self._subscriber = session.liveliness().declare_subscriber(
-                keys.all_alive(session_name), zenoh.handlers.FifoChannel(64), history=True
-            )
+            self._subscriber = bus.watch_tokens(session, keys.all_alive(session_name), capacity=64)
 
     def _take(self) -> None:
         while self._subscriber is not None and (sample := self._subscriber.try_recv()) is not None:
             name = str(sample.key_expr).removeprefix(self._prefix)
-            if sample.kind == zenoh.SampleKind.PUT:
+            if bus.token_appeared(sample):
                 self.seen.add(name)
                 self.gone.pop(name, None)  # back: a restart
             elif name in self.seen:
@@ -354,7 +341,7 @@ class _Worker:
         self.thread = threading.Thread(target=self._run, name="recorder-writer", daemon=True)
         self.thread.start()
 
-    def on_sample(self, sample: zenoh.Sample) -> None:
+    def on_sample(self, sample: bus.Sample) -> None:
         """zenoh's callback: enqueue only; blocks when the queue is full (back-pressure, nothing lost)."""
         self.queue.put((str(sample.key_expr), str(sample.encoding), sample.payload.to_bytes()))
         self.received += 1
@@ -382,7 +369,7 @@ class _Worker:
 
 
 def record(
-    session: zenoh.Session,
+    session: bus.Session,
     session_name: str,
     path: Path,
     config: RecorderConfig,
@@ -418,7 +405,7 @@ def record(
     followed = _Followed(session, session_name, follow, restart_grace_s)
     try:
         # Declared before the liveliness token: whoever waits for the recorder to be alive knows it listens.
-        subscriber = session.declare_subscriber(keys.everything(session_name), worker.on_sample)
+        subscriber = bus.declare_callback_subscriber(session, keys.everything(session_name), worker.on_sample)
         try:
             with bus.declare_alive(session, session_name, STAGE):
                 logger.info("recording %s to %s", keys.everything(session_name), path)
@@ -475,8 +462,10 @@ def set_aside(path: Path, restart: int) -> Path | None:
 def main(argv: list[str] | None = None) -> int:
     """Entry point: ``python -m zenslam.service.recorder --session S --output run.mcap [--follow STAGE] ...``
     (``--run-dir DIR`` instead of ``--output``: the run folder's outputs too, see ``recorded_run``)."""
-    parser = argparse.ArgumentParser(prog="zenslam-recorder", description=__doc__.splitlines()[0])
-    add_process_arguments(parser)
+    return run_stage(STAGE, __doc__, _run, argv, _add_arguments)
+
+
+def _add_arguments(parser: argparse.ArgumentParser) -> None:
     target = parser.add_mutually_exclusive_group(required=True)
     target.add_argument("--output", type=Path, help="the MCAP file to write (e.g. recordings/<run-id>/run.mcap)")
     target.add_argument(
@@ -488,35 +477,32 @@ def main(argv: list[str] | None = None) -> int:
         "--follow", action="append", default=[], metavar="STAGE",
         help="stage to follow: once every followed stage has appeared and exited, finish (repeatable)",
     )
-    args = parser.parse_args(argv)
-    setup_process_logging(args.verbose, STAGE)
-    stop = StopFlag(args.parent_pid).install()
-    try:
-        config = load_section(args.config, STAGE, RecorderConfig)
-        bus_config = load_section(args.config, "bus", bus.BusConfig)
-        # Lockstep tracking waits for the recording too (its messages are lossless): keep pace there,
-        # so that a crash loses no more than the open chunk.
-        yield_cpu(0 if load_mode(args.config) == "lockstep" else config.nice)
-        with bus.open_session(bus_config_with(bus_config, args.connect, args.bus_config)) as session:
-            if args.run_dir is None:
-                crashed = set_aside(args.output, args.restart) if args.restart else None
-                record(
-                    session, args.session, args.output, config, stop, args.follow,
-                    restart_grace_s=bus_config.start_timeout_s, carry_over=crashed,
-                )  # fmt: skip
-            else:
-                _record_run(session, args, config, stop, bus_config.start_timeout_s)
-    except ZenslamError as exc:
-        logger.error("%s", exc)
-        return 2
-    return 0
+
+
+def _run(stage: StageStart) -> None:
+    """The recorder process: record the run's session to ``--output``, or to ``--run-dir`` with its outputs."""
+    args = stage.args
+    config = stage.section(STAGE, RecorderConfig)
+    # Lockstep tracking waits for the recording too (its messages are lossless): keep pace there,
+    # so that a crash loses no more than the open chunk.
+    yield_cpu(0 if stage.mode() == "lockstep" else config.nice)
+    restart_grace_s = stage.bus_config.start_timeout_s
+    with stage.open_session() as session:
+        if args.run_dir is None:
+            crashed = set_aside(args.output, args.restart) if args.restart else None
+            record(
+                session, args.session, args.output, config, stage.stop, args.follow,
+                restart_grace_s=restart_grace_s, carry_over=crashed,
+            )  # fmt: skip
+        else:
+            _record_run(session, args, config, stage.stop, restart_grace_s)
 
 
 _QUERY_TIMEOUT_S = 10.0  # seconds to wait for the backend's answer to the final trajectory query
 
 
 def _record_run(
-    session: zenoh.Session, args: argparse.Namespace, config: RecorderConfig, stop: StopFlag, restart_grace_s: float
+    session: bus.Session, args: argparse.Namespace, config: RecorderConfig, stop: StopFlag, restart_grace_s: float
 ) -> None:
     """Record to ``args.run_dir``/run.mcap, ask the backend for its final keyframe poses when its stream
     ends, then write the run's outputs from the recording."""

@@ -35,22 +35,10 @@ import time
 from collections import Counter, deque
 from collections.abc import Callable, Iterable
 
-import zenoh
-
 from zenslam.camera import PinholeCalibration, SensorKind
 from zenslam.errors import ZenslamError
 from zenslam.runtime import bus
-from zenslam.runtime.stage import (
-    STOPPED,
-    RunMode,
-    StopFlag,
-    add_process_arguments,
-    bus_config_with,
-    load_mode,
-    load_section,
-    log_cpu_times,
-    setup_process_logging,
-)
+from zenslam.runtime.stage import STOPPED, RunMode, StageStart, add_wait_for_argument, log_cpu_times, run_stage
 from zenslam.schemas import codec, keys
 from zenslam.service.pacer import Pacer as _Pacer
 from zenslam.service.recorded_ground_truth import publish_ground_truth
@@ -154,7 +142,7 @@ class _AnswerWindow:
 
 
 def play(
-    session: zenoh.Session,
+    session: bus.Session,
     session_name: str,
     frames: Iterable[SensorFrame | codec.FrameMessage | SkippedFrame],
     calibration: PinholeCalibration | None,
@@ -295,13 +283,12 @@ def _skip(frame: SkippedFrame, skipped: Counter[str], strict: bool, source_name:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point: ``python -m zenslam.service.source_node --session S [--config FILE] [--connect EP] ...``."""
-    parser = argparse.ArgumentParser(prog="zenslam-source", description=__doc__.splitlines()[0])
-    add_process_arguments(parser)
+    return run_stage(STAGE, __doc__, _run, argv, _add_arguments)
+
+
+def _add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--source", default=None, help="source spec overriding source.spec of the config")
-    parser.add_argument(
-        "--wait-for", action="append", default=[], metavar="STAGE",
-        help="stage whose liveliness token must be present before the first frame (repeatable)",
-    )
+    add_wait_for_argument(parser, "the first frame")
     parser.add_argument(
         "--resume-after", type=int, default=-1, metavar="INDEX",
         help="a restarted source: start at the first frame after INDEX, the newest one tracked (the supervisor passes it)",
@@ -315,61 +302,54 @@ def main(argv: list[str] | None = None) -> int:
         help="send the source's ground truth on source/ground_truth once the stages waited for are up (for the "
         "recorder; ``zenslam run`` sends it itself, a source started with ``zenslam stage`` does)",
     )
-    args = parser.parse_args(argv)
-    setup_process_logging(args.verbose, STAGE)
-    stop = StopFlag(args.parent_pid).install()
-    try:
-        config = load_section(args.config, STAGE, SourceConfig)
-        bus_config = load_section(args.config, "bus", bus.BusConfig)
-        spec = args.source or config.spec
-        if is_bus_spec(spec):
-            return _play_bus_input(args, spec, config, bus_config, stop)
-        source = open_source(spec, config.sensor)
-        calibration = config.calibration or source.calibration
-        if source.sensor == "mono":
-            calibration = mono_calibration(calibration)  # settings files of stereo cameras state a baseline
-
-        with bus.open_session(bus_config_with(bus_config, args.connect, args.bus_config)) as session:
-            with bus.declare_alive(session, args.session, STAGE):
-                timeout_s = bus_config.start_timeout_s
-                bus.require_alive(session, args.session, args.wait_for, timeout_s, stop.keep_going)
-                if args.publish_ground_truth and (ground_truth := source.ground_truth()) is not None:
-                    publish_ground_truth(session, args.session, ground_truth)
-                injector = FaultInjector(config.faults)
-                for fault in injector.beyond(len(source)):
-                    logger.warning("source.faults %s starts past the last frame (%d); it is never applied", fault.describe(), len(source) - 1)
-                if args.restart:
-                    logger.warning(
-                        "restart %d: resuming after frame %d, the newest tracked (%d frame(s) sent before)",
-                        args.restart, args.resume_after, args.sent_before,
-                    )  # fmt: skip
-                frames = frame_stream(source, injector, start=args.resume_after + 1)
-                play(
-                    session, args.session, frames, calibration, source.sensor, config, stop, source.name,
-                    mode=load_mode(args.config), start_timeout_s=timeout_s, sent_before=args.sent_before,
-                    recorded="recorder" in args.wait_for,
-                )
-    except ZenslamError as exc:
-        logger.error("%s", exc)
-        return 2
-    return 0
 
 
-def _play_bus_input(args: argparse.Namespace, spec: str, config: SourceConfig, bus_config: bus.BusConfig, stop: StopFlag) -> int:
+def _run(stage: StageStart) -> None:
+    """The source process: its source opened, then played onto the run's session once the stages it feeds are up."""
+    args = stage.args
+    config = stage.section(STAGE, SourceConfig)
+    spec = args.source or config.spec
+    if is_bus_spec(spec):
+        _play_bus_input(stage, spec, config)
+        return
+    source = open_source(spec, config.sensor)
+    calibration = config.calibration or source.calibration
+    if source.sensor == "mono":
+        calibration = mono_calibration(calibration)  # settings files of stereo cameras state a baseline
+
+    with stage.open_session() as session, bus.declare_alive(session, args.session, STAGE):
+        stage.require_alive(session, args.wait_for)
+        if args.publish_ground_truth and (ground_truth := source.ground_truth()) is not None:
+            publish_ground_truth(session, args.session, ground_truth)
+        injector = FaultInjector(config.faults)
+        for fault in injector.beyond(len(source)):
+            logger.warning("source.faults %s starts past the last frame (%d); it is never applied", fault.describe(), len(source) - 1)
+        if args.restart:
+            logger.warning(
+                "restart %d: resuming after frame %d, the newest tracked (%d frame(s) sent before)",
+                args.restart, args.resume_after, args.sent_before,
+            )  # fmt: skip
+        frames = frame_stream(source, injector, start=args.resume_after + 1)
+        play(
+            session, args.session, frames, calibration, source.sensor, config, stage.stop, source.name,
+            mode=stage.mode(), start_timeout_s=stage.bus_config.start_timeout_s, sent_before=args.sent_before,
+            recorded="recorder" in args.wait_for,
+        )
+
+
+def _play_bus_input(stage: StageStart, spec: str, config: SourceConfig) -> None:
     """Play the frames another program publishes (a bus source): the run's session also connects to
     ``source.connect``, where the publisher is; frames are taken as they come (never paced)."""
+    args = stage.args
     family = open_bus_family(spec, config.ros_domain)
-    with bus.open_session(bus_config_with(bus_config, [*args.connect, *config.connect], args.bus_config)) as session:
-        with bus.declare_alive(session, args.session, STAGE):
-            timeout_s = bus_config.start_timeout_s
-            bus.require_alive(session, args.session, args.wait_for, timeout_s, stop.keep_going)
-            bus_input = BusFrames(session, family, config, stop)
-            live = dataclasses.replace(config, rate=0.0)  # the publisher keeps the time
-            play(
-                session, args.session, bus_input.frames(), None, None, live, stop, family.name,
-                mode=load_mode(args.config), start_timeout_s=timeout_s, bus_input=bus_input,
-            )
-    return 0
+    with stage.open_session(config.connect) as session, bus.declare_alive(session, args.session, STAGE):
+        stage.require_alive(session, args.wait_for)
+        bus_input = BusFrames(session, family, config, stage.stop)
+        live = dataclasses.replace(config, rate=0.0)  # the publisher keeps the time
+        play(
+            session, args.session, bus_input.frames(), None, None, live, stage.stop, family.name,
+            mode=stage.mode(), start_timeout_s=stage.bus_config.start_timeout_s, bus_input=bus_input,
+        )
 
 
 if __name__ == "__main__":

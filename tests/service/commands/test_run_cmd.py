@@ -8,6 +8,8 @@ import time
 
 from zenslam.service.commands import run as run_command
 from zenslam.service.run_config import RunConfig
+from zenslam.service.run_follower import RunFollower
+from zenslam.service.run_stages import watch_for_hang
 
 
 def _run_parser() -> argparse.ArgumentParser:
@@ -56,11 +58,11 @@ class _Supervisor:
         self.killed.append(name)
 
 
-def _follower(frontend_silent_s: float, answered_s_ago: float) -> run_command._Follower:
+def _follower(frontend_silent_s: float, answered_s_ago: float) -> RunFollower:
     """A run's follower without a bus: the frontend last heard ``frontend_silent_s`` ago, the backend's
     last map update ``answered_s_ago``; 30 frames sent by the source, so frames wait for the frontend."""
     now = time.monotonic()
-    follower = object.__new__(run_command._Follower)
+    follower = object.__new__(RunFollower)
     follower.heard = {"frontend": now - frontend_silent_s, "backend": now - answered_s_ago}
     follower.answered_at = now - answered_s_ago
     follower.progressed = {"frontend", "backend"}
@@ -75,10 +77,10 @@ def test_the_frontends_hang_clock_starts_again_at_the_backends_answer():
     not hung the moment the answer arrives; one silent that long after an answer is."""
     stop, since = (lambda: False), time.monotonic() - 60.0
     waited = _Supervisor()
-    run_command._watch_for_hang(_follower(frontend_silent_s=14.0, answered_s_ago=0.01), waited, 10.0, since, stop)
+    watch_for_hang(_follower(frontend_silent_s=14.0, answered_s_ago=0.01), waited, 10.0, since, stop)
     assert waited.killed == []
     stuck = _Supervisor()
-    run_command._watch_for_hang(_follower(frontend_silent_s=14.0, answered_s_ago=12.0), stuck, 10.0, since, stop)
+    watch_for_hang(_follower(frontend_silent_s=14.0, answered_s_ago=12.0), stuck, 10.0, since, stop)
     assert stuck.killed == ["frontend"]
 
 
@@ -89,5 +91,5 @@ def test_a_backend_silent_before_the_correction_its_answer_announced_is_the_hung
     follower = _follower(frontend_silent_s=14.0, answered_s_ago=12.0)
     follower.log.corrections_owed = 1
     supervisor = _Supervisor()
-    run_command._watch_for_hang(follower, supervisor, 10.0, since, stop)
+    watch_for_hang(follower, supervisor, 10.0, since, stop)
     assert supervisor.killed == ["backend"]

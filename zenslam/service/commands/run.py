@@ -17,6 +17,10 @@ stops the stages in the order the data flows, so nothing already sent is lost: t
 ends its stream after the keyframe in hand; the recorder ends once they are gone. The outputs are
 written as for a finished run, with ``run.completed: false``. A stage that dies or fails ends the run
 the same way, with exit status 2 and the failed stages in ``run.failures``.
+
+The run's configuration is resolved and checked here (its vocabulary files too, by
+``service.vocabulary_check``) before any process starts; ``service.run_stages`` starts, follows
+and stops the stages, and ``service.run_follower`` takes what they publish into the run's log.
 """
 
 from __future__ import annotations
@@ -24,26 +28,20 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
-import math
 import os
 import time
 from pathlib import Path
 
-from tqdm import tqdm
-
 from zenslam.backend.journal import JOURNAL_NAME
-from zenslam.runtime.backend_queries import query_trajectory
 from zenslam.config import load_yaml
 from zenslam.errors import ConfigError, ProcessError
 from zenslam.runtime import bus, environment
 from zenslam.runtime.session_file import SessionInfo, write_session_file
 from zenslam.runtime.stage import log_cpu_times
 from zenslam.runtime.stop import EXIT_FAILED, EXIT_INTERRUPTED, StopFlag
-from zenslam.runtime.supervisor import ProcessSpec, SupervisionConfig, Supervisor
-from zenslam.schemas import codec, keys
+from zenslam.runtime.supervisor import Supervisor
 from zenslam.service import mcap_io
 from zenslam.service.evaluation.plot import PLANES
-from zenslam.service.recorded_ground_truth import publish_ground_truth
 from zenslam.service.recorder_config import RECORDING_NAME
 from zenslam.service.ros2.run_bridge import (
     Ros2RunBridge,
@@ -60,6 +58,7 @@ from zenslam.service.run_config import (
     read_orbslam_settings,
 )
 from zenslam.service.run_failure import RunFailure
+from zenslam.service.run_follower import RunFollower
 from zenslam.service.run_input import recorded_sensor, run_input
 from zenslam.service.run_output import (
     RunLog,
@@ -70,19 +69,22 @@ from zenslam.service.run_output import (
     write_config,
     write_outputs,
 )
+from zenslam.service.run_stages import (
+    EXIT_WAIT_S,
+    POSE_GRACE_S,
+    follow_backend,
+    follow_frontend,
+    report_exits,
+    start_stages,
+    stop_backend,
+)
 from zenslam.service.saved_map import check_map_fits, with_map_options
 from zenslam.service.sources import Source, is_bus_spec
 from zenslam.service.sources.config import DEFAULT_BUS_INPUT
-from zenslam.service.stages import STAGE_MODULES, stage_args
+from zenslam.service.vocabulary_check import check_vocabularies
 from zenslam.trajectory import Trajectory
 
 logger = logging.getLogger(__name__)
-
-_POSE_GRACE_S = 5.0  # seconds to wait, after the end of stream, for poses still in flight
-_STOP_GRACE_S = 30.0  # seconds a stage told to stop gets to end its stream before the next step of stopping
-_CAUGHT_UP_WAIT_S = 5.0  # interrupted: seconds to wait for a backend with no keyframe left to end its stream
-_EXIT_WAIT_S = 30.0  # seconds the stages get to exit by themselves after the end of stream
-_QUERY_TIMEOUT_S = 10.0  # seconds to wait for the backend's answer to the final trajectory query
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -230,297 +232,6 @@ def _child_env(config: RunConfig) -> dict[str, str]:
             env[name] = "1"
     return env
 
-
-class _Follower:
-    """Receives frontend/state, frontend/pose, backend/map_update and the stages' statuses into a
-    RunLog, with a progress bar; ``ros2`` (--ros2-publish) republishes the poses and keyframe path."""
-
-    def __init__(
-        self, session, run_id: str, config: RunConfig, total: int | None, progress: bool, ros2: Ros2RunBridge | None = None
-    ):
-        self.ros2 = ros2
-        capacity = max(config.bus.lossless_queue, 256)
-        # Lossless: every pose and state is needed for the trajectory and the metrics, every map update
-        # and backend status for the keyframe counts and timings, every stage's last status to know
-        # whether it was stopped. All are drained at every poll, so the stages never wait on this
-        # process for long.
-        self.poses = bus.subscribe(session, keys.frontend_pose(run_id), codec.decode_pose_in_frame, "lossless", capacity)
-        self.states = bus.subscribe(session, keys.frontend_state(run_id), codec.decode_tracking_state, "lossless", capacity)
-        update_capacity = max(config.frontend.map_update_queue, capacity)
-        self.updates = bus.subscribe(session, keys.backend_map_update(run_id), codec.decode_map_update, "lossless", update_capacity)
-        self.statuses = bus.subscribe(session, keys.all_status(run_id), codec.decode_stage_status, "lossless", capacity)
-        self.loops = bus.subscribe(session, keys.backend_loop(run_id), codec.decode_loop, "lossless", capacity)
-        self.log = RunLog(live=config.mode == "live")
-        self.bar = tqdm(total=total, unit="frame", desc="tracking", disable=not progress)
-        self.heard: dict[str, float] = {}  # stage -> when a message from it last arrived
-        # Stages that have made progress (the frontend a tracking state, the backend a map update)
-        # since they (re)started; until then they may be silent for bus.start_timeout_s.
-        self.progressed: set[str] = set()
-        self.start_timeout_s = config.bus.start_timeout_s
-        self.source_sent = 0  # frames the source says it sent
-        self.answered_at = -math.inf  # when the last map update arrived (time.monotonic())
-
-    def poll(self, timeout_s: float) -> None:
-        """Take what has arrived (waiting up to ``timeout_s`` seconds for a state)."""
-        while (pose := self.poses.get(0)) is not None:
-            self.log.add_pose(pose)
-            if self.ros2 is not None:
-                self.ros2.publish_pose(pose)
-        self.poll_backend()
-        state = self.states.get(timeout_s)
-        if state is not None:
-            self.heard["frontend"] = time.monotonic()
-            self.progressed.add("frontend")
-        if isinstance(state, codec.EndOfStream):
-            self.log.ended = True
-        elif state is not None:
-            self.log.add_state(state)
-            self.log.note_arrival(time.monotonic(), state=True)
-            self.bar.update(1)
-            self.bar.set_postfix(state=state.state, tracked=state.n_tracked, refresh=False)
-
-    def poll_backend(self) -> None:
-        """Take the map updates and stage statuses that have arrived."""
-        updated = False
-        while (update := self.updates.get(0)) is not None:
-            self.log.add_map_update(update)
-            if not isinstance(update, codec.EndOfStream):
-                self.log.note_arrival(time.monotonic())
-            updated = True
-        if updated:
-            self.heard["backend"] = self.answered_at = time.monotonic()
-            self.progressed.add("backend")
-            if self.ros2 is not None:
-                self.ros2.publish_path(self.log.keyframe_trajectory())
-        while (status := self.statuses.get(0)) is not None:
-            self.log.add_status(status)
-            self.heard[status.stage] = time.monotonic()
-            if status.stage == "source":
-                self.source_sent = max(self.source_sent, int(status.processed))
-        while (loop := self.loops.get(0)) is not None:
-            self.log.loops.append(loop)
-
-    def silent_s(self, stage: str, since: float) -> float:
-        """Seconds since ``stage`` was last heard, or since ``since`` when it has not been heard since then."""
-        return time.monotonic() - max(self.heard.get(stage, since), since)
-
-    def hang_limit_s(self, stage: str, hang_timeout_s: float) -> float:
-        """The silence after which ``stage`` counts as hung: ``hang_timeout_s`` once it has made
-        progress, at least ``bus.start_timeout_s`` while it starts (its first frame builds the tracker
-        and its first keyframe the map, slow on a busy machine)."""
-        return hang_timeout_s if stage in self.progressed else max(hang_timeout_s, self.start_timeout_s)
-
-    def drain(self, until: float) -> None:
-        """Keep taking messages until the poses announced by the states have all arrived, or ``until``."""
-        while time.monotonic() < until and (not self.log.ended or self.log.missing_poses() > 0):
-            self.poll(0.05)
-
-    def close(self) -> None:
-        self.bar.close()
-        for inbox in (self.poses, self.states, self.updates, self.statuses):
-            inbox.close()
-
-
-def _watch_for_hang(follower: _Follower, supervisor: Supervisor, hang_timeout_s: float, since: float, stop: StopFlag) -> None:
-    """Kill a stage whose input waits while it has said nothing for ``hang_timeout_s`` seconds (0:
-    never; a stage still starting gets ``bus.start_timeout_s``), counted from ``since`` at the latest
-    (when following began): the backend while keyframes or announced corrections wait for it; the frontend while frames the
-    source sent wait for it, unless it waits for the backend's answers itself. The next ``_check``
-    then restarts it or fails the run, as for a crash. The frontend's silence counts from the
-    backend's last answer at the latest: in lockstep it is silent while it waits for one (for as long
-    as a hung backend takes to be caught and rebuilt), and it needs a moment to go on once one came."""
-    if hang_timeout_s <= 0 or stop():
-        return
-    backend_silent_s = follower.silent_s("backend", since)
-    frontend_silent_s = follower.silent_s("frontend", max(since, follower.answered_at))
-    backend_limit_s = follower.hang_limit_s("backend", hang_timeout_s)
-    frontend_limit_s = follower.hang_limit_s("frontend", hang_timeout_s)
-    if backend_silent_s < backend_limit_s and frontend_silent_s < frontend_limit_s:
-        return  # the usual case, decided before counting the log's frames and keyframes
-    log = follower.log
-    counts = log.keyframe_counts()
-    # The backend owes work while a keyframe waits for its answer or an answer's announced
-    # corrections are still to come (a lockstep frontend waits for those too).
-    owed = counts["processed"] < counts["sent"] or log.corrections_owed > 0
-    keyframes_wait = not log.backend_ended and (owed or (log.ended and counts["sent"] > 0))
-    if keyframes_wait and backend_silent_s >= backend_limit_s:
-        supervisor.kill_hung("backend", backend_silent_s)
-        return
-    frames_wait = not log.ended and follower.source_sent > len(log.frames)
-    if frames_wait and not keyframes_wait and frontend_silent_s >= frontend_limit_s:
-        supervisor.kill_hung("frontend", frontend_silent_s)
-
-
-def _check(supervisor: Supervisor, stop: StopFlag, follower: _Follower, supervision: SupervisionConfig) -> None:
-    """Restart a failed stage that can recover (``supervision.max_restarts``), noting it in the log;
-    raise for any other failed stage. Interrupted, neither: the run winds down and ``_report_exits`` says."""
-    if stop():
-        return
-    frame = len(follower.log.frames)
-    last_index = follower.log.frames.newest_index()  # the newest frame tracked: what a frontend restart lost follows it
-    # A restarted source resumes at the first frame not yet tracked; what its predecessors sent counts
-    # towards source.max_frames (frames in flight then reach the frontend twice: it refuses the second
-    # copy and answers it with its newest state).
-    resume = {"source": ("--resume-after", str(last_index), "--sent-before", str(max(frame, 0)))}
-    for restarted in supervisor.restart_failed(supervision, resume):
-        follower.log.restarts.append({**restarted, "frame": frame, "last_frame_index": last_index})
-        stage = str(restarted["stage"])
-        follower.heard[stage] = time.monotonic()
-        follower.progressed.discard(stage)  # starting again: watched as a stage that starts
-
-
-def _check_source(log: RunLog) -> None:
-    """Raise ProcessError with the source's own words when it reported a failure (e.g. a bad frame in strict mode)."""
-    if log.source_failure is not None:
-        raise ProcessError(f"the source stopped the run: {log.source_failure}")
-
-
-def _start_recorder(supervisor: Supervisor, session, config: RunConfig, run_dir: Path, keep_waiting) -> None:
-    """Start the recorder (before any other stage) and wait for it to listen.
-
-    It follows the source, frontend and backend and exits by itself once they have all exited, so
-    the supervisor's ``wait_exit`` also waits for the recording to be finished. Restartable: a
-    restarted recorder carries its predecessor's file over (``recorder.set_aside``).
-    """
-    args = ("--output", str(run_dir / RECORDING_NAME), *stage_args("recorder", recorder=True))
-    supervisor.start(ProcessSpec("recorder", STAGE_MODULES["recorder"], args, restartable=True))
-    supervisor.wait_until_alive(session, ["recorder"], config.bus.start_timeout_s, keep_waiting)
-
-
-def _start_stages(
-    supervisor: Supervisor, session, config: RunConfig, run_dir: Path, stop: StopFlag, ground_truth: Trajectory | None,
-    follower: _Follower, wait_for: tuple[str, ...] = (),
-) -> bool:
-    """Start the recorder, backend, frontend and source, each once the one it needs is up; False when
-    interrupted first (those started are then told to stop, and no other is started). ``ground_truth``
-    (the source's) goes into the recording, so a replay of it is scored too. ``wait_for``: clients'
-    liveliness names the publishing stages wait for (``--wait-for``)."""
-    timeout_s = config.bus.start_timeout_s
-    if not stop() and config.recorder.enabled:
-        # The recorder comes first, and each stage waits until it sees the recorder's token before
-        # publishing: then the recorder's subscription has reached it too.
-        _start_recorder(supervisor, session, config, run_dir, stop.keep_going)
-        if ground_truth is not None:
-            publish_ground_truth(session, supervisor.session_name, ground_truth)
-    recorder = config.recorder.enabled
-    # A restarted backend rebuilds its map from its journal; a restarted frontend relocalises into the
-    # backend's map (the source sends it the frames in flight again); a restarted source resumes at
-    # the first frame not yet tracked (a bus source takes the frames published from then on). The
-    # recorder's restarts are set up with it (``_start_recorder``).
-    restartable = {"backend", "source"} if config.backend.journal else {"source"}
-    if config.frontend.tracking.relocalisation.enabled:
-        restartable.add("frontend")
-    stages = [
-        ProcessSpec(name, STAGE_MODULES[name], stage_args(name, recorder, wait_for), restartable=name in restartable)
-        for name in ("backend", "frontend", "source")
-    ]
-    for spec in stages:
-        if stop():
-            supervisor.request_stop()
-            return False
-        supervisor.start(spec)
-        while spec.name != "source":  # the source is followed through the frontend's states
-            try:
-                supervisor.wait_until_alive(session, [spec.name], timeout_s, stop.keep_going)
-                break
-            except ProcessError:
-                if stop() or not supervisor.failures():  # interrupted, or up too slowly: not a crash
-                    raise
-                _check(supervisor, stop, follower, config.supervision)  # a stage that died starting: restarted, or raised
-    return True
-
-
-def _follow(follower: _Follower, supervisor: Supervisor, stop: StopFlag, supervision: SupervisionConfig) -> None:
-    """Follow the run until the frontend's end of stream, then take the poses still in flight.
-
-    On an interrupt only the source is stopped: it ends its stream at once, and the frontend tracks
-    the frames already sent, publishes their poses and ends its own stream. The frontend itself is
-    stopped (it finishes the frame in hand) when it has not ended ``_STOP_GRACE_S`` seconds later,
-    or at a second Ctrl-C.
-    """
-    source_told = frontend_told = None  # when each was told to stop
-    since = time.monotonic()
-    while not follower.log.ended:
-        now = time.monotonic()
-        if stop() and source_told is None:
-            supervisor.request_stop(["source"])
-            source_told = now
-        if source_told is not None and frontend_told is None and (stop.signals > 1 or now - source_told > _STOP_GRACE_S):
-            supervisor.request_stop(["frontend"])
-            frontend_told = now
-        if frontend_told is not None and now - frontend_told > _STOP_GRACE_S:
-            logger.warning("the frontend did not end its stream within %.0f s of being told to stop", _STOP_GRACE_S)
-            break
-        _watch_for_hang(follower, supervisor, supervision.hang_timeout_s, since, stop)
-        _check(supervisor, stop, follower, supervision)
-        if supervisor.returncode("frontend") == 0 or (stop() and supervisor.returncode("frontend") is not None):
-            follower.drain(time.monotonic() + 1.0)
-            if not follower.log.ended and not stop():
-                raise ProcessError(f"the frontend exited before the end of stream:\n{supervisor.log_tail('frontend')}")
-            break
-        _check_source(follower.log)
-        follower.poll(0.05)
-    follower.drain(time.monotonic() + _POSE_GRACE_S)
-    _check_source(follower.log)
-
-
-def _follow_backend(follower: _Follower, supervisor: Supervisor, stop: StopFlag, supervision: SupervisionConfig) -> None:
-    """Wait until the backend has processed every keyframe (its map-update stream ended). Interrupted,
-    wait only while it has caught up with the keyframes sent (its end of stream is on its way),
-    for at most ``_CAUGHT_UP_WAIT_S`` seconds."""
-    counts = follower.log.keyframe_counts()
-    if not follower.log.backend_ended and not stop():
-        logger.info("waiting for the backend: %d of %d keyframes processed", counts["processed"], counts["sent"])
-    stopped_at = None
-    since = time.monotonic()
-    while not follower.log.backend_ended:
-        if stop():
-            stopped_at = time.monotonic() if stopped_at is None else stopped_at
-            counts = follower.log.keyframe_counts()
-            if counts["processed"] < counts["sent"] or time.monotonic() - stopped_at > _CAUGHT_UP_WAIT_S:
-                return
-        _watch_for_hang(follower, supervisor, supervision.hang_timeout_s, since, stop)
-        _check(supervisor, stop, follower, supervision)
-        if supervisor.returncode("backend") == 0 or (stop() and supervisor.returncode("backend") is not None):
-            follower.poll_backend()
-            if not follower.log.backend_ended and not stop():
-                raise ProcessError(f"the backend exited before the end of its stream:\n{supervisor.log_tail('backend')}")
-            break
-        follower.poll_backend()
-        time.sleep(0.02)
-    follower.poll_backend()  # statuses sent with the end of stream
-
-
-def _stop_backend(follower: _Follower, supervisor: Supervisor, session, run_id: str) -> None:
-    """Ask a backend that ended its stream for its keyframe poses (it lingers to answer queries), then
-    tell it to go; one still mapping (interrupted) ends its stream after the keyframe in hand, and
-    keyframes.tum then has the frontend's keyframes with the backend's updates applied. Takes its
-    last updates and statuses."""
-    log = follower.log
-    if log.backend_ended and "backend" not in log.stopped_stages and supervisor.returncode("backend") is None:
-        log.backend_keyframes = query_trajectory(session, run_id, _QUERY_TIMEOUT_S)
-        if log.backend_keyframes is None:
-            logger.warning("the backend did not answer the trajectory query; keyframes.tum has the frontend's keyframes")
-    supervisor.request_stop(["backend"])
-    deadline = time.monotonic() + _STOP_GRACE_S
-    while not log.backend_ended and supervisor.returncode("backend") is None and time.monotonic() < deadline:
-        follower.poll_backend()
-        time.sleep(0.02)
-    follower.poll_backend()
-
-
-def _report_exits(supervisor: Supervisor, stop: StopFlag, statuses: dict[str, int | None]) -> None:
-    """Raise for a failed stage; interrupted, warn instead (what was tracked is still written)."""
-    if not stop():
-        supervisor.check()  # the stream is over: a stage that failed now is not restarted
-    for name, code in statuses.items():
-        if code not in (None, 0):
-            logger.warning("%s exited with status %s while the run stopped; see %s", name, code, supervisor.run_dir / "logs")
-    stuck = [name for name, code in statuses.items() if code is None]
-    if stuck:
-        logger.warning("stage(s) %s still running %.0f s after the end of stream; stopping them", stuck, _EXIT_WAIT_S)
-
-
 def track(
     config: RunConfig, run_id: str, run_dir: Path, config_path: Path, source: Source | None, progress: bool,
     stop: StopFlag | None = None, ground_truth: Trajectory | None = None, ros2: Ros2RunBridge | None = None,
@@ -554,31 +265,31 @@ def track(
     try:
         with bus.open_session(hub_bus) as session:
             write_session_file(run_dir, SessionInfo(run_id, () if hub is None else (hub,)))
-            follower = _Follower(session, run_id, config, total, progress, ros2)
+            follower = RunFollower(session, run_id, config, total, progress, ros2)
             follower.log.first_keyframe_id = config.frontend.tracking.local_map.keyframe_id_start
             try:
                 supervisor = Supervisor(run_dir, run_id, config_path, hub, env=_child_env(config))
                 with supervisor, bus.declare_alive(session, run_id, "run"):
                     try:
-                        started = _start_stages(supervisor, session, config, run_dir, stop, ground_truth, follower, wait_for)
+                        started = start_stages(supervisor, session, config, run_dir, stop, ground_truth, follower, wait_for)
                         if started:
                             log_cpu_times("at stream start")
-                            _follow(follower, supervisor, stop, config.supervision)
-                            _follow_backend(follower, supervisor, stop, config.supervision)
-                            _stop_backend(follower, supervisor, session, run_id)
+                            follow_frontend(follower, supervisor, stop, config.supervision)
+                            follow_backend(follower, supervisor, stop, config.supervision)
+                            stop_backend(follower, supervisor, session, run_id)
                             log_cpu_times("at stream end")
-                        statuses = supervisor.wait_exit(_EXIT_WAIT_S)
+                        statuses = supervisor.wait_exit(EXIT_WAIT_S)
                         follower.poll_backend()  # the stages' last statuses: the source's final skipped-frame counts
-                        _report_exits(supervisor, stop, statuses)
+                        report_exits(supervisor, stop, statuses)
                         log = follower.log
                         completed = started and log.ended and log.backend_ended and not log.stopped_stages and not stop()
                     except ProcessError as exc:
                         # A stage died or failed: what reached the hub is kept. Leaving this block stops
                         # the other stages (the recorder finishes run.mcap); the caller writes the outputs.
                         frame = len(follower.log.frames)
-                        follower.drain(time.monotonic() + _POSE_GRACE_S)  # also lets a stage that reported its failure exit
+                        follower.drain(time.monotonic() + POSE_GRACE_S)  # also lets a stage that reported its failure exit
                         if follower.log.source_failure is not None:  # it said so before exiting: let it exit
-                            supervisor.wait_for_exit("source", _POSE_GRACE_S)
+                            supervisor.wait_for_exit("source", POSE_GRACE_S)
                         failure = RunFailure(str(exc), frame, [{**f, "frame": frame} for f in supervisor.failures()])
             finally:
                 follower.close()
@@ -652,6 +363,7 @@ def run(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace, stop: StopFlag) -> int:
     """``run`` with the installed stop flag ``stop``."""
     config = resolve_config(args)
+    check_vocabularies(config)  # a bad file would stop a stage only once the others are up
     given = run_input(config.source.spec, config.source.sensor, config.source.max_frames, getattr(args, "ground_truth", None))
     if given.image_size is not None:
         config = fit_calibration_to_images(config, *given.image_size)  # a bus source's is fitted to its first frame

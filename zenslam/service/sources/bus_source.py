@@ -32,10 +32,10 @@ from collections.abc import Callable, Iterator
 from contextlib import ExitStack
 
 import cv2
-import zenoh
 from google.protobuf.message import DecodeError
 
 from zenslam.errors import BusError, CalibrationError, MessageError, ZenslamError
+from zenslam.runtime import bus
 from zenslam.schemas import codec
 from zenslam.service.sources.bus_messages import CALIBRATION_ROLES, MessageFamily, Role
 from zenslam.service.sources.config import SourceConfig
@@ -51,7 +51,7 @@ _WAITED_ON: frozenset[Role] = frozenset({"frame", "image", "left_image"})  # wha
 _BAD_PAYLOAD_ERRORS = (ZenslamError, DecodeError, ValueError, TypeError, OverflowError, struct.error, cv2.error)
 
 
-def schema_of(encoding: zenoh.Encoding) -> str | None:
+def schema_of(encoding: bus.Encoding) -> str | None:
     """The schema of a zenoh encoding (``application/protobuf;foxglove.RawImage`` -> ``foxglove.RawImage``), or None."""
     _, _, schema = str(encoding).partition(";")
     return schema or None
@@ -62,7 +62,7 @@ class BusFrames:
 
     def __init__(
         self,
-        session: zenoh.Session,
+        session: bus.Session,
         family: MessageFamily,
         config: SourceConfig,
         should_stop: Callable[[], bool],
@@ -116,10 +116,9 @@ class BusFrames:
             # declared last: once a publisher sees its images matched, every other key of the frame
             # (calibration, depth, right image) is matched too and its token's going will be seen,
             # however fast it publishes and leaves.
-            liveliness = self._session.liveliness()
-            stack.enter_context(liveliness.declare_subscriber(self._family.liveliness_key(), self._on_token, history=True))
+            stack.enter_context(bus.watch_tokens(self._session, self._family.liveliness_key(), self._on_token))
             for key, role in sorted(self._roles.items(), key=lambda item: item[1] in _WAITED_ON):
-                stack.enter_context(self._session.declare_subscriber(key, self._receiver(key, role)))
+                stack.enter_context(bus.declare_callback_subscriber(self._session, key, self._receiver(key, role)))
             subscribed_at = self._clock()
             logger.info("%s: waiting for frames on %s", self._family.name, ", ".join(self._roles))
             previous: tuple[int, int] | None = None
@@ -136,11 +135,11 @@ class BusFrames:
                     previous = (frame.frame.index, frame.frame.stamp_ns)
                 yield frame if problem is None else problem
 
-    def _receiver(self, key: str, role: Role) -> Callable[[zenoh.Sample], None]:
+    def _receiver(self, key: str, role: Role) -> Callable[[bus.Sample], None]:
         limit = self._config.max_message_bytes
         capacity = 1 if role in CALIBRATION_ROLES else self._config.pending
 
-        def receive(sample: zenoh.Sample) -> None:
+        def receive(sample: bus.Sample) -> None:
             # zenoh's thread: only checks the size and queues the bytes; decoding is the consumer's.
             now = self._clock()
             with self._lock:
@@ -158,11 +157,11 @@ class BusFrames:
 
         return receive
 
-    def _on_token(self, sample: zenoh.Sample) -> None:
+    def _on_token(self, sample: bus.Sample) -> None:
         with self._lock:
             # A token that went before its arrival was seen still shows that a publisher was there and left.
             self._tokens_seen = True
-            if sample.kind == zenoh.SampleKind.PUT:
+            if bus.token_appeared(sample):
                 self._tokens.add(str(sample.key_expr))
             else:
                 self._tokens.discard(str(sample.key_expr))
