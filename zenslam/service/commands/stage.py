@@ -26,7 +26,7 @@ from pathlib import Path
 from zenslam.errors import ProcessError
 from zenslam.runtime.stop import STOP_SIGNALS
 from zenslam.runtime.supervisor import stage_command, stage_environment
-from zenslam.service.run_config import RunConfig, load_run_config
+from zenslam.service.run_config import RunConfig, load_run_config, run_config_to_yaml
 from zenslam.service.stages import STAGE_MODULES, STAGE_NAMES, stage_args
 
 logger = logging.getLogger(__name__)
@@ -69,6 +69,33 @@ def stage_argv(role: str, given: list[str], config: RunConfig) -> list[str]:
     return argv + list(given)
 
 
+def _with_resolved_config(given: list[str], path: Path | None, config: RunConfig) -> list[str]:
+    """``given`` with ``--config`` naming the resolved run config: a stage reads its sections as
+    written, so a file with keys of earlier versions (migrated by ``load_run_config``) or with the
+    ``map`` section alone (copied into the stages' sections) is passed on resolved, as ``zenslam run``
+    does. The resolved file sits beside the given one (the backend keeps its journal in that folder)."""
+    if path is None:
+        return given
+    resolved_text = run_config_to_yaml(config)
+    if path.read_text() == resolved_text:
+        return given
+    resolved = path.with_name(f"{path.stem}.resolved.yaml")
+    resolved.write_text(resolved_text)
+    logger.info("the stage reads %s: %s resolved (earlier keys migrated, shared sections copied)", resolved, path)
+    out, k = [], 0
+    while k < len(given):
+        if given[k] == "--config" and k + 1 < len(given):
+            out += ["--config", str(resolved)]
+            k += 2
+        elif given[k].startswith("--config="):
+            out.append(f"--config={resolved}")
+            k += 1
+        else:
+            out.append(given[k])
+            k += 1
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
     """Replace this process with the stage's (never returns unless the exec fails)."""
     options = _given_options(args.stage_args)
@@ -77,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
         argv = list(args.stage_args)
     else:
         config = load_run_config(options.config)
-        argv = stage_argv(args.role, args.stage_args, config)
+        argv = stage_argv(args.role, _with_resolved_config(args.stage_args, options.config, config), config)
         if config.mode != "live":
             # Single-threaded numerics in lockstep and pipelined runs, as ``zenslam run`` gives its stages.
             env.update({name: "1" for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")})
