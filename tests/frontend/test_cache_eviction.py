@@ -218,20 +218,6 @@ def test_culled_points_of_kept_keyframes_keep_their_rows_and_statistics() -> Non
     assert all(lm.n_visible[r] == visible[i] for r, i in zip(lm.rows_of_ids(lm.point_ids), lm.point_ids.tolist()))
 
 
-def test_recent_point_culling_after_an_eviction() -> None:
-    lm, keyframes = corridor(20, CONFIG)
-    CacheEviction(lm).maybe_evict(frame_rows_seeing(lm, keyframes[-1]), lm.slot_of(19), unanswered=1)
-    kf = corridor_keyframe(lm, keyframes[-1].new_point_ids[:SHARED], NEW, 20.0)
-    for k in range(21, 24):
-        kf = corridor_keyframe(lm, kf.new_point_ids[:0], NEW, float(k))  # never re-observed
-    lm.cull_recent_points()
-    # Points of keyframe 20 are 3 keyframes old, seen once: culled; keyframe 23's are newborn: kept;
-    # keyframe 19's are no longer recent: kept, though most are seen once.
-    assert not lm.valid[lm.rows_of_ids(lm.keyframe(lm.slot_of(20)).new_point_ids)].any()
-    assert lm.valid[lm.rows_of_ids(kf.new_point_ids)].all()
-    assert lm.valid[lm.rows_of_ids(keyframes[19].new_point_ids)].all()
-
-
 def test_invalid_cache_sizes_are_config_errors() -> None:
     with pytest.raises(ConfigError, match="cache_max_keyframes=0"):
         LocalMapConfig(cache_max_keyframes=0)

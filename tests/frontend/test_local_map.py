@@ -1,4 +1,4 @@
-"""The frontend's local map: ids, observations, covisibility, local keyframes and points, culling."""
+"""The frontend's local map: ids, observations, covisibility, local keyframes and points."""
 
 from __future__ import annotations
 
@@ -168,26 +168,6 @@ def test_observations_refresh_descriptors_and_normals() -> None:
     assert lm.min_distance_m[0] == pytest.approx(d / 1.2**7)
 
 
-def test_recent_point_culling() -> None:
-    lm = LocalMap()
-    add_keyframe(lm, [], 10)  # points 0..9
-    lm.increase_visible(np.arange(10))
-    lm.increase_visible(np.arange(0, 3))
-    lm.increase_visible(np.arange(0, 3))
-    lm.increase_visible(np.arange(0, 3))  # points 0..2: found 1 of visible 5 = 0.2
-    add_keyframe(lm, np.arange(3, 8), 0)
-    assert lm.cull_recent_points() == 3
-    add_keyframe(lm, np.arange(3, 6), 0)
-    # Two keyframes after birth: points 8, 9 were never re-observed.
-    assert lm.cull_recent_points() == 2
-    assert np.flatnonzero(lm.valid).tolist() == [3, 4, 5, 6, 7]
-    assert lm.tracked_points(0, 2) == 5
-    assert lm.tracked_points(0, 3) == 3
-    window = lm.local_window(np.arange(10))
-    assert 0 in window.keyframe_slots.tolist()
-    assert set(lm.local_point_rows(window.keyframe_slots).tolist()) == {3, 4, 5, 6, 7}
-
-
 def test_map_update_hooks() -> None:
     lm = LocalMap()
     kf = add_keyframe(lm, [], 4)
@@ -238,16 +218,6 @@ def test_map_update_replaces_points_and_creates_backend_points() -> None:
     assert np.array_equal(lm.p_world[rows[:5]], update.p_world[:5])
     assert np.array_equal(lm.max_distance_m[rows[:5]], np.full(5, 20.0))
     assert lm.n_observations[rows[2:5]].tolist() == [1, 1, 1]
-    rows = rows[:5]
-    # Backend points are never culled as "recent" by the frontend.
-    lm.increase_visible(rows[2:])
-    lm.increase_visible(rows[2:])
-    lm.increase_visible(rows[2:])
-    lm.increase_visible(rows[2:])
-    add_keyframe(lm, [], 1)
-    add_keyframe(lm, [], 1)
-    lm.cull_recent_points()
-    assert np.all(lm.valid[rows[2:]])
 
 
 def test_map_update_replaces_keyframe_pose_and_associations() -> None:

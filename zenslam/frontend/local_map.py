@@ -41,7 +41,7 @@ logger = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class LocalMapConfig:
-    """Id spaces, local-window sizes and the recent-point culling rules of the frontend's map."""
+    """Id spaces, local-window sizes and cache bounds of the frontend's map (the backend culls points)."""
 
     point_id_start: int = 0  # first id given to a point created by the frontend
     point_id_step: int = 1  # increment between consecutive point ids
@@ -50,10 +50,6 @@ class LocalMapConfig:
     max_local_keyframes: int = 80  # stop adding covisible neighbours past this many local keyframes
     best_covisible: int = 10  # neighbours examined per local keyframe (ORB-SLAM: 10)
     min_covisibility_weight: int = 15  # shared points for a covisibility edge (ORB-SLAM: 15)
-    cull_recent_points: bool = True  # apply ORB-SLAM's recent map point culling at each keyframe
-    cull_min_found_ratio: float = 0.25  # found / visible below this -> point removed
-    cull_min_keyframe_observations: int = 2  # keyframes that must see a point 2 keyframes after its birth
-    cull_window_keyframes: int = 3  # points stay "recent" (checked) for this many keyframes
     # The map is a bounded cache of the backend's (see cache_eviction): past cache_max_keyframes,
     # keyframes outside the tracking window and its margin are evicted with the points they alone see.
     evict: bool = True  # False: nothing is evicted and the cache grows into a full copy of the map
@@ -109,7 +105,6 @@ _POINT_ARRAYS = {
     "n_found": ((), np.int64),
     "n_observations": ((), np.int64),
     "valid": ((), np.bool_),
-    "created_serial": ((), np.int64),
     "covariance": ((3, 3), np.float64),
 }
 _OBS_ARRAYS = {"row": ((), np.int64), "slot": ((), np.int64), "keypoint": ((), np.int64), "desc": ((32,), np.uint8)}
@@ -157,7 +152,7 @@ class LocalMap:
         self._kf_rows: list[np.ndarray] = []  # per slot: rows of the points the keyframe observes
         self._kf_centres = np.zeros((0, 3))
         self._graph = SlotGraph(self.config.min_covisibility_weight)
-        self._n_inserted = 0  # keyframes ever inserted: the serial of the next one
+        self._n_inserted = 0  # keyframes ever inserted
 
     # ---- sizes and accessors -------------------------------------------------------------------
     @property
@@ -177,12 +172,12 @@ class LocalMap:
 
     @property
     def n_points(self) -> int:
-        """Rows in use (culled points keep their row, with ``valid`` False)."""
+        """Rows in use (removed points keep their row, with ``valid`` False)."""
         return self._n_points
 
     @property
     def n_valid_points(self) -> int:
-        """Points not culled."""
+        """Points not removed."""
         return int(np.count_nonzero(self.valid))
 
     def _view(self, name: str) -> np.ndarray:
@@ -197,7 +192,7 @@ class LocalMap:
     n_visible = property(lambda self: self._view("n_visible"), doc="(M,) frames whose frustum held the point")
     n_found = property(lambda self: self._view("n_found"), doc="(M,) frames where the point was an inlier")
     n_observations = property(lambda self: self._view("n_observations"), doc="(M,) keyframes observing it")
-    valid = property(lambda self: self._view("valid"), doc="(M,) False once culled or removed")
+    valid = property(lambda self: self._view("valid"), doc="(M,) False once removed by the backend")
     covariance = property(
         lambda self: self._view("covariance"), doc="(M, 3, 3) position covariance, m^2; zeros where not estimated (``set_covariances``)"
     )
@@ -257,12 +252,11 @@ class LocalMap:
         the observed points' representative descriptors and viewing directions.
         """
         slot = len(self._keyframes)
-        serial = self._n_inserted
         self._n_inserted += 1
         self._keyframes.append(keyframe)
         self._slot_of_id[int(keyframe.id)] = slot
         self._kf_centres = np.vstack([self._kf_centres, keyframe.centre_world[None]])
-        new_rows = self._append_new_points(keyframe, serial)
+        new_rows = self._append_new_points(keyframe)
         if point_rows is None:
             rows = self.rows_of_ids(keyframe.map_point_ids)
         else:
@@ -276,7 +270,7 @@ class LocalMap:
 
     def _observe(self, slot: int, keyframe: KeyFrame, rows: np.ndarray) -> np.ndarray:
         """Record the observations of the new keyframe in ``slot`` matched to point ``rows`` (N,)
-        (-1 none; culled points are skipped, one observation per point); returns the rows observed."""
+        (-1 none; removed points are skipped, one observation per point); returns the rows observed."""
         rows = rows.copy()
         rows[rows >= 0] = np.where(self.valid[rows[rows >= 0]], rows[rows >= 0], -1)
         keypoints, observed = _one_observation_per_point(rows)
@@ -291,7 +285,7 @@ class LocalMap:
         Keyframes the cache holds stay as they are. Listed points the cache holds take the
         backend's values; unknown ones observed by a restored keyframe are created (as a map
         update creates them). A restored keyframe is no new keyframe: it does not advance
-        ``n_keyframes`` (the clock of the recent-point culling), and it adds to ``n_observations``
+        ``n_keyframes``, and it adds to ``n_observations``
         only of the points it brings (the others already count it, see ``retain``).
         """
         restored = [kf for kf in sorted(keyframes, key=lambda k: k.id) if self.slot_of(kf.id) < 0]
@@ -318,7 +312,7 @@ class LocalMap:
             slots.append(slot)
         return slots
 
-    def _append_new_points(self, keyframe: KeyFrame, serial: int) -> np.ndarray:
+    def _append_new_points(self, keyframe: KeyFrame) -> np.ndarray:
         n_new = len(keyframe.new_point_ids)
         start = self._n_points
         _grow(self._pts, _POINT_ARRAYS, start + n_new)
@@ -339,7 +333,6 @@ class LocalMap:
         pts["n_found"][rows] = 1
         pts["n_observations"][rows] = 0
         pts["valid"][rows] = True
-        pts["created_serial"][rows] = serial
         self._n_points = start + n_new
         self._id_index.add(keyframe.new_point_ids, rows)
         return rows
@@ -455,7 +448,7 @@ class LocalMap:
         rows = self.keyframe_point_rows(slot)
         return int(np.count_nonzero(self.n_observations[rows] >= min_observations))
 
-    # ---- statistics and culling ------------------------------------------------------------------
+    # ---- statistics --------------------------------------------------------------------------------
     def increase_visible(self, rows: np.ndarray) -> None:
         """Count one more frame whose frustum held each point in ``rows`` (unique rows)."""
         self._pts["n_visible"][rows] += 1
@@ -463,26 +456,6 @@ class LocalMap:
     def increase_found(self, rows: np.ndarray) -> None:
         """Count one more frame where each point in ``rows`` (unique rows) was an inlier."""
         self._pts["n_found"][rows] += 1
-
-    def cull_recent_points(self) -> int:
-        """ORB-SLAM's ``MapPointCulling`` on points born in the last ``cull_window_keyframes`` keyframes.
-
-        A recent point goes when its found ratio is below ``cull_min_found_ratio``, or when two or
-        more keyframes have passed since its birth and fewer than ``cull_min_keyframe_observations``
-        keyframes observe it. Returns the number culled.
-        """
-        cfg = self.config
-        if not cfg.cull_recent_points or self.n_keyframes == 0:
-            return 0
-        age = (self.n_keyframes - 1) - self._view("created_serial")
-        recent = self.valid & (age <= cfg.cull_window_keyframes)
-        ratio = self.n_found / np.maximum(self.n_visible, 1)
-        bad = recent & (
-            (ratio < cfg.cull_min_found_ratio)
-            | ((age >= 2) & (self.n_observations < cfg.cull_min_keyframe_observations))
-        )
-        self._pts["valid"][np.flatnonzero(bad)] = False
-        return int(np.count_nonzero(bad))
 
     # ---- eviction ---------------------------------------------------------------------------------
     def cached_slots(self) -> np.ndarray:
@@ -567,8 +540,7 @@ class LocalMap:
         are created only when a held keyframe listed in the update observes them: the cache holds
         its keyframes' points (tracking reaches points through keyframes), so an evicted point
         comes back when a held keyframe is associated with it again, and a correction listing the
-        whole map does not copy it into the cache. Points listed by the backend are never culled
-        by ``cull_recent_points``: the backend decides about them.
+        whole map does not copy it into the cache.
         """
         corrections = self._fitting(update.keyframes)
         moved = self._poses_of(corrections)
@@ -643,7 +615,6 @@ class LocalMap:
         pts["min_distance_m"][rows] = update.min_distance_m[listed]
         pts["max_distance_m"][rows] = update.max_distance_m[listed]
         pts["valid"][rows] = True
-        pts["created_serial"][rows] = np.iinfo(np.int64).min // 2  # never "recent" again
 
     def _replace_keyframes(self, corrections: list[KeyframeCorrection]) -> None:
         """Replace the poses and associations of the known keyframes among ``corrections``: their

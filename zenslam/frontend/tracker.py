@@ -914,7 +914,6 @@ class Tracker:
         )
         new_rows = self.map.insert_keyframe(keyframe, point_rows=rows)
         rows[new_kps] = new_rows
-        self.map.cull_recent_points()
         self._reference_slot = self.map.slot_of(keyframe.id)
         self._last_keyframe_index = frame.index
         return keyframe
