@@ -62,7 +62,7 @@ from zenslam.schemas.map_update import MapUpdate
 from zenslam.schemas.relocalisation import RelocalisationCandidates, RelocalisationQuery
 
 if TYPE_CHECKING:
-    from zenslam.runtime.rerun_log import FrontendLog
+    from zenslam.frontend.rerun_log import FrontendLog
 
 logger = logging.getLogger(__name__)
 
@@ -277,7 +277,7 @@ class FrontendNode:
             self._unlogged = None
 
     def _log_to_rerun(self, message: codec.FrameMessage, out: Any) -> None:
-        from zenslam.runtime.rerun_log import tracked_keypoints
+        from zenslam.frontend.rerun_log import tracked_keypoints
 
         self.rerun.log_camera(message.calibration)
         self.rerun.log_frame(out, tracked_keypoints(self._pipeline, message.frame.index), message.frame.left)

@@ -234,6 +234,11 @@ class Tracker:
         return bool(reinit and self._lost_streak >= reinit) and not self.config.localization
 
     @property
+    def last_frame(self) -> _LastFrame | None:
+        """The last frame tracked (with the map-point row of each keypoint), None before the first."""
+        return self._last
+
+    @property
     def may_ask_backend(self) -> bool:
         """Whether tracking the next frame may ask the backend for relocalisation candidates or a
         tracking window: tracking is lost, or the run enters or localises in a saved map."""
