@@ -36,6 +36,11 @@ class StubPipeline:
 
     may_ask_backend = False  # a lost stub frame asks nobody
 
+    @property
+    def map_sync(self) -> SimpleNamespace:
+        """Map updates reach the stub's ``apply_map_update``, where a test gives it one."""
+        return SimpleNamespace(apply=lambda update: self.apply_map_update(update))
+
     def __init__(self, calibration: PinholeCalibration, sensor: str):
         self.calibration, self.sensor, self.seen, self.in_flight = calibration, sensor, [], []
         self.prepared, self.used_prepared = [], []

@@ -1,9 +1,9 @@
-"""The frontend's cache of the map: keyframes, points as arrays, covisibility and the local window.
+"""The frontend's cache of the map: keyframes, points as arrays, observations and covisibility.
 
-Points are stored as a struct of arrays indexed by *row* (an internal, dense index); their ids
-are what leaves the frontend. Per-frame queries (local keyframes, local points) are vectorised
-over these arrays; the per-keyframe bookkeeping (observations, covisibility) runs once per
-keyframe.
+Points are stored as a struct of arrays indexed by *row* (an internal, dense index, see
+``map_arrays``); their ids are what leaves the frontend. Per-frame queries (``local_window``) are
+vectorised over these arrays; the per-keyframe bookkeeping (observations, covisibility) runs
+once per keyframe.
 
 Id spaces: point and keyframe ids come from ``IdAllocator(start, step)`` objects built from
 ``LocalMapConfig`` (``point_id_start``/``point_id_step``, ``keyframe_id_start``/
@@ -11,8 +11,8 @@ Id spaces: point and keyframe ids come from ``IdAllocator(start, step)`` objects
 gives itself a disjoint space (for example a start with the high bit set) through its own
 configuration, so no id needs a round trip.
 
-The backend's corrections arrive as ``MapUpdate`` messages (replacement semantics, see
-``zenslam.schemas.map_update``) and are applied with ``apply_map_update``.
+The backend's corrections arrive as ``MapUpdate`` messages and are applied by ``map_sync``
+through the replacement primitives at the end of ``LocalMap``.
 
 The map is a bounded cache: ``retain`` evicts keyframes and their points (``cache_eviction``
 decides which and when) and compacts slots and rows, so whoever holds slots or rows remaps them.
@@ -21,22 +21,19 @@ decides which and when) and compacts slots and rows, so whoever holds slots or r
 from __future__ import annotations
 
 import dataclasses
-import logging
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from zenslam.errors import ConfigError
+from zenslam.frontend.id_allocator import IdAllocator
 from zenslam.frontend.id_index import IdIndex
 from zenslam.frontend.keyframe import KeyFrame
+from zenslam.frontend.map_arrays import OBS_ARRAYS, POINT_ARRAYS, compacted, grow, one_observation_per_point
 from zenslam.frontend.slot_graph import SlotGraph
-from zenslam.geometry import invert_T, transform_points
 from zenslam.map_point_rules import representative_descriptors, scale_invariance_range
-from zenslam.schemas.map_update import KeyframeCorrection, MapUpdate
-from zenslam.schemas.relocalisation import MapPoints
+from zenslam.schemas.map_update import MapUpdate
 
-logger = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -64,73 +61,6 @@ class LocalMapConfig:
             raise ConfigError("invalid frontend local_map configuration: " + "; ".join(problems))
 
 
-class IdAllocator:
-    """Hands out int ids start, start + step, start + 2 step, ... in order."""
-
-    def __init__(self, start: int, step: int = 1) -> None:
-        if step <= 0:
-            raise ValueError(f"id step must be positive, got {step}")
-        self._next = int(start)
-        self._step = int(step)
-
-    def next(self) -> int:
-        """One new id."""
-        value = self._next
-        self._next += self._step
-        return value
-
-    def take(self, n: int) -> np.ndarray:
-        """``n`` new ids as an (n,) int64 array."""
-        ids = self._next + self._step * np.arange(n, dtype=np.int64)
-        self._next += self._step * n
-        return ids
-
-
-@dataclass(frozen=True)
-class LocalWindow:
-    """The keyframes around the current frame (slots into the map) and the reference among them."""
-
-    keyframe_slots: np.ndarray  # (L,) int64, the ones voted for first (most shared points first)
-    reference_slot: int  # the keyframe sharing most points with the frame, -1 if none
-
-
-_POINT_ARRAYS = {
-    "ids": ((), np.int64),
-    "p_world": ((3,), np.float64),
-    "descriptors": ((32,), np.uint8),
-    "normals": ((3,), np.float64),
-    "min_distance_m": ((), np.float64),
-    "max_distance_m": ((), np.float64),
-    "n_visible": ((), np.int64),
-    "n_found": ((), np.int64),
-    "n_observations": ((), np.int64),
-    "valid": ((), np.bool_),
-    "covariance": ((3, 3), np.float64),
-}
-_OBS_ARRAYS = {"row": ((), np.int64), "slot": ((), np.int64), "keypoint": ((), np.int64), "desc": ((32,), np.uint8)}
-
-
-def _grow(arrays: dict[str, np.ndarray], spec: dict, needed: int) -> None:
-    capacity = next(iter(arrays.values())).shape[0]
-    if needed <= capacity:
-        return
-    new_capacity = max(needed, 2 * capacity, 1024)
-    for name, (shape, dtype) in spec.items():
-        bigger = np.zeros((new_capacity, *shape), dtype=dtype)
-        bigger[:capacity] = arrays[name]
-        arrays[name] = bigger
-
-
-def _compacted(arrays: dict[str, np.ndarray], spec: dict, index: np.ndarray) -> dict[str, np.ndarray]:
-    """The rows ``index`` of ``arrays``, moved to the front of new arrays with room to grow by half."""
-    capacity = max(len(index) + len(index) // 2, 1024)
-    out = {}
-    for name, (shape, dtype) in spec.items():
-        out[name] = np.zeros((capacity, *shape), dtype=dtype)
-        out[name][: len(index)] = arrays[name][index]
-    return out
-
-
 class LocalMap:
     """Keyframes, map points and covisibility as the frontend needs them for tracking.
 
@@ -142,8 +72,8 @@ class LocalMap:
         self.config = config or LocalMapConfig()
         self.point_id_allocator = IdAllocator(self.config.point_id_start, self.config.point_id_step)
         self.keyframe_id_allocator = IdAllocator(self.config.keyframe_id_start, self.config.keyframe_id_step)
-        self._pts = {name: np.zeros((0, *shape), dtype=dtype) for name, (shape, dtype) in _POINT_ARRAYS.items()}
-        self._obs = {name: np.zeros((0, *shape), dtype=dtype) for name, (shape, dtype) in _OBS_ARRAYS.items()}
+        self._pts = {name: np.zeros((0, *shape), dtype=dtype) for name, (shape, dtype) in POINT_ARRAYS.items()}
+        self._obs = {name: np.zeros((0, *shape), dtype=dtype) for name, (shape, dtype) in OBS_ARRAYS.items()}
         self._n_points = 0
         self._n_obs = 0
         self._id_index = IdIndex()
@@ -251,11 +181,8 @@ class LocalMap:
         saves looking the ids up. Returns the rows (P,) of the new points. Observations refresh
         the observed points' representative descriptors and viewing directions.
         """
-        slot = len(self._keyframes)
         self._n_inserted += 1
-        self._keyframes.append(keyframe)
-        self._slot_of_id[int(keyframe.id)] = slot
-        self._kf_centres = np.vstack([self._kf_centres, keyframe.centre_world[None]])
+        slot = self._new_slot(keyframe)
         new_rows = self._append_new_points(keyframe)
         if point_rows is None:
             rows = self.rows_of_ids(keyframe.map_point_ids)
@@ -268,54 +195,37 @@ class LocalMap:
         self._graph.add(self._links(slot, observed))
         return new_rows
 
+    def add_held_keyframe(self, keyframe: KeyFrame, counted: np.ndarray) -> int:
+        """Hold a keyframe of the backend's map (restored, see ``map_sync.restore_keyframes``)
+        observing its associated points; it adds to ``n_observations`` of the rows where
+        ``counted`` (a mask over rows) is set. Not a new keyframe: ``n_keyframes`` stays. Returns its slot."""
+        slot = self._new_slot(keyframe)
+        kf_rows = self._observe(slot, keyframe, self.rows_of_ids(keyframe.map_point_ids))
+        self._pts["n_observations"][kf_rows[counted[kf_rows]]] += 1
+        self._graph.add(self._links(slot, kf_rows))
+        return slot
+
+    def _new_slot(self, keyframe: KeyFrame) -> int:
+        slot = len(self._keyframes)
+        self._keyframes.append(keyframe)
+        self._slot_of_id[int(keyframe.id)] = slot
+        self._kf_centres = np.vstack([self._kf_centres, keyframe.centre_world[None]])
+        return slot
+
     def _observe(self, slot: int, keyframe: KeyFrame, rows: np.ndarray) -> np.ndarray:
         """Record the observations of the new keyframe in ``slot`` matched to point ``rows`` (N,)
         (-1 none; removed points are skipped, one observation per point); returns the rows observed."""
         rows = rows.copy()
         rows[rows >= 0] = np.where(self.valid[rows[rows >= 0]], rows[rows >= 0], -1)
-        keypoints, observed = _one_observation_per_point(rows)
+        keypoints, observed = one_observation_per_point(rows)
         self._append_observations(slot, observed, keypoints, keyframe.descriptors[keypoints])
         self._kf_rows.append(observed)
         return observed
 
-    def restore_keyframes(self, keyframes: Sequence[KeyFrame], points: MapPoints) -> list[int]:
-        """Bring keyframes of the backend's map into the cache (evicted ones, or never held) with the
-        points they observe, as the backend describes them (``points``); returns their new slots.
-
-        Keyframes the cache holds stay as they are. Listed points the cache holds take the
-        backend's values; unknown ones observed by a restored keyframe are created (as a map
-        update creates them). A restored keyframe is no new keyframe: it does not advance
-        ``n_keyframes``, and it adds to ``n_observations``
-        only of the points it brings (the others already count it, see ``retain``).
-        """
-        restored = [kf for kf in sorted(keyframes, key=lambda k: k.id) if self.slot_of(kf.id) < 0]
-        observed = [np.asarray(kf.map_point_ids, dtype=np.int64) for kf in restored]
-        known = self.rows_of_ids(points.ids) >= 0
-        listed = MapUpdate(
-            keyframe_id=-1, stamp_ns=0, point_ids=np.asarray(points.ids, dtype=np.int64), p_world=points.p_world,
-            descriptors=points.descriptors, normals=points.normals, min_distance_m=points.min_distance_m,
-            max_distance_m=points.max_distance_m,
-        )  # fmt: skip
-        self._replace_points(listed, np.concatenate(observed) if observed else np.zeros(0, dtype=np.int64))
-        brought = np.zeros(self._n_points, dtype=bool)
-        rows = self.rows_of_ids(points.ids)
-        brought[rows[(rows >= 0) & ~known]] = True
-        slots = []
-        for keyframe in restored:
-            slot = len(self._keyframes)
-            self._keyframes.append(keyframe)
-            self._slot_of_id[int(keyframe.id)] = slot
-            self._kf_centres = np.vstack([self._kf_centres, keyframe.centre_world[None]])
-            kf_rows = self._observe(slot, keyframe, self.rows_of_ids(keyframe.map_point_ids))
-            self._pts["n_observations"][kf_rows[brought[kf_rows]]] += 1
-            self._graph.add(self._links(slot, kf_rows))
-            slots.append(slot)
-        return slots
-
     def _append_new_points(self, keyframe: KeyFrame) -> np.ndarray:
         n_new = len(keyframe.new_point_ids)
         start = self._n_points
-        _grow(self._pts, _POINT_ARRAYS, start + n_new)
+        grow(self._pts, POINT_ARRAYS, start + n_new)
         rows = np.arange(start, start + n_new, dtype=np.int64)
         kps = np.asarray(keyframe.new_point_keypoints, dtype=np.int64)
         p = np.asarray(keyframe.new_points_world, dtype=float).reshape(n_new, 3)
@@ -339,7 +249,7 @@ class LocalMap:
 
     def _append_observations(self, slot: int, rows: np.ndarray, keypoints: np.ndarray, desc: np.ndarray) -> None:
         start, n = self._n_obs, len(rows)
-        _grow(self._obs, _OBS_ARRAYS, start + n)
+        grow(self._obs, OBS_ARRAYS, start + n)
         self._obs["row"][start : start + n] = rows
         self._obs["slot"][start : start + n] = slot
         self._obs["keypoint"][start : start + n] = keypoints
@@ -394,55 +304,6 @@ class LocalMap:
         """Spanning-tree children, in insertion order."""
         return list(self._graph.children(slot))
 
-    def local_window(self, frame_point_rows: np.ndarray) -> LocalWindow:
-        """ORB-SLAM's ``UpdateLocalKeyFrames`` for a frame matched to ``frame_point_rows`` (-1 none).
-
-        Every keyframe observing a matched point is local; then, while there are at most
-        ``max_local_keyframes``, each of those adds its first not-yet-local keyframe among its
-        10 best covisible ones, one child and its parent. The voted keyframes are visited by
-        decreasing vote (ORB-SLAM's order is by pointer, i.e. arbitrary) and ORB-SLAM2's early
-        exit after adding a parent is not reproduced.
-        """
-        rows = np.asarray(frame_point_rows, dtype=np.int64)
-        rows = rows[rows >= 0]
-        rows = rows[self.valid[rows]]
-        if len(rows) == 0 or not self._keyframes:
-            return LocalWindow(np.zeros(0, dtype=np.int64), -1)
-        in_frame = np.zeros(self._n_points, dtype=bool)
-        in_frame[rows] = True
-        obs_rows = self._obs["row"][: self._n_obs]
-        votes = np.bincount(self._obs["slot"][: self._n_obs][in_frame[obs_rows]], minlength=self.n_slots)
-        voted = np.flatnonzero(votes)
-        if len(voted) == 0:
-            return LocalWindow(np.zeros(0, dtype=np.int64), -1)
-        voted = voted[np.lexsort((voted, -votes[voted]))]
-        selected = [int(s) for s in voted]
-        included = set(selected)
-        for slot in voted.tolist():
-            if len(selected) > self.config.max_local_keyframes:
-                break
-            candidates = (
-                self.best_covisible(slot, self.config.best_covisible),
-                self._graph.children(slot),
-                [self.parent(slot)] if self.parent(slot) >= 0 else [],
-            )
-            for group in candidates:
-                for other in group:
-                    if other not in included:
-                        selected.append(other)
-                        included.add(other)
-                        break
-        return LocalWindow(np.asarray(selected, dtype=np.int64), int(voted[0]))
-
-    def local_point_rows(self, keyframe_slots: np.ndarray) -> np.ndarray:
-        """ORB-SLAM's ``UpdateLocalPoints``: sorted unique rows of valid points seen by the keyframes."""
-        if len(keyframe_slots) == 0:
-            return np.zeros(0, dtype=np.int64)
-        seen = np.zeros(self._n_points, dtype=bool)
-        for slot in keyframe_slots:
-            seen[self._kf_rows[int(slot)]] = True
-        return np.flatnonzero(seen & self.valid)
-
     def tracked_points(self, slot: int, min_observations: int) -> int:
         """Valid points of the keyframe seen by at least ``min_observations`` keyframes."""
         rows = self.keyframe_point_rows(slot)
@@ -496,11 +357,11 @@ class LocalMap:
         slot_map = np.where(kept_slot, np.cumsum(kept_slot) - 1, -1)
         row_map = np.where(kept_row, np.cumsum(kept_row) - 1, -1)
         rows = np.flatnonzero(kept_row)
-        self._pts = _compacted(self._pts, _POINT_ARRAYS, rows)
+        self._pts = compacted(self._pts, POINT_ARRAYS, rows)
         self._n_points = len(rows)
         self._id_index = IdIndex()
         self._id_index.add(self._pts["ids"][: self._n_points], np.arange(self._n_points, dtype=np.int64))
-        self._obs = _compacted(self._obs, _OBS_ARRAYS, np.flatnonzero(kept_obs))
+        self._obs = compacted(self._obs, OBS_ARRAYS, np.flatnonzero(kept_obs))
         self._n_obs = int(np.count_nonzero(kept_obs))
         self._obs["row"][: self._n_obs] = row_map[self._obs["row"][: self._n_obs]]
         self._obs["slot"][: self._n_obs] = slot_map[self._obs["slot"][: self._n_obs]]
@@ -512,7 +373,7 @@ class LocalMap:
         self._graph.compact(slot_map.tolist())
         return slot_map, row_map
 
-    # ---- map updates from elsewhere --------------------------------------------------------------
+    # ---- map updates (applied by map_sync) --------------------------------------------------------------
     def set_point_positions(self, point_ids: np.ndarray, p_world: np.ndarray) -> int:
         """Move known points (ids) to new world positions (K, 3) metres; unknown ids are ignored.
 
@@ -531,73 +392,15 @@ class LocalMap:
         self._pts["valid"][rows] = False
         return len(rows)
 
-    def apply_map_update(self, update: MapUpdate) -> None:
-        """Apply the backend's correction: replace listed points (creating unknown ones), keyframe
-        poses and keypoint-to-point associations, then delete removed points and keyframes.
-
-        Replacement semantics make a second application harmless. Keyframes this map does not
-        hold (never had, or evicted) are skipped: it cannot rebuild their keypoints. Unknown points
-        are created only when a held keyframe listed in the update observes them: the cache holds
-        its keyframes' points (tracking reaches points through keyframes), so an evicted point
-        comes back when a held keyframe is associated with it again, and a correction listing the
-        whole map does not copy it into the cache.
-        """
-        corrections = self._fitting(update.keyframes)
-        moved = self._poses_of(corrections)
-        held = [c.map_point_ids for c in corrections if self.slot_of(c.id) >= 0]
-        self._replace_points(update, np.concatenate(held) if held else np.zeros(0, dtype=np.int64))
-        self._replace_keyframes(corrections)
-        self._carry_unmapped_keyframes(update, moved)
-        self.remove_points(update.removed_point_ids)
-        for keyframe_id in np.asarray(update.removed_keyframe_ids, dtype=np.int64).tolist():
-            self._remove_keyframe(keyframe_id)
-
-    def _fitting(self, corrections: Sequence[KeyframeCorrection]) -> list[KeyframeCorrection]:
-        """``corrections`` less those of held keyframes whose associations do not list one point
-        per keypoint: a damaged message, which names a keyframe it cannot describe (skipped, with a
-        warning; the keyframe keeps what it had)."""
-        fitting = []
-        for correction in corrections:
-            slot = self.slot_of(correction.id)
-            keyframe = self._keyframes[slot] if slot >= 0 else None
-            if keyframe is not None and len(correction.map_point_ids) != len(keyframe.map_point_ids):
-                logger.warning(
-                    "map update: keyframe %d's correction lists %d point associations for its %d keypoints; skipped",
-                    correction.id, len(correction.map_point_ids), len(keyframe.map_point_ids),
-                )  # fmt: skip
-                continue
-            fitting.append(correction)
-        return fitting
-
-    def _poses_of(self, corrections: list[KeyframeCorrection]) -> dict[int, np.ndarray]:
-        """Slot -> current T_world_cam of the known keyframes among ``corrections``."""
-        slots = (self.slot_of(c.id) for c in corrections)
-        return {s: self._keyframes[s].T_world_cam for s in slots if s >= 0 and self._keyframes[s] is not None}
-
-    def _carry_unmapped_keyframes(self, update: MapUpdate, before: dict[int, np.ndarray]) -> None:
-        """Move the keyframes made after ``update.keyframe_id`` (the backend has not mapped them
-        yet) and the points they created with their spanning-tree parent's correction, as ORB-SLAM
-        corrects the last frame through its reference keyframe: without it, tracking between an
-        update and the next would mix the corrected map with keyframes placed on the old one."""
-        correction = {s: self._keyframes[s].T_world_cam @ invert_T(T) for s, T in before.items()}
-        for slot, keyframe in enumerate(self._keyframes):
-            if keyframe is None or keyframe.id <= update.keyframe_id or slot in before or self.parent(slot) not in correction:
-                continue
-            C = correction[slot] = correction[self.parent(slot)]
-            self._keyframes[slot] = dataclasses.replace(keyframe, T_world_cam=C @ keyframe.T_world_cam)
-            self._kf_centres[slot] = self._keyframes[slot].centre_world
-            rows = self.rows_of_ids(keyframe.new_point_ids[~np.isin(keyframe.new_point_ids, update.point_ids)])
-            rows = rows[rows >= 0]
-            self._pts["p_world"][rows] = transform_points(C, self._pts["p_world"][rows])
-
-    def _replace_points(self, update: MapUpdate, observed_ids: np.ndarray) -> None:
-        """Replace the listed points this map holds and create the unknown ones among ``observed_ids``."""
+    def replace_points(self, update: MapUpdate, observed_ids: np.ndarray) -> None:
+        """Replace the points ``update`` lists that this map holds (position, descriptor, viewing
+        direction, distance range; valid again) and create the unknown ones among ``observed_ids``."""
         rows = self.rows_of_ids(update.point_ids)
         unknown = np.flatnonzero(rows < 0)
         unknown = unknown[np.isin(update.point_ids[unknown], observed_ids)]
         if len(unknown):
             start = self._n_points
-            _grow(self._pts, _POINT_ARRAYS, start + len(unknown))
+            grow(self._pts, POINT_ARRAYS, start + len(unknown))
             rows[unknown] = np.arange(start, start + len(unknown))
             self._n_points = start + len(unknown)
             new = rows[unknown]
@@ -616,33 +419,32 @@ class LocalMap:
         pts["max_distance_m"][rows] = update.max_distance_m[listed]
         pts["valid"][rows] = True
 
-    def _replace_keyframes(self, corrections: list[KeyframeCorrection]) -> None:
-        """Replace the poses and associations of the known keyframes among ``corrections``: their
+    def replace_keyframe(self, slot: int, keyframe: KeyFrame) -> None:
+        """Put ``keyframe`` (the same id, a new pose or associations) in ``slot``; its observations
+        follow its associations only after ``reobserve``."""
+        self._keyframes[slot] = keyframe
+        self._kf_centres[slot] = keyframe.centre_world
+
+    def set_row_positions(self, rows: np.ndarray, p_world: np.ndarray) -> None:
+        """Move the points in ``rows`` (K,) to world positions ``p_world`` (K, 3) metres."""
+        self._pts["p_world"][rows] = p_world
+
+    def reobserve(self, slots: list[int]) -> None:
+        """Observations and covisibility of the keyframes in ``slots`` from their associations: their
         old observations go in one pass over the observation arrays, then each gets its new ones."""
-        replaced = []
-        for correction in corrections:
-            slot = self.slot_of(correction.id)
-            if slot >= 0 and self._keyframes[slot] is not None:
-                self._keyframes[slot] = dataclasses.replace(
-                    self._keyframes[slot],
-                    T_world_cam=np.asarray(correction.T_world_cam, dtype=float),
-                    map_point_ids=np.asarray(correction.map_point_ids, dtype=np.int64),
-                )
-                self._kf_centres[slot] = self._keyframes[slot].centre_world
-                replaced.append(slot)
-        self._drop_observations(replaced)
-        if not replaced:
+        self._drop_observations(slots)
+        if not slots:
             return
-        associations = [self._keyframes[slot].map_point_ids for slot in replaced]
+        associations = [self._keyframes[slot].map_point_ids for slot in slots]
         all_rows = self.rows_of_ids(np.concatenate(associations))  # one lookup for every keyframe
         known = np.flatnonzero(all_rows >= 0)
         all_rows[known[~self.valid[all_rows[known]]]] = -1
-        for slot, rows in zip(replaced, np.split(all_rows, np.cumsum([len(ids) for ids in associations])[:-1])):
-            keypoints, observed = _one_observation_per_point(rows)
+        for slot, rows in zip(slots, np.split(all_rows, np.cumsum([len(ids) for ids in associations])[:-1])):
+            keypoints, observed = one_observation_per_point(rows)
             self._append_observations(slot, observed, keypoints, self._keyframes[slot].descriptors[keypoints])
             self._pts["n_observations"][observed] += 1
             self._kf_rows[slot] = observed
-        for slot in replaced:
+        for slot in slots:
             self._graph.set_links(slot, self._links(slot, self._kf_rows[slot]))
 
     def _drop_observations(self, slots: list[int]) -> None:
@@ -655,14 +457,15 @@ class LocalMap:
         mine = doomed[self._obs["slot"][:n]]
         np.subtract.at(self._pts["n_observations"], self._obs["row"][:n][mine], 1)
         keep = np.flatnonzero(~mine)
-        for name in _OBS_ARRAYS:
+        for name in OBS_ARRAYS:
             self._obs[name][: len(keep)] = self._obs[name][keep]
         self._n_obs = len(keep)
         for slot in slots:
             self._kf_rows[slot] = np.zeros(0, dtype=np.int64)
 
-    def _remove_keyframe(self, keyframe_id: int) -> None:
-        """Forget a keyframe: its observations and links go, its children move to its parent."""
+    def remove_keyframe(self, keyframe_id: int) -> None:
+        """Forget a keyframe (the backend removed it): its observations and links go, its children
+        move to its parent; unknown ids are ignored."""
         slot = self.slot_of(keyframe_id)
         if slot < 0 or self._keyframes[slot] is None:
             return
@@ -670,15 +473,3 @@ class LocalMap:
         self._graph.remove(slot)
         self._keyframes[slot] = None
         del self._slot_of_id[int(keyframe_id)]
-
-
-def _one_observation_per_point(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The keypoints (ascending) and point rows a keyframe observes, from each keypoint's point row
-    ``rows`` (-1 none): a point associated with two keypoints is observed at the first."""
-    keypoints = np.flatnonzero(rows >= 0)
-    observed = rows[keypoints]
-    if len(observed) > 1 and not np.all(np.diff(np.sort(observed))):  # not all distinct (rare): unique pass
-        _, first = np.unique(observed, return_index=True)
-        keypoints = keypoints[np.sort(first)]
-        observed = rows[keypoints]
-    return keypoints, observed

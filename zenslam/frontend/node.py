@@ -69,6 +69,12 @@ logger = logging.getLogger(__name__)
 STAGE = "frontend"
 
 
+class MapUpdateTarget(Protocol):
+    """Applies the backend's map updates to a frontend's map cache (``map_sync.MapSync``)."""
+
+    def apply(self, update: MapUpdate) -> None: ...
+
+
 class Pipeline(Protocol):
     """What the node needs of the tracker (FrontendPipeline satisfies it)."""
 
@@ -82,7 +88,10 @@ class Pipeline(Protocol):
         candidates: CandidateSource | None = None,
     ) -> Any: ...
 
-    def apply_map_update(self, update: MapUpdate) -> None: ...
+    @property
+    def map_sync(self) -> MapUpdateTarget:
+        """What applies the backend's map updates to the pipeline's map cache."""
+        ...
 
     @property
     def may_ask_backend(self) -> bool:
@@ -137,6 +146,7 @@ class FrontendNode:
         self.rerun = rerun  # logs each frame's keypoints, pose, state and timings to the stage's .rrd
         self._unlogged: tuple[codec.FrameMessage, Any] | None = None  # handled, not yet logged to rerun
         self._pipeline: Pipeline | None = None
+        self._map_sync: MapUpdateTarget | None = None  # the pipeline's, applied to in one call per update
         self._camera: tuple[PinholeCalibration, SensorKind] | None = None
         self.frames = 0  # frames handled
         self.keyframes = 0  # keyframes sent
@@ -207,6 +217,7 @@ class FrontendNode:
             logger.info("first frame: %s camera, %s", message.sensor, message.calibration.summary())
             log_cpu_times("at stream start")
             self._pipeline, self._camera = self._make_pipeline(*camera), camera
+            self._map_sync = self._pipeline.map_sync
         elif camera != self._camera:
             raise CalibrationError(
                 f"frame {message.frame.index} has camera {camera} but the run started with {self._camera}; "
@@ -284,12 +295,12 @@ class FrontendNode:
 
     def apply_map_update(self, update: MapUpdate) -> None:
         """Apply the backend's correction to the pipeline's map before the next frame is tracked."""
-        if self._pipeline is None:
+        if self._map_sync is None:
             raise ZenslamError(
                 f"a map update for keyframe {update.keyframe_id} arrived before any frame was tracked; "
                 "is another frontend publishing keyframes in this session?"
             )
-        self._pipeline.apply_map_update(update)
+        self._map_sync.apply(update)
         self.updates_applied += 1
         self.answers_applied += int(update.answers_keyframe)
 
