@@ -289,7 +289,7 @@ def test_a_restarted_frontend_applies_no_answer_to_its_predecessors_keyframes():
     """Keyframe ids below the frontend's first (``entering_map``: past the backend's map) were its
     predecessor's: their answers are not applied, corrections and answers to its own keyframes are."""
     from zenslam.frontend.config import FrontendConfig, entering_map
-    from zenslam.frontend.node import _MapUpdates
+    from zenslam.frontend.map_update_inbox import MapUpdateInbox
     from zenslam.schemas.map_update import MapUpdate
 
     applied: list[MapUpdate] = []
@@ -297,7 +297,7 @@ def test_a_restarted_frontend_applies_no_answer_to_its_predecessors_keyframes():
     config = entering_map(FrontendConfig(), next_keyframe_id=40, next_point_id=9000)
     assert config.tracking.start_in_map and config.tracking.local_map.point_id_start == 9000
     with bus.open_session(bus.BusConfig()) as session:
-        updates = _MapUpdates(session, "restarted-frontend", config, resend=lambda message: None)
+        updates = MapUpdateInbox(session, "restarted-frontend", config, resend=lambda message: None)
         try:
             predecessors = MapUpdate(keyframe_id=39, stamp_ns=0)
             correction = MapUpdate(keyframe_id=39, stamp_ns=0, kind="correction")
