@@ -9,8 +9,9 @@ With a backend (``serve(..., map_updates=...)``), the backend's backend/map_upda
 (``map_update_inbox``) are applied to the pipeline's map cache through its ``map_sync``: in live
 mode every update that has arrived is applied before the next frame is tracked; in lockstep,
 after publishing a keyframe the frontend waits for the backend's update of that keyframe before
-it tracks another frame, so the run is deterministic; meanwhile it builds the next frame (ORB, stereo or depth: images only, no map) if that frame has arrived,
-so the backend's mapping and the frontend's feature extraction share the two cores. Pipelined
+it tracks another frame, so the run is deterministic; meanwhile it builds the next frame (ORB,
+stereo or depth: images only, no map) if that frame has arrived, so the backend's mapping and the
+frontend's feature extraction share the two cores. Pipelined
 mode (every frame, in order, as in lockstep) applies updates as live mode does. With a backend, a
 lost frame asks it for relocalisation candidates on backend/relocalisation (``RelocalisationQueries``)
 and waits for the answer: in lockstep the backend is idle between keyframes, so the answer, and
