@@ -27,11 +27,12 @@ import numpy as np
 
 from zenslam.errors import ConfigError
 from zenslam.frontend.id_allocator import IdAllocator
-from zenslam.frontend.id_index import IdIndex
 from zenslam.frontend.keyframe import KeyFrame
-from zenslam.frontend.map_arrays import OBS_ARRAYS, POINT_ARRAYS, compacted, grow, one_observation_per_point
+from zenslam.frontend.map_arrays import one_observation_per_point
+from zenslam.frontend.observation_table import ObservationTable, refresh_points
+from zenslam.frontend.point_table import PointTable
 from zenslam.frontend.slot_graph import SlotGraph
-from zenslam.map_point_rules import representative_descriptors, scale_invariance_range
+from zenslam.map_point_rules import scale_invariance_range
 from zenslam.schemas.map_update import MapUpdate
 
 
@@ -72,11 +73,8 @@ class LocalMap:
         self.config = config or LocalMapConfig()
         self.point_id_allocator = IdAllocator(self.config.point_id_start, self.config.point_id_step)
         self.keyframe_id_allocator = IdAllocator(self.config.keyframe_id_start, self.config.keyframe_id_step)
-        self._pts = {name: np.zeros((0, *shape), dtype=dtype) for name, (shape, dtype) in POINT_ARRAYS.items()}
-        self._obs = {name: np.zeros((0, *shape), dtype=dtype) for name, (shape, dtype) in OBS_ARRAYS.items()}
-        self._n_points = 0
-        self._n_obs = 0
-        self._id_index = IdIndex()
+        self._points = PointTable()
+        self._obs = ObservationTable()
         self._keyframes: list[KeyFrame | None] = []  # None once removed by the backend
         self._slot_of_id: dict[int, int] = {}
         self._kf_rows: list[np.ndarray] = []  # per slot: rows of the points the keyframe observes
@@ -85,46 +83,25 @@ class LocalMap:
         self._n_inserted = 0  # keyframes ever inserted
 
     # ---- sizes and accessors -------------------------------------------------------------------
-    @property
-    def n_keyframes(self) -> int:
-        """Keyframes inserted so far (removed and evicted ones included)."""
-        return self._n_inserted
-
-    @property
-    def n_slots(self) -> int:
-        """Keyframe slots in use (cached keyframes and the backend's removed ones until an eviction)."""
-        return len(self._keyframes)
-
-    @property
-    def n_cached_keyframes(self) -> int:
-        """Keyframes held: neither removed by the backend nor evicted."""
-        return len(self._slot_of_id)
-
-    @property
-    def n_points(self) -> int:
-        """Rows in use (removed points keep their row, with ``valid`` False)."""
-        return self._n_points
-
-    @property
-    def n_valid_points(self) -> int:
-        """Points not removed."""
-        return int(np.count_nonzero(self.valid))
-
-    def _view(self, name: str) -> np.ndarray:
-        return self._pts[name][: self._n_points]
-
-    point_ids = property(lambda self: self._view("ids"), doc="(M,) int64 id of each row")
-    p_world = property(lambda self: self._view("p_world"), doc="(M, 3) positions, metres, world frame")
-    descriptors = property(lambda self: self._view("descriptors"), doc="(M, 32) representative descriptors")
-    normals = property(lambda self: self._view("normals"), doc="(M, 3) mean viewing directions, world frame")
-    min_distance_m = property(lambda self: self._view("min_distance_m"), doc="(M,) scale-invariance minimum")
-    max_distance_m = property(lambda self: self._view("max_distance_m"), doc="(M,) scale-invariance maximum")
-    n_visible = property(lambda self: self._view("n_visible"), doc="(M,) frames whose frustum held the point")
-    n_found = property(lambda self: self._view("n_found"), doc="(M,) frames where the point was an inlier")
-    n_observations = property(lambda self: self._view("n_observations"), doc="(M,) keyframes observing it")
-    valid = property(lambda self: self._view("valid"), doc="(M,) False once removed by the backend")
+    n_keyframes = property(lambda self: self._n_inserted, doc="keyframes inserted so far (removed and evicted ones included)")
+    n_slots = property(
+        lambda self: len(self._keyframes), doc="keyframe slots in use (cached keyframes and the backend's removed ones until an eviction)"
+    )
+    n_cached_keyframes = property(lambda self: len(self._slot_of_id), doc="keyframes held: neither removed by the backend nor evicted")
+    n_points = property(lambda self: self._points.n, doc="rows in use (removed points keep their row, with ``valid`` False)")
+    n_valid_points = property(lambda self: int(np.count_nonzero(self.valid)), doc="points not removed")
+    point_ids = property(lambda self: self._points.view("ids"), doc="(M,) int64 id of each row")
+    p_world = property(lambda self: self._points.view("p_world"), doc="(M, 3) positions, metres, world frame")
+    descriptors = property(lambda self: self._points.view("descriptors"), doc="(M, 32) representative descriptors")
+    normals = property(lambda self: self._points.view("normals"), doc="(M, 3) mean viewing directions, world frame")
+    min_distance_m = property(lambda self: self._points.view("min_distance_m"), doc="(M,) scale-invariance minimum")
+    max_distance_m = property(lambda self: self._points.view("max_distance_m"), doc="(M,) scale-invariance maximum")
+    n_visible = property(lambda self: self._points.view("n_visible"), doc="(M,) frames whose frustum held the point")
+    n_found = property(lambda self: self._points.view("n_found"), doc="(M,) frames where the point was an inlier")
+    n_observations = property(lambda self: self._points.view("n_observations"), doc="(M,) keyframes observing it")
+    valid = property(lambda self: self._points.view("valid"), doc="(M,) False once removed by the backend")
     covariance = property(
-        lambda self: self._view("covariance"), doc="(M, 3, 3) position covariance, m^2; zeros where not estimated (``set_covariances``)"
+        lambda self: self._points.view("covariance"), doc="(M, 3, 3) position covariance, m^2; zeros where not estimated (``set_covariances``)"
     )
 
     def keyframe(self, slot: int) -> KeyFrame | None:
@@ -142,25 +119,25 @@ class LocalMap:
 
     def rows_of_ids(self, point_ids: np.ndarray) -> np.ndarray:
         """Rows (int64) of point ids; -1 for negative or unknown ids."""
-        return self._id_index.rows(point_ids)
+        return self._points.rows_of_ids(point_ids)
 
     def observations(self, row: int) -> dict[int, int]:
         """Keyframe id -> keypoint index of every observation of the point in ``row``."""
-        mask = self._obs["row"][: self._n_obs] == row
-        slots = self._obs["slot"][: self._n_obs][mask]
-        kps = self._obs["keypoint"][: self._n_obs][mask]
+        mask = self._obs.view("row") == row
+        slots = self._obs.view("slot")[mask]
+        kps = self._obs.view("keypoint")[mask]
         return {self._keyframes[int(s)].id: int(k) for s, k in zip(slots, kps)}
 
     def observation_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Every observation the cache holds as (row, slot, keypoint) arrays (n_obs,) int64, read-only views."""
-        views = tuple(self._obs[name][: self._n_obs] for name in ("row", "slot", "keypoint"))
+        views = tuple(self._obs.view(name) for name in ("row", "slot", "keypoint"))
         for view in views:
             view.flags.writeable = False
         return views
 
     def set_covariances(self, rows: np.ndarray, covariance: np.ndarray) -> None:
         """Set the position covariance (K, 3, 3) of the points in ``rows`` (K,)."""
-        self._pts["covariance"][np.asarray(rows, dtype=np.int64)] = covariance
+        self._points.arrays["covariance"][np.asarray(rows, dtype=np.int64)] = covariance
 
     # ---- ids -------------------------------------------------------------------------------------
     def new_keyframe_id(self) -> int:
@@ -190,9 +167,9 @@ class LocalMap:
             rows = np.asarray(point_rows, dtype=np.int64).copy()
             rows[np.asarray(keyframe.new_point_keypoints, dtype=np.int64)] = new_rows
         observed = self._observe(slot, keyframe, rows)
-        self._pts["n_observations"][observed] += 1
-        self._refresh_points(observed)
-        self._graph.add(self._links(slot, observed))
+        self._points.arrays["n_observations"][observed] += 1
+        refresh_points(self._points, self._obs, self._kf_centres, observed)
+        self._graph.add(self._obs.links(slot, observed, self._points.n, self.n_slots))
         return new_rows
 
     def add_held_keyframe(self, keyframe: KeyFrame, counted: np.ndarray) -> int:
@@ -201,8 +178,8 @@ class LocalMap:
         ``counted`` (a mask over rows) is set. Not a new keyframe: ``n_keyframes`` stays. Returns its slot."""
         slot = self._new_slot(keyframe)
         kf_rows = self._observe(slot, keyframe, self.rows_of_ids(keyframe.map_point_ids))
-        self._pts["n_observations"][kf_rows[counted[kf_rows]]] += 1
-        self._graph.add(self._links(slot, kf_rows))
+        self._points.arrays["n_observations"][kf_rows[counted[kf_rows]]] += 1
+        self._graph.add(self._obs.links(slot, kf_rows, self._points.n, self.n_slots))
         return slot
 
     def _new_slot(self, keyframe: KeyFrame) -> int:
@@ -218,74 +195,19 @@ class LocalMap:
         rows = rows.copy()
         rows[rows >= 0] = np.where(self.valid[rows[rows >= 0]], rows[rows >= 0], -1)
         keypoints, observed = one_observation_per_point(rows)
-        self._append_observations(slot, observed, keypoints, keyframe.descriptors[keypoints])
+        self._obs.append(slot, observed, keypoints, keyframe.descriptors[keypoints])
         self._kf_rows.append(observed)
         return observed
 
     def _append_new_points(self, keyframe: KeyFrame) -> np.ndarray:
-        n_new = len(keyframe.new_point_ids)
-        start = self._n_points
-        grow(self._pts, POINT_ARRAYS, start + n_new)
-        rows = np.arange(start, start + n_new, dtype=np.int64)
+        """The keyframe's new points, seen from it: viewing direction and distance range from its centre."""
         kps = np.asarray(keyframe.new_point_keypoints, dtype=np.int64)
-        p = np.asarray(keyframe.new_points_world, dtype=float).reshape(n_new, 3)
+        p = np.asarray(keyframe.new_points_world, dtype=float).reshape(len(keyframe.new_point_ids), 3)
         rays = p - keyframe.centre_world
         dist = np.linalg.norm(rays, axis=1)
         lo, hi = scale_invariance_range(dist, keyframe.level[kps], keyframe.scale_factor, keyframe.n_levels)
-        pts = self._pts
-        pts["ids"][rows] = keyframe.new_point_ids
-        pts["p_world"][rows] = p
-        pts["descriptors"][rows] = keyframe.descriptors[kps]
-        pts["normals"][rows] = rays / np.maximum(dist, 1e-12)[:, None]
-        pts["min_distance_m"][rows] = lo
-        pts["max_distance_m"][rows] = hi
-        pts["n_visible"][rows] = 1
-        pts["n_found"][rows] = 1
-        pts["n_observations"][rows] = 0
-        pts["valid"][rows] = True
-        self._n_points = start + n_new
-        self._id_index.add(keyframe.new_point_ids, rows)
-        return rows
-
-    def _append_observations(self, slot: int, rows: np.ndarray, keypoints: np.ndarray, desc: np.ndarray) -> None:
-        start, n = self._n_obs, len(rows)
-        grow(self._obs, OBS_ARRAYS, start + n)
-        self._obs["row"][start : start + n] = rows
-        self._obs["slot"][start : start + n] = slot
-        self._obs["keypoint"][start : start + n] = keypoints
-        self._obs["desc"][start : start + n] = desc
-        self._n_obs = start + n
-
-    def _refresh_points(self, rows: np.ndarray) -> None:
-        """Recompute viewing directions and representative descriptors of ``rows`` from all their observations."""
-        if len(rows) == 0:
-            return
-        mask = np.zeros(self._n_points, dtype=bool)
-        mask[rows] = True
-        obs_rows = self._obs["row"][: self._n_obs]
-        entries = np.flatnonzero(mask[obs_rows])
-        entries = entries[np.argsort(obs_rows[entries], kind="stable")]
-        e_rows = obs_rows[entries]
-        rays = self._pts["p_world"][e_rows] - self._kf_centres[self._obs["slot"][entries]]
-        rays /= np.maximum(np.linalg.norm(rays, axis=1, keepdims=True), 1e-12)
-        counts = np.bincount(e_rows, minlength=self._n_points)
-        sums = np.stack([np.bincount(e_rows, weights=rays[:, k], minlength=self._n_points) for k in range(3)], 1)
-        self._pts["normals"][rows] = sums[rows] / counts[rows, None]
-        starts = np.cumsum(counts) - counts  # first sorted entry of each row (rows outside have none)
-        desc = self._obs["desc"][entries]
-        for k in np.unique(counts[rows]):
-            group = rows[counts[rows] == k]
-            index = starts[group][:, None] + np.arange(k)[None, :]
-            self._pts["descriptors"][group] = representative_descriptors(desc[index])
-
-    def _links(self, slot: int, rows: np.ndarray) -> dict[int, int]:
-        """Covisibility links (other slot -> shared points) of ``slot`` observing the points ``rows``."""
-        in_kf = np.zeros(self._n_points, dtype=bool)
-        in_kf[rows] = True
-        obs_rows = self._obs["row"][: self._n_obs]
-        weights = np.bincount(self._obs["slot"][: self._n_obs][in_kf[obs_rows]], minlength=self.n_slots)
-        weights[slot] = 0
-        return {int(s): int(weights[s]) for s in np.flatnonzero(weights)}
+        normals = rays / np.maximum(dist, 1e-12)[:, None]
+        return self._points.append(keyframe.new_point_ids, p, keyframe.descriptors[kps], normals, lo, hi)
 
     # ---- covisibility queries --------------------------------------------------------------------
     def covisibility_weight(self, slot_a: int, slot_b: int) -> int:
@@ -312,11 +234,11 @@ class LocalMap:
     # ---- statistics --------------------------------------------------------------------------------
     def increase_visible(self, rows: np.ndarray) -> None:
         """Count one more frame whose frustum held each point in ``rows`` (unique rows)."""
-        self._pts["n_visible"][rows] += 1
+        self._points.arrays["n_visible"][rows] += 1
 
     def increase_found(self, rows: np.ndarray) -> None:
         """Count one more frame where each point in ``rows`` (unique rows) was an inlier."""
-        self._pts["n_found"][rows] += 1
+        self._points.arrays["n_found"][rows] += 1
 
     # ---- eviction ---------------------------------------------------------------------------------
     def cached_slots(self) -> np.ndarray:
@@ -326,13 +248,13 @@ class LocalMap:
     def nbytes(self) -> int:
         """Bytes of the arrays the cache holds: point and observation arrays (their capacity), the
         keyframes' arrays (keypoints, descriptors, depths, associations, new points) and the indexes."""
-        arrays = [*self._pts.values(), *self._obs.values(), self._kf_centres, *self._kf_rows]
+        arrays = [self._kf_centres, *self._kf_rows]
         for keyframe in self._keyframes:
             if keyframe is not None:
                 arrays += [getattr(keyframe.features, f.name) for f in dataclasses.fields(keyframe.features)]
                 arrays += [keyframe.T_world_cam, keyframe.right_u, keyframe.depth_m, keyframe.map_point_ids]
                 arrays += [keyframe.new_point_ids, keyframe.new_point_keypoints, keyframe.new_points_world]
-        return int(sum(np.asarray(a).nbytes for a in arrays)) + self._id_index.nbytes
+        return int(sum(np.asarray(a).nbytes for a in arrays)) + self._points.nbytes + self._obs.nbytes
 
     def retain(self, keep_slots: np.ndarray, keep_rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Evict every keyframe not in ``keep_slots`` and every point that no kept keyframe observes
@@ -344,27 +266,19 @@ class LocalMap:
         goes hangs from its nearest kept ancestor. Returns ``(slot_map, row_map)``: the new slot
         (resp. row) of each old one, -1 where evicted; callers holding slots or rows remap them.
         """
-        n_obs = self._n_obs
         kept_slot = np.zeros(self.n_slots, dtype=bool)
         kept_slot[np.asarray(keep_slots, dtype=np.int64)] = True
         kept_slot &= np.asarray([kf is not None for kf in self._keyframes], dtype=bool)
-        kept_obs = kept_slot[self._obs["slot"][:n_obs]]
-        kept_row = np.zeros(self._n_points, dtype=bool)
-        kept_row[self._obs["row"][:n_obs][kept_obs]] = True
+        kept_obs = kept_slot[self._obs.view("slot")]
+        kept_row = np.zeros(self._points.n, dtype=bool)
+        kept_row[self._obs.view("row")[kept_obs]] = True
         if keep_rows is not None:
             extra = np.asarray(keep_rows, dtype=np.int64)
             kept_row[extra[extra >= 0]] = True
         slot_map = np.where(kept_slot, np.cumsum(kept_slot) - 1, -1)
         row_map = np.where(kept_row, np.cumsum(kept_row) - 1, -1)
-        rows = np.flatnonzero(kept_row)
-        self._pts = compacted(self._pts, POINT_ARRAYS, rows)
-        self._n_points = len(rows)
-        self._id_index = IdIndex()
-        self._id_index.add(self._pts["ids"][: self._n_points], np.arange(self._n_points, dtype=np.int64))
-        self._obs = compacted(self._obs, OBS_ARRAYS, np.flatnonzero(kept_obs))
-        self._n_obs = int(np.count_nonzero(kept_obs))
-        self._obs["row"][: self._n_obs] = row_map[self._obs["row"][: self._n_obs]]
-        self._obs["slot"][: self._n_obs] = slot_map[self._obs["slot"][: self._n_obs]]
+        self._points.keep(np.flatnonzero(kept_row))
+        self._obs.keep(kept_obs, row_map, slot_map)
         slots = np.flatnonzero(kept_slot).tolist()
         self._keyframes = [self._keyframes[s] for s in slots]
         self._slot_of_id = {int(kf.id): new for new, kf in enumerate(self._keyframes)}
@@ -382,42 +296,20 @@ class LocalMap:
         """
         rows = self.rows_of_ids(point_ids)
         known = rows >= 0
-        self._pts["p_world"][rows[known]] = np.asarray(p_world, dtype=float).reshape(-1, 3)[known]
+        self._points.arrays["p_world"][rows[known]] = np.asarray(p_world, dtype=float).reshape(-1, 3)[known]
         return int(np.count_nonzero(known))
 
     def remove_points(self, point_ids: np.ndarray) -> int:
         """Mark known points (ids) as removed; returns how many were known."""
         rows = self.rows_of_ids(point_ids)
         rows = rows[rows >= 0]
-        self._pts["valid"][rows] = False
+        self._points.arrays["valid"][rows] = False
         return len(rows)
 
     def replace_points(self, update: MapUpdate, observed_ids: np.ndarray) -> None:
         """Replace the points ``update`` lists that this map holds (position, descriptor, viewing
         direction, distance range; valid again) and create the unknown ones among ``observed_ids``."""
-        rows = self.rows_of_ids(update.point_ids)
-        unknown = np.flatnonzero(rows < 0)
-        unknown = unknown[np.isin(update.point_ids[unknown], observed_ids)]
-        if len(unknown):
-            start = self._n_points
-            grow(self._pts, POINT_ARRAYS, start + len(unknown))
-            rows[unknown] = np.arange(start, start + len(unknown))
-            self._n_points = start + len(unknown)
-            new = rows[unknown]
-            self._pts["ids"][new] = update.point_ids[unknown]
-            self._pts["n_visible"][new] = 1
-            self._pts["n_found"][new] = 1
-            self._pts["n_observations"][new] = 0
-            self._id_index.add(update.point_ids[unknown], new)
-        listed = np.flatnonzero(rows >= 0)
-        rows = rows[listed]
-        pts = self._pts
-        pts["p_world"][rows] = update.p_world[listed]
-        pts["descriptors"][rows] = update.descriptors[listed]
-        pts["normals"][rows] = update.normals[listed]
-        pts["min_distance_m"][rows] = update.min_distance_m[listed]
-        pts["max_distance_m"][rows] = update.max_distance_m[listed]
-        pts["valid"][rows] = True
+        self._points.replace(update, observed_ids)
 
     def replace_keyframe(self, slot: int, keyframe: KeyFrame) -> None:
         """Put ``keyframe`` (the same id, a new pose or associations) in ``slot``; its observations
@@ -427,7 +319,7 @@ class LocalMap:
 
     def set_row_positions(self, rows: np.ndarray, p_world: np.ndarray) -> None:
         """Move the points in ``rows`` (K,) to world positions ``p_world`` (K, 3) metres."""
-        self._pts["p_world"][rows] = p_world
+        self._points.arrays["p_world"][rows] = p_world
 
     def reobserve(self, slots: list[int]) -> None:
         """Observations and covisibility of the keyframes in ``slots`` from their associations: their
@@ -441,25 +333,19 @@ class LocalMap:
         all_rows[known[~self.valid[all_rows[known]]]] = -1
         for slot, rows in zip(slots, np.split(all_rows, np.cumsum([len(ids) for ids in associations])[:-1])):
             keypoints, observed = one_observation_per_point(rows)
-            self._append_observations(slot, observed, keypoints, self._keyframes[slot].descriptors[keypoints])
-            self._pts["n_observations"][observed] += 1
+            self._obs.append(slot, observed, keypoints, self._keyframes[slot].descriptors[keypoints])
+            self._points.arrays["n_observations"][observed] += 1
             self._kf_rows[slot] = observed
         for slot in slots:
-            self._graph.set_links(slot, self._links(slot, self._kf_rows[slot]))
+            self._graph.set_links(slot, self._obs.links(slot, self._kf_rows[slot], self._points.n, self.n_slots))
 
     def _drop_observations(self, slots: list[int]) -> None:
         """Delete every observation made by the keyframes in ``slots`` (compacting the arrays once)."""
         if not slots:
             return
-        n = self._n_obs
         doomed = np.zeros(self.n_slots, dtype=bool)
         doomed[slots] = True
-        mine = doomed[self._obs["slot"][:n]]
-        np.subtract.at(self._pts["n_observations"], self._obs["row"][:n][mine], 1)
-        keep = np.flatnonzero(~mine)
-        for name in OBS_ARRAYS:
-            self._obs[name][: len(keep)] = self._obs[name][keep]
-        self._n_obs = len(keep)
+        np.subtract.at(self._points.arrays["n_observations"], self._obs.drop(doomed), 1)
         for slot in slots:
             self._kf_rows[slot] = np.zeros(0, dtype=np.int64)
 

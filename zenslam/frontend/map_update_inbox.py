@@ -8,7 +8,7 @@ import logging
 import time
 from collections import deque
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Protocol
+from typing import Protocol
 
 import zenoh
 
@@ -17,10 +17,14 @@ from zenslam.runtime import bus
 from zenslam.schemas import codec, keys
 from zenslam.schemas.map_update import MapUpdate
 
-if TYPE_CHECKING:
-    from zenslam.frontend.node import FrontendMessages
-
 logger = logging.getLogger(__name__)
+
+
+class SentKeyframes(Protocol):
+    """The encoded keyframes one frame sent, and their ids (``FrontendMessages``)."""
+
+    keyframes: tuple[bytes, ...]
+    keyframe_ids: tuple[int, ...]
 
 
 class UpdatedNode(Protocol):
@@ -62,11 +66,11 @@ class MapUpdateInbox:
         self._resend = resend
         self._backend = bus.Comebacks(session, session_name, "backend")
 
-    def sent(self, messages: FrontendMessages) -> None:
+    def sent(self, messages: SentKeyframes) -> None:
         """Note the keyframes just sent: each waits for its answer."""
         self.unanswered.update(zip(messages.keyframe_ids, messages.keyframes, strict=True))
 
-    def schedule(self, messages: FrontendMessages, frames_handled: int) -> None:
+    def schedule(self, messages: SentKeyframes, frames_handled: int) -> None:
         """Lockstep: the keyframes just sent, made at the frame that brought the count of frames
         handled to ``frames_handled``, are answered before frame ``frames_handled - 1 + lag_frames``."""
         for keyframe_id in messages.keyframe_ids:
