@@ -10,11 +10,11 @@ stereo/RGB-D depths (a monocular keyframe makes none: local mapping triangulates
 A stereo/RGB-D map starts on one frame's depths. A monocular map starts on two frames: the first
 frame with enough parallax to a reference frame (``monocular_initialisation``) becomes the
 second keyframe, the reference the first, and both are made at that frame's step (the reference
-one in ``TrackResult.earlier_keyframes``); until then frames report ``initializing`` with a
+one in ``TrackingOutput.earlier_keyframes``); until then frames report ``initializing`` with a
 reason such as ``waiting_for_parallax``.
 
 Lost frames: a lost frame reports ``lost`` with a reason. With a vocabulary and a source of
-candidates (the backend's keyframe database, passed to ``track``), every following frame is
+candidates (the backend's keyframe database, passed to ``FrontendPipeline.step``), every following frame is
 relocalised, as ORB-SLAM does: its bag of words is sent to the source, the candidate keyframes
 that come back are matched (``relocalisation.relocalise``), the matched keyframe and its covisible
 neighbours re-enter the cache, the local map is tracked and the motion model restarts; the frame
