@@ -44,8 +44,8 @@ class TrackingConfig:
     # The keyframe decision compares the inliers with the reference keyframe's points seen by at
     # least this many keyframes. ORB-SLAM2 uses 2 once the map has 3 keyframes, relying on local
     # mapping to give new points their second observation quickly. 1 keeps tracking dense
-    # without that, where points of few baselines leave 2 too few to count, at the cost of more
-    # keyframes; at the default ``new_points_depth_baselines`` 2 tracks as well.
+    # without that, at the cost of more keyframes: with new points limited to fewer baselines 2
+    # can lose tracking; at the default ``new_points_depth_baselines`` 2 tracks as well.
     reference_min_observations: int = 1
     reinit_after_lost_frames: int = 10  # consecutive frames without a pose before starting over (0 = never)
     # The backend starts from a saved map (``zenslam run --map``): no new map is started; frames stay
