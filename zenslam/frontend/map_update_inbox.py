@@ -99,7 +99,7 @@ class MapUpdateInbox:
         """When the backend came back since the last call, send it every unanswered keyframe again,
         oldest first: those sent to its predecessor and those held while it was gone. Until an
         answer comes, again every ``_RESEND_S`` seconds: a keyframe sent as the new backend's token
-        arrived may not reach it (measured under load), and one it has already is skipped there."""
+        arrived may not reach it, and one it has already is skipped there."""
         now = time.monotonic()
         if self._backend.returned():
             logger.warning("the backend restarted: sending its %d unanswered keyframe(s) again", len(self.unanswered))

@@ -32,7 +32,7 @@ _MATCH_RGB = (40, 220, 60)
 
 def _jpeg_image(grey: np.ndarray, quality: int) -> rr.EncodedImage:
     """``grey`` (uint8) as a JPEG-encoded image, compressed by OpenCV. rerun's own ``Image.compress``
-    goes through Pillow, whose first save loads every image plugin: 40 MB more in the logging process."""
+    goes through Pillow, whose first save loads every image plugin into the logging process."""
     encoded, data = cv2.imencode(".jpg", grey, [cv2.IMWRITE_JPEG_QUALITY, quality])
     if not encoded:
         raise ValueError(f"OpenCV could not JPEG-encode a {grey.shape} {grey.dtype} image")
