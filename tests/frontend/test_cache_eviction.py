@@ -11,6 +11,8 @@ from zenslam.errors import ConfigError
 from zenslam.frontend.cache_eviction import CacheEviction, keyframes_to_keep
 from zenslam.frontend.keyframe import KeyFrame
 from zenslam.frontend.local_map import LocalMap, LocalMapConfig
+from zenslam.frontend.map_sync import apply_map_update
+from zenslam.frontend.local_window import local_window
 from zenslam.frontend.orb_extractor import Features
 from zenslam.geometry import make_T
 from zenslam.schemas.map_update import BACKEND_POINT_ID_BASE, KeyframeCorrection, MapUpdate
@@ -75,7 +77,7 @@ CONFIG = LocalMapConfig(cache_max_keyframes=10, cache_margin_keyframes=2, cache_
 def test_eviction_keeps_the_window_and_margin_and_drops_the_rest() -> None:
     lm, keyframes = corridor(20, CONFIG)
     rows = frame_rows_seeing(lm, keyframes[-1])
-    window_ids = [keyframes[s].id for s in lm.local_window(rows).keyframe_slots.tolist()]
+    window_ids = [keyframes[s].id for s in local_window(lm, rows).keyframe_slots.tolist()]
     assert sorted(window_ids) == [17, 18, 19]  # voted 18, 19 (SHARED of 19's points); 18's parent 17
     before = {kf.id: lm.point_ids[lm.keyframe_point_rows(lm.slot_of(kf.id))].copy() for kf in keyframes}
     p_before = dict(zip(lm.point_ids.tolist(), lm.p_world.copy()))
@@ -109,7 +111,7 @@ def test_eviction_keeps_the_window_and_margin_and_drops_the_rest() -> None:
     assert lm.best_covisible(lm.slot_of(15), 10) == [lm.slot_of(16)]
     # The window of the same frame is the same keyframes.
     new_rows = eviction.row_map[rows]
-    assert sorted(lm.keyframe(s).id for s in lm.local_window(new_rows).keyframe_slots.tolist()) == [17, 18, 19]
+    assert sorted(lm.keyframe(s).id for s in local_window(lm, new_rows).keyframe_slots.tolist()) == [17, 18, 19]
 
 
 def test_unanswered_keyframes_their_parents_and_the_reference_stay() -> None:
@@ -189,7 +191,7 @@ def test_map_updates_naming_evicted_keyframes_and_points() -> None:
         removed_keyframe_ids=np.array([6], dtype=np.int64),  # evicted: nothing to do
     )
     x19 = lm.keyframe(lm.slot_of(19)).T_world_cam.copy()
-    lm.apply_map_update(update)
+    apply_map_update(lm, update)
 
     assert cached_ids(lm) == [15, 16, 17, 18, 19] and lm.slot_of(4) == -1
     assert np.allclose(lm.keyframe(lm.slot_of(19)).T_world_cam, shift @ x19)  # carried with its parent 18
@@ -216,20 +218,6 @@ def test_culled_points_of_kept_keyframes_keep_their_rows_and_statistics() -> Non
     rows = lm.rows_of_ids(culled)
     assert (rows >= 0).all() and not lm.valid[rows].any()  # a later update may list them again
     assert all(lm.n_visible[r] == visible[i] for r, i in zip(lm.rows_of_ids(lm.point_ids), lm.point_ids.tolist()))
-
-
-def test_recent_point_culling_after_an_eviction() -> None:
-    lm, keyframes = corridor(20, CONFIG)
-    CacheEviction(lm).maybe_evict(frame_rows_seeing(lm, keyframes[-1]), lm.slot_of(19), unanswered=1)
-    kf = corridor_keyframe(lm, keyframes[-1].new_point_ids[:SHARED], NEW, 20.0)
-    for k in range(21, 24):
-        kf = corridor_keyframe(lm, kf.new_point_ids[:0], NEW, float(k))  # never re-observed
-    lm.cull_recent_points()
-    # Points of keyframe 20 are 3 keyframes old, seen once: culled; keyframe 23's are newborn: kept;
-    # keyframe 19's are no longer recent: kept, though most are seen once.
-    assert not lm.valid[lm.rows_of_ids(lm.keyframe(lm.slot_of(20)).new_point_ids)].any()
-    assert lm.valid[lm.rows_of_ids(kf.new_point_ids)].all()
-    assert lm.valid[lm.rows_of_ids(keyframes[19].new_point_ids)].all()
 
 
 def test_invalid_cache_sizes_are_config_errors() -> None:

@@ -36,6 +36,11 @@ class StubPipeline:
 
     may_ask_backend = False  # a lost stub frame asks nobody
 
+    @property
+    def map_sync(self) -> SimpleNamespace:
+        """Map updates reach the stub's ``apply_map_update``, where a test gives it one."""
+        return SimpleNamespace(apply=lambda update: self.apply_map_update(update))
+
     def __init__(self, calibration: PinholeCalibration, sensor: str):
         self.calibration, self.sensor, self.seen, self.in_flight = calibration, sensor, [], []
         self.prepared, self.used_prepared = [], []
@@ -284,7 +289,7 @@ def test_a_restarted_frontend_applies_no_answer_to_its_predecessors_keyframes():
     """Keyframe ids below the frontend's first (``entering_map``: past the backend's map) were its
     predecessor's: their answers are not applied, corrections and answers to its own keyframes are."""
     from zenslam.frontend.config import FrontendConfig, entering_map
-    from zenslam.frontend.node import _MapUpdates
+    from zenslam.frontend.map_update_inbox import MapUpdateInbox
     from zenslam.schemas.map_update import MapUpdate
 
     applied: list[MapUpdate] = []
@@ -292,7 +297,7 @@ def test_a_restarted_frontend_applies_no_answer_to_its_predecessors_keyframes():
     config = entering_map(FrontendConfig(), next_keyframe_id=40, next_point_id=9000)
     assert config.tracking.start_in_map and config.tracking.local_map.point_id_start == 9000
     with bus.open_session(bus.BusConfig()) as session:
-        updates = _MapUpdates(session, "restarted-frontend", config, resend=lambda message: None)
+        updates = MapUpdateInbox(session, "restarted-frontend", config, resend=lambda message: None)
         try:
             predecessors = MapUpdate(keyframe_id=39, stamp_ns=0)
             correction = MapUpdate(keyframe_id=39, stamp_ns=0, kind="correction")

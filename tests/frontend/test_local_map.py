@@ -1,4 +1,4 @@
-"""The frontend's local map: ids, observations, covisibility, local keyframes and points, culling."""
+"""The frontend's local map: ids, observations, covisibility, local keyframes and points."""
 
 from __future__ import annotations
 
@@ -6,7 +6,10 @@ import numpy as np
 import pytest
 
 from zenslam.frontend.keyframe import KeyFrame
-from zenslam.frontend.local_map import IdAllocator, LocalMap, LocalMapConfig
+from zenslam.frontend.id_allocator import IdAllocator
+from zenslam.frontend.local_map import LocalMap, LocalMapConfig
+from zenslam.frontend.map_sync import apply_map_update
+from zenslam.frontend.local_window import local_point_rows, local_window
 from zenslam.map_point_rules import representative_descriptor
 from zenslam.frontend.orb_extractor import Features
 from zenslam.geometry import make_T
@@ -106,7 +109,7 @@ def test_local_window_votes_then_adds_one_neighbour_each() -> None:
     add_keyframe(lm, np.arange(300, 350), 100)  # slot 4
     # A frame matched only to points first seen by slot 3 and also by slot 4 (300..349).
     frame_rows = lm.rows_of_ids(np.arange(300, 340))
-    window = lm.local_window(np.concatenate([frame_rows, [-1, -1]]))
+    window = local_window(lm, np.concatenate([frame_rows, [-1, -1]]))
     assert window.reference_slot in (3, 4)
     voted = {3, 4}
     slots = window.keyframe_slots.tolist()
@@ -116,7 +119,7 @@ def test_local_window_votes_then_adds_one_neighbour_each() -> None:
     assert len(slots) == len(set(slots))
     # Slot 0 is only a neighbour of neighbours: not local.
     assert 0 not in slots
-    rows = lm.local_point_rows(window.keyframe_slots)
+    rows = local_point_rows(lm, window.keyframe_slots)
     assert np.all(np.diff(rows) > 0)
     expected = np.unique(np.concatenate([lm.keyframe_point_rows(s) for s in slots]))
     assert np.array_equal(rows, expected)
@@ -126,10 +129,10 @@ def test_local_window_reference_is_the_keyframe_sharing_most_points() -> None:
     lm = LocalMap()
     add_keyframe(lm, [], 100)
     add_keyframe(lm, np.arange(0, 30), 100)
-    window = lm.local_window(lm.rows_of_ids(np.arange(0, 100)))
+    window = local_window(lm, lm.rows_of_ids(np.arange(0, 100)))
     assert window.reference_slot == 0
     assert window.keyframe_slots.tolist()[0] == 0
-    empty = lm.local_window(np.full(5, -1))
+    empty = local_window(lm, np.full(5, -1))
     assert empty.reference_slot == -1 and len(empty.keyframe_slots) == 0
 
 
@@ -140,7 +143,7 @@ def test_local_window_stops_adding_neighbours_past_the_cap() -> None:
         add_keyframe(lm, np.arange(10 * k, 10 * k + 20), 1)
     # The frame sees one point of each of slots 1..8: all 8 are voted in, none added beyond.
     own_points = [200 + k - 1 for k in range(1, 9)]
-    window = lm.local_window(lm.rows_of_ids(np.array(own_points)))
+    window = local_window(lm, lm.rows_of_ids(np.array(own_points)))
     assert sorted(window.keyframe_slots.tolist()) == list(range(1, 9))
 
 
@@ -166,26 +169,6 @@ def test_observations_refresh_descriptors_and_normals() -> None:
     d = np.linalg.norm(p)
     assert lm.max_distance_m[0] == pytest.approx(d)
     assert lm.min_distance_m[0] == pytest.approx(d / 1.2**7)
-
-
-def test_recent_point_culling() -> None:
-    lm = LocalMap()
-    add_keyframe(lm, [], 10)  # points 0..9
-    lm.increase_visible(np.arange(10))
-    lm.increase_visible(np.arange(0, 3))
-    lm.increase_visible(np.arange(0, 3))
-    lm.increase_visible(np.arange(0, 3))  # points 0..2: found 1 of visible 5 = 0.2
-    add_keyframe(lm, np.arange(3, 8), 0)
-    assert lm.cull_recent_points() == 3
-    add_keyframe(lm, np.arange(3, 6), 0)
-    # Two keyframes after birth: points 8, 9 were never re-observed.
-    assert lm.cull_recent_points() == 2
-    assert np.flatnonzero(lm.valid).tolist() == [3, 4, 5, 6, 7]
-    assert lm.tracked_points(0, 2) == 5
-    assert lm.tracked_points(0, 3) == 3
-    window = lm.local_window(np.arange(10))
-    assert 0 in window.keyframe_slots.tolist()
-    assert set(lm.local_point_rows(window.keyframe_slots).tolist()) == {3, 4, 5, 6, 7}
 
 
 def test_map_update_hooks() -> None:
@@ -232,22 +215,12 @@ def test_map_update_replaces_points_and_creates_backend_points() -> None:
         lm, np.concatenate([kf0.new_point_ids[:2], backend_ids]), np.arange(18.0).reshape(6, 3),
         keyframes=(KeyframeCorrection(kf0.id, kf0.T_world_cam, associations),),
     )  # fmt: skip
-    lm.apply_map_update(update)
+    apply_map_update(lm, update)
     rows = lm.rows_of_ids(update.point_ids)
     assert np.all(rows[:5] >= 0) and rows[5] == -1 and lm.n_points == 23
     assert np.array_equal(lm.p_world[rows[:5]], update.p_world[:5])
     assert np.array_equal(lm.max_distance_m[rows[:5]], np.full(5, 20.0))
     assert lm.n_observations[rows[2:5]].tolist() == [1, 1, 1]
-    rows = rows[:5]
-    # Backend points are never culled as "recent" by the frontend.
-    lm.increase_visible(rows[2:])
-    lm.increase_visible(rows[2:])
-    lm.increase_visible(rows[2:])
-    lm.increase_visible(rows[2:])
-    add_keyframe(lm, [], 1)
-    add_keyframe(lm, [], 1)
-    lm.cull_recent_points()
-    assert np.all(lm.valid[rows[2:]])
 
 
 def test_map_update_replaces_keyframe_pose_and_associations() -> None:
@@ -271,7 +244,7 @@ def test_map_update_replaces_keyframe_pose_and_associations() -> None:
         removed_point_ids=kf0.new_point_ids[30:50],
     )
     for _ in range(2):  # replacement semantics: applying twice changes nothing more
-        lm.apply_map_update(update)
+        apply_map_update(lm, update)
         assert np.allclose(lm.keyframe(1).T_world_cam, moved)
         assert np.array_equal(lm.keyframe(1).map_point_ids, assoc1)
         assert lm.covisibility_weight(0, 1) == 10 + 20
@@ -289,7 +262,7 @@ def test_a_point_associated_with_two_keypoints_of_a_keyframe_is_observed_once_at
     assoc1[12] = assoc1[3]  # a damaged or merged association: the same point at keypoints 3 and 12
     assoc1[15] = kf0.new_point_ids[20]
     update = _update(lm, np.zeros(0, dtype=np.int64), np.zeros((0, 3)), keyframes=(KeyframeCorrection(kf1.id, np.eye(4), assoc1),))
-    lm.apply_map_update(update)
+    apply_map_update(lm, update)
     row = int(lm.rows_of_ids([assoc1[3]])[0])
     assert lm.observations(row) == {kf0.id: 3, kf1.id: 3}
     assert lm.n_observations[row] == 2
@@ -311,7 +284,7 @@ def test_keyframes_the_backend_has_not_mapped_follow_their_parents_correction() 
         keyframes=(KeyframeCorrection(kf0.id, correction @ kf0.T_world_cam, kf0.map_point_ids),),
     )
     for _ in range(2):  # applying the update again moves nothing more
-        lm.apply_map_update(update)
+        apply_map_update(lm, update)
         for slot, kf in ((1, kf1), (2, kf2)):
             np.testing.assert_allclose(lm.keyframe(slot).T_world_cam, correction @ kf.T_world_cam, atol=1e-12)
             moved = old_p[kf.id] @ correction[:3, :3].T + correction[:3, 3]
@@ -338,7 +311,7 @@ def test_a_correction_with_more_associations_than_keypoints_is_skipped(caplog) -
             ),
         )
         with caplog.at_level("WARNING", logger="zenslam.frontend.local_map"):
-            lm.apply_map_update(update)
+            apply_map_update(lm, update)
         assert f"keyframe {kf1.id}'s correction lists {len(damaged)} point associations for its 50 keypoints" in caplog.text
         np.testing.assert_array_equal(lm.keyframe(1).T_world_cam, kf1.T_world_cam)
         np.testing.assert_array_equal(lm.keyframe(1).map_point_ids, kf1.map_point_ids)
@@ -352,10 +325,10 @@ def test_map_update_removes_keyframes() -> None:
     kf1 = add_keyframe(lm, kf0.new_point_ids[:30], 40)
     add_keyframe(lm, kf1.new_point_ids[:30], 10)
     assert lm.parent(2) == 1
-    lm.apply_map_update(_update(lm, [], np.zeros((0, 3)), removed_keyframe_ids=np.array([kf1.id])))
+    apply_map_update(lm, _update(lm, [], np.zeros((0, 3)), removed_keyframe_ids=np.array([kf1.id])))
     assert lm.keyframe(1) is None and lm.slot_of(kf1.id) == -1
     assert lm.parent(2) == 0 and lm.children(0) == [2]
     assert lm.covisibility_weight(0, 1) == 0 and lm.best_covisible(2, 10) == []
-    window = lm.local_window(lm.rows_of_ids(kf1.new_point_ids[:30]))
+    window = local_window(lm, lm.rows_of_ids(kf1.new_point_ids[:30]))
     assert window.keyframe_slots.tolist() == [2, 0]  # slot 2 voted, slot 0 its new parent
     assert lm.n_observations[lm.rows_of_ids(kf0.new_point_ids[:30])].tolist() == [1] * 30

@@ -15,7 +15,11 @@ from zenslam.frontend.frame import Frame
 from zenslam.frontend.local_map import LocalMapConfig
 from zenslam.frontend.orb_extractor import Features
 from zenslam.frontend.relocalisation import PosePrior, RelocalisationConfig, as_keyframe, pose_offset, relocalise
+from zenslam.frontend.config import FrontendConfig
+from zenslam.frontend.keyframe_decision import KeyframeDecisionConfig
+from zenslam.frontend.pipeline import FrontendPipeline
 from zenslam.frontend.tracker import Tracker, TrackingConfig
+from zenslam.pose_optimizer import PoseOptimizerConfig
 from zenslam.frontend.visual_odometry import VisualOdometryConfig
 from zenslam.geometry import invert_T, make_T, so3_exp, so3_log
 from zenslam.map_point_rules import scale_invariance_range
@@ -295,10 +299,18 @@ class FakeBackend:
         return ids[ids >= 0]
 
 
-def _tracker(camera_fps: float = 10.0, **tracking) -> tuple[Tracker, FakeBackend, Scene]:
-    config = TrackingConfig(**tracking)
-    tracker = Tracker(CAL, "stereo", config, camera_fps=camera_fps, vocabulary=VOCABULARY)
-    return tracker, FakeBackend(tracker), Scene(seed=11, n_points=12000, ring=True)
+def _pipeline(sensor: str, config: TrackingConfig, camera_fps: float = 10.0) -> FrontendPipeline:
+    """A pipeline tracking built frames with ``config``, the tracker's default pose and keyframe
+    settings and the test vocabulary, at ``camera_fps``."""
+    frontend = FrontendConfig(tracking=config, pose=PoseOptimizerConfig(), keyframe=KeyframeDecisionConfig())
+    pipeline = FrontendPipeline(frontend, CAL, sensor, vocabulary=VOCABULARY)
+    pipeline.tracker.camera_fps = camera_fps
+    return pipeline
+
+
+def _tracker(camera_fps: float = 10.0, **tracking) -> tuple[FrontendPipeline, FakeBackend, Scene]:
+    pipeline = _pipeline("stereo", TrackingConfig(**tracking), camera_fps)
+    return pipeline, FakeBackend(pipeline.tracker), Scene(seed=11, n_points=12000, ring=True)
 
 
 def _blind(frame: Frame) -> Frame:
@@ -308,8 +320,8 @@ def _blind(frame: Frame) -> Frame:
     return dataclasses.replace(frame, features=features)
 
 
-def _track(tracker, backend, frame):
-    result = tracker.track(frame, candidates=backend)
+def _track(pipeline, backend, frame):
+    result = pipeline.track(frame, candidates=backend)
     backend.record(result.keyframe)
     return result
 
@@ -317,63 +329,63 @@ def _track(tracker, backend, frame):
 def test_a_lost_tracker_relocalises_on_the_old_map_even_when_its_cache_evicted_the_place() -> None:
     # A cache of a few keyframes: the start of the path is evicted long before the camera comes back.
     cache = LocalMapConfig(cache_max_keyframes=3, cache_margin_keyframes=0, cache_min_keyframes_between_evictions=1)
-    tracker, backend, scene = _tracker(local_map=cache)
+    pipeline, backend, scene = _tracker(local_map=cache)
     T0 = path_pose(0)
     for k in range(80):  # half a turn
-        assert _track(tracker, backend, scene.view(path_pose(k), seed=k, index=k)[0]).state == "ok", k
-    assert tracker.map.slot_of(0) < 0 and tracker.eviction.passes > 0
-    assert _track(tracker, backend, _blind(scene.view(path_pose(80), seed=80, index=80)[0])).state == "lost"
+        assert _track(pipeline, backend, scene.view(path_pose(k), seed=k, index=k)[0]).state == "ok", k
+    assert pipeline.tracker.map.slot_of(0) < 0 and pipeline.tracker.eviction.passes > 0
+    assert _track(pipeline, backend, _blind(scene.view(path_pose(80), seed=80, index=80)[0])).state == "lost"
     assert backend.queries == []  # the frame that lost tracking is not relocalised
     # Kidnapped: the camera is back near the start of the path, whose keyframes the cache evicted.
-    back = _track(tracker, backend, scene.view(path_pose(2), seed=81, index=81)[0])
+    back = _track(pipeline, backend, scene.view(path_pose(2), seed=81, index=81)[0])
     assert back.state == "ok" and back.relocalised and back.T_world_cam is not None
     assert len(backend.queries) == 1 and backend.queries[0].stamp_ns == 81 * 50_000_000
     t_err, r_err = pose_errors(invert_T(back.T_world_cam), invert_T(T0) @ path_pose(2))
     assert t_err < 0.02 and r_err < 0.2, (t_err, r_err)
-    assert tracker.n_relocalisations == 1 and tracker.n_reinitialisations == 0
-    assert tracker.map.slot_of(0) >= 0  # the old place is cached again
-    assert not tracker.motion.has_velocity  # the motion model restarts
+    assert pipeline.tracker.n_relocalisations == 1 and pipeline.tracker.n_reinitialisations == 0
+    assert pipeline.tracker.map.slot_of(0) >= 0  # the old place is cached again
+    assert not pipeline.tracker.motion.has_velocity  # the motion model restarts
     for k in range(3, 8):  # and tracking goes on there, on the old map
-        result = _track(tracker, backend, scene.view(path_pose(k), seed=82 + k, index=79 + k)[0])
+        result = _track(pipeline, backend, scene.view(path_pose(k), seed=82 + k, index=79 + k)[0])
         assert result.state == "ok" and not result.relocalised
         t_err, _ = pose_errors(invert_T(result.T_world_cam), invert_T(T0) @ path_pose(k))
         assert t_err < 0.02
 
 
 def test_a_new_map_starts_only_after_reinit_after_lost_frames_without_success() -> None:
-    tracker, backend, scene = _tracker(reinit_after_lost_frames=3)
+    pipeline, backend, scene = _tracker(reinit_after_lost_frames=3)
     for k in range(6):
-        assert _track(tracker, backend, scene.view(path_pose(k), seed=k, index=k)[0]).state == "ok"
+        assert _track(pipeline, backend, scene.view(path_pose(k), seed=k, index=k)[0]).state == "ok"
     backend.answer = False  # the backend knows no place like it
-    states = [_track(tracker, backend, _blind(scene.view(path_pose(k), seed=k, index=k)[0])) for k in range(6, 9)]
+    states = [_track(pipeline, backend, _blind(scene.view(path_pose(k), seed=k, index=k)[0])) for k in range(6, 9)]
     assert [s.state for s in states] == ["lost"] * 3
     assert [s.lost_reason for s in states[1:]] == ["relocalisation_no_candidates"] * 2
-    restart = _track(tracker, backend, scene.view(path_pose(9), seed=9, index=9)[0])
+    restart = _track(pipeline, backend, scene.view(path_pose(9), seed=9, index=9)[0])
     assert restart.state == "initializing" and restart.keyframe is not None
     assert len(backend.queries) == 3  # frames 7, 8 and 9 asked; frame 6 lost tracking
-    assert tracker.n_reinitialisations == 1 and tracker.n_relocalisations == 0
+    assert pipeline.tracker.n_reinitialisations == 1 and pipeline.tracker.n_relocalisations == 0
 
 
 def test_a_frame_without_keypoints_asks_nothing() -> None:
-    tracker, backend, scene = _tracker()
+    pipeline, backend, scene = _tracker()
     for k in range(4):
-        _track(tracker, backend, scene.view(path_pose(k), seed=k, index=k)[0])
-    _track(tracker, backend, _blind(scene.view(path_pose(4), seed=4, index=4)[0]))
+        _track(pipeline, backend, scene.view(path_pose(k), seed=k, index=k)[0])
+    _track(pipeline, backend, _blind(scene.view(path_pose(4), seed=4, index=4)[0]))
     frame = scene.view(path_pose(5), seed=5, index=5)[0]
     empty = Frame(5, frame.stamp_ns, CAL, frame.features.subset(np.zeros(0, np.int64)), np.zeros(0, np.float32), np.zeros(0, np.float32))
-    result = _track(tracker, backend, empty)
+    result = _track(pipeline, backend, empty)
     assert result.state == "lost" and result.lost_reason == "relocalisation_no_keypoints" and backend.queries == []
-    assert _track(tracker, backend, scene.view(path_pose(6), seed=6, index=6)[0]).relocalised
+    assert _track(pipeline, backend, scene.view(path_pose(6), seed=6, index=6)[0]).relocalised
 
 
 def test_keyframes_pause_for_a_second_after_a_relocalisation_only_when_asked() -> None:
     def keyframes_after_relocalising(pause: bool) -> list[bool]:
-        tracker, backend, scene = _tracker(camera_fps=4.0, relocalisation=RelocalisationConfig(pause_keyframes=pause))
+        pipeline, backend, scene = _tracker(camera_fps=4.0, relocalisation=RelocalisationConfig(pause_keyframes=pause))
         for k in range(30):
-            _track(tracker, backend, scene.view(path_pose(k), seed=k, index=k)[0])
-        assert tracker.map.n_keyframes > 4  # past ORB-SLAM's condition: more keyframes than frames per second
-        _track(tracker, backend, _blind(scene.view(path_pose(30), seed=30, index=30)[0]))
-        results = [_track(tracker, backend, scene.view(path_pose(k), seed=k, index=k)[0]) for k in range(34, 44)]
+            _track(pipeline, backend, scene.view(path_pose(k), seed=k, index=k)[0])
+        assert pipeline.tracker.map.n_keyframes > 4  # past ORB-SLAM's condition: more keyframes than frames per second
+        _track(pipeline, backend, _blind(scene.view(path_pose(30), seed=30, index=30)[0]))
+        results = [_track(pipeline, backend, scene.view(path_pose(k), seed=k, index=k)[0]) for k in range(34, 44)]
         assert results[0].relocalised and all(r.state == "ok" for r in results)
         return [r.keyframe is not None for r in results]
 
@@ -383,11 +395,11 @@ def test_keyframes_pause_for_a_second_after_a_relocalisation_only_when_asked() -
 
 
 def test_without_a_source_of_candidates_tracking_recovers_as_before() -> None:
-    tracker, _, scene = _tracker()
+    pipeline, _, scene = _tracker()
     for k in range(4):
-        assert tracker.track(scene.view(path_pose(k), seed=k, index=k)[0]).state == "ok"
-    assert tracker.track(_blind(scene.view(path_pose(4), seed=4, index=4)[0])).state == "lost"
-    back = tracker.track(scene.view(path_pose(5), seed=5, index=5)[0])
+        assert pipeline.track(scene.view(path_pose(k), seed=k, index=k)[0]).state == "ok"
+    assert pipeline.track(_blind(scene.view(path_pose(4), seed=4, index=4)[0])).state == "lost"
+    back = pipeline.track(scene.view(path_pose(5), seed=5, index=5)[0])
     assert back.state == "ok" and not back.relocalised
 
 
@@ -406,15 +418,15 @@ def test_localisation_leaves_visual_odometry_by_relocalising_and_says_so() -> No
     """Localisation mode: where the map's points vanish the frames go on by visual odometry; the first
     frame that relocalises into the map again is flagged relocalised (metrics.json counts it) and
     restarts the motion model, whose velocity would otherwise hold the jump back onto the map."""
-    tracker, backend, mapped = _tracker(localization=True)
+    pipeline, backend, mapped = _tracker(localization=True)
     unmapped = Scene(seed=12, n_points=12000, ring=True)
     both = _union(mapped, unmapped)
     views = [mapped] * 4 + [both] * 2 + [unmapped] * 4 + [both] * 2
-    results = [_track(tracker, backend, scene.view(path_pose(k), seed=k, index=k)[0]) for k, scene in enumerate(views[:11])]
-    assert not tracker.motion.has_velocity
-    results.append(_track(tracker, backend, both.view(path_pose(11), seed=11, index=11)[0]))
+    results = [_track(pipeline, backend, scene.view(path_pose(k), seed=k, index=k)[0]) for k, scene in enumerate(views[:11])]
+    assert not pipeline.tracker.motion.has_velocity
+    results.append(_track(pipeline, backend, both.view(path_pose(11), seed=11, index=11)[0]))
     assert [r.state for r in results] == ["ok"] * len(views)
-    assert tracker.map.n_keyframes == 1 and all(r.keyframe is None for r in results[1:])
+    assert pipeline.tracker.map.n_keyframes == 1 and all(r.keyframe is None for r in results[1:])
     assert all(r.n_tracked < 10 and not r.relocalised for r in results[6:10])  # on visual odometry
     assert results[10].relocalised and results[10].n_tracked >= 30 and not results[11].relocalised
     T0 = path_pose(0)
@@ -434,20 +446,20 @@ def test_on_visual_odometry_a_relocalisation_far_from_the_odometry_pose_is_refus
     """Localisation mode, on visual odometry: the place a relocalisation finds lies 1.5 m from where
     the odometry has the camera. Refused (the frame stays on odometry, near the truth) unless
     ``vo_agreement_m`` is None; a relocalisation where the odometry has it is taken either way."""
-    tracker, backend, mapped = _tracker(localization=True, relocalisation=RelocalisationConfig(vo_agreement_m=agreement_m))
+    pipeline, backend, mapped = _tracker(localization=True, relocalisation=RelocalisationConfig(vo_agreement_m=agreement_m))
     unmapped = Scene(seed=12, n_points=12000, ring=True)
     both = _union(mapped, unmapped)
     views = [mapped] * 4 + [both] * 2 + [unmapped] * 4
-    results = [_track(tracker, backend, scene.view(path_pose(k), seed=k, index=k)[0]) for k, scene in enumerate(views)]
+    results = [_track(pipeline, backend, scene.view(path_pose(k), seed=k, index=k)[0]) for k, scene in enumerate(views)]
     assert all(r.state == "ok" for r in results) and all(r.n_tracked < 10 for r in results[6:])  # on visual odometry
     shift = np.array([1.5, 0.0, 0.0])
-    moved = tracker.track(both.view(path_pose(10), seed=10, index=10)[0], candidates=lambda query: _moved(backend(query), shift))
+    moved = pipeline.track(both.view(path_pose(10), seed=10, index=10)[0], candidates=lambda query: _moved(backend(query), shift))
     t_err, _ = pose_errors(invert_T(moved.T_world_cam), invert_T(path_pose(0)) @ path_pose(10))
     if agreement_m is None:
         assert moved.relocalised and abs(t_err - 1.5) < 0.05, t_err
         return
     assert moved.state == "ok" and not moved.relocalised and t_err < 0.05, t_err
-    back = _track(tracker, backend, both.view(path_pose(11), seed=11, index=11)[0])
+    back = _track(pipeline, backend, both.view(path_pose(11), seed=11, index=11)[0])
     t_err, _ = pose_errors(invert_T(back.T_world_cam), invert_T(path_pose(0)) @ path_pose(11))
     assert back.relocalised and t_err < 0.02, t_err
 
@@ -464,17 +476,17 @@ def _localise_off_the_map(anchor_keep_ratio: float, bad_frame: int | None) -> li
     """T_cam_world of each frame of a localisation run that leaves the map and goes on by visual
     odometry, with the depths of frame ``bad_frame`` 30% too far."""
     odometry = VisualOdometryConfig(anchor_keep_ratio=anchor_keep_ratio)
-    tracker, backend, mapped = _tracker(localization=True, visual_odometry=odometry)
+    pipeline, backend, mapped = _tracker(localization=True, visual_odometry=odometry)
     unmapped = Scene(seed=12, n_points=12000, ring=True)
     both = _union(mapped, unmapped)
     views = [mapped] * 4 + [both] * 2 + [unmapped] * 6
     poses = []
     for k, scene in enumerate(views):
         frame = scene.view(path_pose(k), seed=k, index=k)[0]
-        result = _track(tracker, backend, _bad_depths(frame, 0.7) if k == bad_frame else frame)
+        result = _track(pipeline, backend, _bad_depths(frame, 0.7) if k == bad_frame else frame)
         assert result.state == "ok", k
         poses.append(invert_T(result.T_world_cam))
-    assert tracker.n_vo_frames >= 5
+    assert pipeline.tracker.n_vo_frames >= 5
     return poses
 
 
@@ -522,13 +534,13 @@ def test_localising_in_a_saved_map_weighs_its_points_by_their_covariance(max_sig
         localization=True, start_in_map=True, localization_point_max_sigma_m=max_sigma_m,
         local_map=LocalMapConfig(keyframe_id_start=1000, point_id_start=1 << 40),
     )  # fmt: skip
-    localiser = Tracker(CAL, sensor, config, camera_fps=10.0, vocabulary=VOCABULARY)
+    localiser = _pipeline(sensor, config)
     results = [localiser.track(scene.view(path_pose(k), seed=100 + k, index=k)[0], candidates=backend) for k in (3, 4, 5)]
     assert results[0].relocalised and all(r.state == "ok" for r in results)
     for k, r in zip((3, 4, 5), results):
         t_err, r_err = pose_errors(invert_T(r.T_world_cam), invert_T(path_pose(0)) @ path_pose(k))
         assert t_err < 0.02 and r_err < 0.2, (k, t_err, r_err)
-    lm = localiser.map
+    lm = localiser.tracker.map
     rows = np.unique(np.concatenate([lm.keyframe_point_rows(slot) for slot in lm.cached_slots()]))
     sigmas = np.sqrt(np.linalg.eigvalsh(lm.covariance[rows]))
     if max_sigma_m is None or sensor == "rgbd":

@@ -1,4 +1,4 @@
-"""The tracker on a short synthetic stereo sequence made of keypoints with known 3D truth (no rendering)."""
+"""Tracking on a short synthetic stereo sequence made of keypoints with known 3D truth (no rendering)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,11 @@ from zenslam.frontend.frame import Frame, frame_pose_information, optimize_frame
 from zenslam.frontend.keyframe import unproject_keypoints
 from zenslam.frontend.orb_extractor import Features
 from zenslam.frontend.pose_filter import PoseEstimate, fuse, predict
-from zenslam.frontend.tracker import Tracker, TrackingConfig
+from zenslam.frontend.config import FrontendConfig
+from zenslam.frontend.keyframe_decision import KeyframeDecisionConfig
+from zenslam.frontend.pipeline import FrontendPipeline
+from zenslam.frontend.tracker import TrackingConfig
+from zenslam.pose_optimizer import PoseOptimizerConfig
 from zenslam.frontend.visual_odometry import LastFrameSearch, last_frame_points, optimise_with_odometry, track_last_frame
 from zenslam.geometry import invert_T, make_T, se3_exp, so3_exp, so3_log
 from zenslam.pose_optimizer import PoseOptimizerConfig
@@ -83,6 +87,11 @@ class PointWorld:
         return Frame(k, k * 100_000_000, CAL, features, right_u.astype(np.float32), depth.astype(np.float32))
 
 
+def _pipeline(config: TrackingConfig) -> FrontendPipeline:
+    """A pipeline tracking built frames with ``config`` and the tracker's default pose and keyframe settings."""
+    return FrontendPipeline(FrontendConfig(tracking=config, pose=PoseOptimizerConfig(), keyframe=KeyframeDecisionConfig()), CAL, "stereo")
+
+
 def pose_errors(T_est: np.ndarray, T_true: np.ndarray) -> tuple[float, float]:
     delta = invert_T(T_true) @ T_est
     return float(np.linalg.norm(delta[:3, 3])), float(np.degrees(np.linalg.norm(so3_log(delta[:3, :3]))))
@@ -91,9 +100,9 @@ def pose_errors(T_est: np.ndarray, T_true: np.ndarray) -> tuple[float, float]:
 @pytest.fixture(scope="module")
 def tracked_sequence():
     world = PointWorld(seed=0)
-    tracker = Tracker(CAL, "stereo", TrackingConfig(), camera_fps=10.0)
-    results = [tracker.track(world.frame(k)) for k in range(25)]
-    return world, tracker, results
+    pipeline = _pipeline(TrackingConfig())
+    results = [pipeline.track(world.frame(k)) for k in range(25)]
+    return world, pipeline, results
 
 
 def test_tracks_every_frame_accurately(tracked_sequence) -> None:
@@ -109,13 +118,13 @@ def test_tracks_every_frame_accurately(tracked_sequence) -> None:
 
 
 def test_keyframes_and_points(tracked_sequence) -> None:
-    _, tracker, results = tracked_sequence
+    _, pipeline, results = tracked_sequence
     keyframes = [r.keyframe for r in results if r.keyframe is not None]
     assert results[0].keyframe is not None and len(keyframes) >= 2
     assert [kf.id for kf in keyframes] == list(range(len(keyframes)))
     all_new = np.concatenate([kf.new_point_ids for kf in keyframes])
     assert np.array_equal(all_new, np.arange(len(all_new)))  # frontend ids start at 0 and increase
-    lm = tracker.map
+    lm = pipeline.tracker.map
     for kf in keyframes:
         assert np.array_equal(kf.map_point_ids[kf.new_point_keypoints], kf.new_point_ids)
         assert np.all(kf.depth_m[kf.new_point_keypoints] > 0)
@@ -130,45 +139,45 @@ def test_keyframes_and_points(tracked_sequence) -> None:
 
 def test_lost_frame_then_recovery_from_the_reference_keyframe() -> None:
     world = PointWorld(seed=1)
-    tracker = Tracker(CAL, "stereo", TrackingConfig(), camera_fps=10.0)
+    pipeline = _pipeline(TrackingConfig())
     for k in range(6):
-        assert tracker.track(world.frame(k)).state == "ok"
-    lost = tracker.track(world.frame(6, corrupt=True))
+        assert pipeline.track(world.frame(k)).state == "ok"
+    lost = pipeline.track(world.frame(6, corrupt=True))
     assert lost.state == "lost" and lost.T_world_cam is None
     assert lost.lost_reason == "too_few_matches_motion_model_and_reference"
-    assert not tracker.motion.has_velocity
-    back = tracker.track(world.frame(7))
+    assert not pipeline.tracker.motion.has_velocity
+    back = pipeline.track(world.frame(7))
     assert back.state == "ok"
     t_err, _ = pose_errors(back.T_world_cam, invert_T(world.pose(0)) @ world.pose(7))
     assert t_err < 0.02
-    assert tracker.lost_reasons == {"too_few_matches_motion_model_and_reference": 1}
+    assert pipeline.tracker.lost_reasons == {"too_few_matches_motion_model_and_reference": 1}
 
 
 def test_restarts_after_a_long_loss_and_waits_for_depth_to_initialise() -> None:
     world = PointWorld(seed=2)
     config = TrackingConfig(reinit_after_lost_frames=2)
-    tracker = Tracker(CAL, "stereo", config, camera_fps=10.0)
+    pipeline = _pipeline(config)
     empty = world.frame(0)
     no_depth = dataclasses.replace(empty, right_u=np.full_like(empty.right_u, -1), depth_m=np.full_like(empty.depth_m, -1))
-    first = tracker.track(no_depth)
+    first = pipeline.track(no_depth)
     assert first.state == "initializing" and first.lost_reason == "no_depth_points_for_init"
-    assert tracker.track(world.frame(0)).state == "ok"
-    assert tracker.track(world.frame(1)).state == "ok"
-    assert tracker.track(world.frame(2, corrupt=True)).state == "lost"
-    assert tracker.track(world.frame(3, corrupt=True)).state == "lost"
-    restart = tracker.track(world.frame(4))
+    assert pipeline.track(world.frame(0)).state == "ok"
+    assert pipeline.track(world.frame(1)).state == "ok"
+    assert pipeline.track(world.frame(2, corrupt=True)).state == "lost"
+    assert pipeline.track(world.frame(3, corrupt=True)).state == "lost"
+    restart = pipeline.track(world.frame(4))
     assert restart.state == "initializing" and restart.keyframe is not None
     # Restarted at the last good pose (frame 1's), then tracks again from there.
     assert np.allclose(restart.T_world_cam, invert_T(world.pose(0)) @ world.pose(1), atol=0.01)
-    assert tracker.track(world.frame(5)).state == "ok"
-    assert tracker.n_reinitialisations == 1
+    assert pipeline.track(world.frame(5)).state == "ok"
+    assert pipeline.tracker.n_reinitialisations == 1
 
 
 def test_tracking_is_deterministic() -> None:
     def run() -> list[np.ndarray]:
         world = PointWorld(seed=3)
-        tracker = Tracker(CAL, "stereo", TrackingConfig(), camera_fps=10.0)
-        return [tracker.track(world.frame(k)).T_world_cam for k in range(8)]
+        pipeline = _pipeline(TrackingConfig())
+        return [pipeline.track(world.frame(k)).T_world_cam for k in range(8)]
 
     assert all(np.array_equal(a, b) for a, b in zip(run(), run()))
 
@@ -178,11 +187,11 @@ def test_map_update_moves_the_map_and_tracking_follows() -> None:
     from zenslam.schemas.map_update import KeyframeCorrection, MapUpdate
 
     world = PointWorld(seed=4)
-    tracker = Tracker(CAL, "stereo", TrackingConfig(), camera_fps=10.0)
+    pipeline = _pipeline(TrackingConfig())
     for k in range(6):
-        assert tracker.track(world.frame(k)).state == "ok"
+        assert pipeline.track(world.frame(k)).state == "ok"
     G = make_T(so3_exp(np.array([0.0, 0.3, 0.0])), np.array([1.0, -2.0, 0.5]))  # new world <- old world
-    lm = tracker.map
+    lm = pipeline.tracker.map
     rows = np.flatnonzero(lm.valid)
     keyframes = [lm.keyframe(s) for s in range(lm.n_keyframes)]
     update = MapUpdate(
@@ -196,8 +205,8 @@ def test_map_update_moves_the_map_and_tracking_follows() -> None:
         min_distance_m=lm.min_distance_m[rows],
         max_distance_m=lm.max_distance_m[rows],
     )
-    tracker.apply_map_update(update)
-    result = tracker.track(world.frame(6))
+    pipeline.map_sync.apply(update)
+    result = pipeline.track(world.frame(6))
     assert result.state == "ok"
     t_err, r_err = pose_errors(result.T_world_cam, G @ invert_T(world.pose(0)) @ world.pose(6))
     assert t_err < 0.02 and r_err < 0.1
@@ -207,18 +216,18 @@ def test_skipped_frames_are_tracked_by_the_scaled_motion_model(monkeypatch) -> N
     """Live mode skips frames: the motion model predicts across the gap (the reference-keyframe
     fallback is disabled here, so only the prediction can track the frame)."""
     world = PointWorld(seed=5)
-    tracker = Tracker(CAL, "stereo", TrackingConfig(), camera_fps=10.0)
+    pipeline = _pipeline(TrackingConfig())
     for k in range(4):
-        assert tracker.track(world.frame(k)).state == "ok"
-    monkeypatch.setattr(tracker, "_track_reference_keyframe", lambda frame: None)
+        assert pipeline.track(world.frame(k)).state == "ok"
+    monkeypatch.setattr(pipeline.tracker.reference_tracking, "track", lambda frame, *args: None)
     T0 = world.pose(0)
     for k in (9, 10, 14):  # gaps of 6, 1 and 4 frames (1.2 m and 4 degrees of yaw for 6)
-        result = tracker.track(world.frame(k))
+        result = pipeline.track(world.frame(k))
         assert result.state == "ok", (k, result.lost_reason)
         t_err, r_err = pose_errors(result.T_world_cam, invert_T(T0) @ world.pose(k))
         assert t_err < 0.02 and r_err < 0.1, (k, t_err, r_err)
     # The velocity stays per frame: about 0.2 m forward (the truth's step), not 0.8 m.
-    assert np.linalg.norm(tracker.motion.velocity[:3, 3]) == pytest.approx(0.2, abs=0.02)
+    assert np.linalg.norm(pipeline.tracker.motion.velocity[:3, 3]) == pytest.approx(0.2, abs=0.02)
 
 
 def test_a_small_map_cache_evicts_and_tracking_stays_accurate() -> None:
@@ -228,18 +237,18 @@ def test_a_small_map_cache_evicts_and_tracking_stays_accurate() -> None:
 
     world = PointWorld(seed=0)
     cache = LocalMapConfig(cache_max_keyframes=4, cache_margin_keyframes=1, cache_min_keyframes_between_evictions=2)
-    tracker = Tracker(CAL, "stereo", TrackingConfig(local_map=cache), camera_fps=10.0)
+    pipeline = _pipeline(TrackingConfig(local_map=cache))
     T0 = world.pose(0)
     for k in range(70):
-        result = tracker.track(world.frame(k))
+        result = pipeline.track(world.frame(k))
         assert result.state == "ok", (k, result.lost_reason)
         t_err, r_err = pose_errors(result.T_world_cam, invert_T(T0) @ world.pose(k))
         # The bounds of test_tracks_every_frame_accurately; rotation drifts to ~0.4 deg by frame 70.
         assert t_err < 0.005 + 0.005 * 0.2 * k and r_err < 0.5, (k, t_err, r_err)
-        reference = tracker.map.keyframe(tracker.map.slot_of(result.reference_keyframe_id))
+        reference = pipeline.tracker.map.keyframe(pipeline.tracker.map.slot_of(result.reference_keyframe_id))
         assert np.allclose(reference.T_cam_world @ result.T_world_cam, result.T_reference_cam)
-    lm = tracker.map
-    assert tracker.eviction.passes >= 3 and 2 * lm.n_cached_keyframes <= lm.n_keyframes
+    lm = pipeline.tracker.map
+    assert pipeline.tracker.eviction.passes >= 3 and 2 * lm.n_cached_keyframes <= lm.n_keyframes
     assert np.array_equal(lm.rows_of_ids(lm.point_ids), np.arange(lm.n_points))
 
 
@@ -257,13 +266,13 @@ def test_localization_makes_no_keyframe_and_goes_on_by_visual_odometry() -> None
     """Localisation mode: after the first keyframe no keyframe is made; where the map's points fade out
     (the frames see another world's points) the pose goes on by visual odometry on the last frame's depths."""
     mapped, unmapped = PointWorld(seed=5), PointWorld(seed=6)
-    tracker = Tracker(CAL, "stereo", TrackingConfig(localization=True), camera_fps=10.0)
-    results = [tracker.track(mapped.frame(k)) for k in range(3)]
+    pipeline = _pipeline(TrackingConfig(localization=True))
+    results = [pipeline.track(mapped.frame(k)) for k in range(3)]
     for k in range(3, 16):
-        results.append(tracker.track(_merged(mapped.frame(k, keep_fraction=0.75 if k < 6 else 0.002), unmapped.frame(k))))
+        results.append(pipeline.track(_merged(mapped.frame(k, keep_fraction=0.75 if k < 6 else 0.002), unmapped.frame(k))))
     assert [r.state for r in results] == ["ok"] * 16
     assert results[0].keyframe is not None and all(r.keyframe is None for r in results[1:])
-    assert tracker.map.n_keyframes == 1 and tracker.n_vo_frames >= 5
+    assert pipeline.tracker.map.n_keyframes == 1 and pipeline.tracker.n_vo_frames >= 5
     assert all(r.n_tracked < 10 for r in results[8:])  # few map matches: the frames are on visual odometry
     T0 = mapped.pose(0)
     for k, r in enumerate(results):
@@ -436,14 +445,14 @@ def test_few_map_points_and_the_vo_points_place_the_frame() -> None:
     assert track_last_frame(current, last, last_frame_points(*args, -1.0, 0), predicted, SEARCH, PoseOptimizerConfig()) is None
 
 
-def _replaced_by_the_backend(tracker: Tracker, fraction: float, seed: int = 0):
+def _replaced_by_the_backend(pipeline: FrontendPipeline, fraction: float, seed: int = 0):
     """A late map update in which the backend replaced ``fraction`` of the points the last frame
     matched (fused them into points of its own, at the same places): the cache's keyframes observe
     the new ids, the old ones are removed, and the last frame's matches to them are gone."""
     from zenslam.schemas.map_update import BACKEND_POINT_ID_BASE, KeyframeCorrection, MapUpdate
 
-    lm = tracker.map
-    matched = np.unique(tracker._last.rows[tracker._last.rows >= 0])
+    lm = pipeline.tracker.map
+    matched = np.unique(pipeline.tracker.last_frame.rows[pipeline.tracker.last_frame.rows >= 0])
     rows = matched[np.random.default_rng(seed).random(len(matched)) < fraction]
     new_ids = BACKEND_POINT_ID_BASE + np.arange(len(rows), dtype=np.int64)
     renamed = dict(zip(lm.point_ids[rows].tolist(), new_ids.tolist()))
@@ -469,15 +478,17 @@ def test_a_late_update_that_replaced_the_last_frames_points(monkeypatch, vo_poin
 
     world = PointWorld(seed=3)
     config = TrackingConfig(visual_odometry=VisualOdometryConfig(in_slam_mode=vo_points))
-    tracker = Tracker(CAL, "stereo", config, camera_fps=10.0)
+    pipeline = _pipeline(config)
     for k in range(8):
-        assert tracker.track(world.frame(k)).state == "ok"
-    tracker.apply_map_update(_replaced_by_the_backend(tracker, 0.99))
-    assert np.count_nonzero(tracker.map.valid[tracker._last.rows[tracker._last.rows >= 0]]) < 20
+        assert pipeline.track(world.frame(k)).state == "ok"
+    pipeline.map_sync.apply(_replaced_by_the_backend(pipeline, 0.99))
+    assert np.count_nonzero(pipeline.tracker.map.valid[pipeline.tracker.last_frame.rows[pipeline.tracker.last_frame.rows >= 0]]) < 20
     tried = []
-    reference = tracker._track_reference_keyframe
-    monkeypatch.setattr(tracker, "_track_reference_keyframe", lambda frame: tried.append(frame.index) or reference(frame))
-    result = tracker.track(world.frame(8))
+    reference = pipeline.tracker.reference_tracking.track
+    monkeypatch.setattr(
+        pipeline.tracker.reference_tracking, "track", lambda frame, *args: tried.append(frame.index) or reference(frame, *args)
+    )
+    result = pipeline.track(world.frame(8))
     assert result.state == "ok" and tried == ([] if vo_points else [8])
     t_err, r_err = pose_errors(result.T_world_cam, invert_T(world.pose(0)) @ world.pose(8))
     assert t_err < 0.02 and r_err < 0.1

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import rerun as rr
 
-from zenslam.runtime.rerun_log import StageRecording, _log_world_axes
+from zenslam.runtime.rerun_log import StageRecording, log_world_axes
 
 if TYPE_CHECKING:
     from zenslam.backend.map import BackendMap
@@ -43,7 +43,7 @@ class BackendLog:
         self.recording = recording
         self._map_logged_ns: int | None = None  # stamp of the last logged map
         self._unlogged: tuple[KeyframeMessage, BackendMap] | None = None  # a map change not logged yet
-        _log_world_axes(recording)
+        log_world_axes(recording)
 
     def log_keyframe(
         self, keyframe: KeyframeMessage, bmap: BackendMap, ba_stats: Mapping[str, float], timings_ms: Mapping[str, float]

@@ -4,7 +4,7 @@ The backend owns the map; the frontend's ``LocalMap`` is a cache of its neighbou
 cache holds more than ``LocalMapConfig.cache_max_keyframes`` keyframes (and at least
 ``cache_min_keyframes_between_evictions`` were inserted since the last pass, so a window larger
 than the limit does not cost a pass per keyframe), one pass keeps:
-- the tracking window: ORB-SLAM's local keyframes of the current frame (``LocalMap.local_window``:
+- the tracking window: ORB-SLAM's local keyframes of the current frame (``local_window``:
   the keyframes sharing points with it, their best covisible neighbours, a child and the parent);
 - a margin: ``cache_margin_keyframes`` more, taken ring by ring along the best covisible
   neighbours of the window, so the next frames' windows still find their neighbours cached;
@@ -14,7 +14,7 @@ and evicts every other keyframe with the points that no kept keyframe observes.
 
 Map updates that name evicted keyframes skip them (the frontend cannot rebuild their keypoints);
 an evicted point listed by an update comes back only when a held keyframe of the update observes
-it (``LocalMap.apply_map_update``): the cache re-fills with what its keyframes see, and a correction
+it (``map_sync.apply_map_update``): the cache re-fills with what its keyframes see, and a correction
 listing the whole map does not copy it in. Points that lose their last held observer go at the
 next pass.
 """
@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from zenslam.frontend.local_map import LocalMap
+from zenslam.frontend.local_window import local_window
 
 logger = logging.getLogger(__name__)
 
@@ -48,7 +49,7 @@ def keyframes_to_keep(
 ) -> np.ndarray:
     """Sorted unique slots (int64) of the tracking window of a frame matched to ``frame_rows``
     (map rows per keypoint, -1 none), its margin and ``protected_slots`` (negative ones ignored)."""
-    window = local_map.local_window(frame_rows).keyframe_slots.tolist()
+    window = local_window(local_map, frame_rows).keyframe_slots.tolist()
     kept = set(window)
     ring = window
     added = 0

@@ -5,12 +5,13 @@ without the bus; ``serve`` is the loop that receives, handles and publishes. The
 is ``zenslam.frontend.pipeline.FrontendPipeline``, built on the first frame from the calibration
 and sensor kind that every sensor/frame message carries.
 
-With a backend (``serve(..., map_updates=...)``), the backend's backend/map_update messages are applied
-to the pipeline's map: in live mode every update that has arrived is applied before the next
-frame is tracked; in lockstep, after publishing a keyframe the frontend waits for the backend's
-update of that keyframe before it tracks another frame, so the run is deterministic; meanwhile
-it builds the next frame (ORB, stereo or depth: images only, no map) if that frame has arrived,
-so the backend's mapping and the frontend's feature extraction share the two cores. Pipelined
+With a backend (``serve(..., map_updates=...)``), the backend's backend/map_update messages
+(``map_update_inbox``) are applied to the pipeline's map cache through its ``map_sync``: in live
+mode every update that has arrived is applied before the next frame is tracked; in lockstep,
+after publishing a keyframe the frontend waits for the backend's update of that keyframe before
+it tracks another frame, so the run is deterministic; meanwhile it builds the next frame (ORB,
+stereo or depth: images only, no map) if that frame has arrived, so the backend's mapping and the
+frontend's feature extraction share the two cores. Pipelined
 mode (every frame, in order, as in lockstep) applies updates as live mode does. With a backend, a
 lost frame asks it for relocalisation candidates on backend/relocalisation (``RelocalisationQueries``)
 and waits for the answer: in lockstep the backend is idle between keyframes, so the answer, and
@@ -32,7 +33,6 @@ import argparse
 import logging
 import sys
 import time
-from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
@@ -44,6 +44,7 @@ import zenoh
 from zenslam.camera import PinholeCalibration, SensorKind
 from zenslam.errors import CalibrationError, ZenslamError
 from zenslam.frontend.config import FrontendConfig, entering_map
+from zenslam.frontend.map_update_inbox import MapUpdateInbox
 from zenslam.runtime import bus
 from zenslam.runtime.stage import STOPPED, RunMode, StageStart, add_wait_for_argument, log_cpu_times, run_stage
 from zenslam.schemas import codec, keys
@@ -51,11 +52,19 @@ from zenslam.schemas.map_update import MapUpdate
 from zenslam.schemas.relocalisation import RelocalisationCandidates, RelocalisationQuery
 
 if TYPE_CHECKING:
-    from zenslam.runtime.rerun_log import FrontendLog
+    from zenslam.frontend.keyframe import KeyFrame
+    from zenslam.frontend.rerun_log import FrontendLog
+    from zenslam.frontend.tracking_state import TrackingOutput
 
 logger = logging.getLogger(__name__)
 
 STAGE = "frontend"
+
+
+class MapUpdateTarget(Protocol):
+    """Applies the backend's map updates to a frontend's map cache (``map_sync.MapSync``)."""
+
+    def apply(self, update: MapUpdate) -> None: ...
 
 
 class Pipeline(Protocol):
@@ -71,7 +80,10 @@ class Pipeline(Protocol):
         candidates: CandidateSource | None = None,
     ) -> Any: ...
 
-    def apply_map_update(self, update: MapUpdate) -> None: ...
+    @property
+    def map_sync(self) -> MapUpdateTarget:
+        """What applies the backend's map updates to the pipeline's map cache."""
+        ...
 
     @property
     def may_ask_backend(self) -> bool:
@@ -96,7 +108,7 @@ class FrontendMessages:
     keyframe_ids: tuple[int, ...] = ()  # the id of each of ``keyframes``
 
 
-def keyframe_message(keyframe: Any, calibration: PinholeCalibration, sensor: SensorKind) -> codec.KeyframeMessage:
+def keyframe_message(keyframe: KeyFrame, calibration: PinholeCalibration, sensor: SensorKind) -> codec.KeyframeMessage:
     """The bus form of the pipeline's KeyFrame."""
     return codec.KeyframeMessage(
         id=int(keyframe.id),
@@ -124,8 +136,9 @@ class FrontendNode:
     def __init__(self, make_pipeline: PipelineFactory, rerun: FrontendLog | None = None):
         self._make_pipeline = make_pipeline
         self.rerun = rerun  # logs each frame's keypoints, pose, state and timings to the stage's .rrd
-        self._unlogged: tuple[codec.FrameMessage, Any] | None = None  # handled, not yet logged to rerun
+        self._unlogged: tuple[codec.FrameMessage, TrackingOutput] | None = None  # handled, not yet logged to rerun
         self._pipeline: Pipeline | None = None
+        self._map_sync: MapUpdateTarget | None = None  # the pipeline's, applied to in one call per update
         self._camera: tuple[PinholeCalibration, SensorKind] | None = None
         self.frames = 0  # frames handled
         self.keyframes = 0  # keyframes sent
@@ -196,6 +209,7 @@ class FrontendNode:
             logger.info("first frame: %s camera, %s", message.sensor, message.calibration.summary())
             log_cpu_times("at stream start")
             self._pipeline, self._camera = self._make_pipeline(*camera), camera
+            self._map_sync = self._pipeline.map_sync
         elif camera != self._camera:
             raise CalibrationError(
                 f"frame {message.frame.index} has camera {camera} but the run started with {self._camera}; "
@@ -265,20 +279,20 @@ class FrontendNode:
             self._log_to_rerun(*self._unlogged)
             self._unlogged = None
 
-    def _log_to_rerun(self, message: codec.FrameMessage, out: Any) -> None:
-        from zenslam.runtime.rerun_log import tracked_keypoints
+    def _log_to_rerun(self, message: codec.FrameMessage, out: TrackingOutput) -> None:
+        from zenslam.frontend.rerun_log import tracked_keypoints
 
         self.rerun.log_camera(message.calibration)
         self.rerun.log_frame(out, tracked_keypoints(self._pipeline, message.frame.index), message.frame.left)
 
     def apply_map_update(self, update: MapUpdate) -> None:
         """Apply the backend's correction to the pipeline's map before the next frame is tracked."""
-        if self._pipeline is None:
+        if self._map_sync is None:
             raise ZenslamError(
                 f"a map update for keyframe {update.keyframe_id} arrived before any frame was tracked; "
                 "is another frontend publishing keyframes in this session?"
             )
-        self._pipeline.apply_map_update(update)
+        self._map_sync.apply(update)
         self.updates_applied += 1
         self.answers_applied += int(update.answers_keyframe)
 
@@ -342,154 +356,6 @@ class RelocalisationQueries:
         return None
 
 
-_RESEND_S = 5.0  # seconds between sends of the unanswered keyframes to a restarted backend, until it answers
-
-
-class _MapUpdates:
-    """The backend's map updates, applied to the node's pipeline as the run mode says, and the
-    keyframes still waiting for their answer, sent again to a backend that comes back after a crash
-    (it rebuilds its map from its journal; one it had taken already it refuses without an answer)."""
-
-    def __init__(self, session: zenoh.Session, session_name: str, config: FrontendConfig, resend: Callable[[bytes], None]):
-        # Answers to keyframes below this id are to keyframes of a frontend before this one (it
-        # crashed): this one entered the map by relocalising and fetches what it needs of it.
-        self.first_keyframe_id = config.tracking.local_map.keyframe_id_start
-        # Lossless: a missed update would leave the frontend's map behind the backend's for good.
-        self.inbox = bus.subscribe(session, keys.backend_map_update(session_name), codec.decode_map_update, "lossless", config.map_update_queue)
-        self.timeout_s = config.update_timeout_s
-        self.ended = False
-        self.unanswered: dict[int, bytes] = {}  # keyframe id -> its message, sent and not answered yet
-        self.resent = 0  # keyframes sent again to a restarted backend
-        self._last_answered = -1  # the newest keyframe id answered
-        # Updates announced and not applied yet: the last answer announces its keyframe's
-        # local-mapping correction, which announces the loop corrections after it.
-        self.due = 0
-        # Lockstep's schedule, in frames handled: (keyframe id, the frame before which its answer is
-        # applied), oldest first; and the frame before which the last answer's corrections are
-        # applied when it was published before its local BA (None: with the answer).
-        self.lag_frames = config.lockstep_lag_frames
-        self._answers_due: deque[tuple[int, int]] = deque()
-        self._corrections_due: int | None = None
-        self._lag_one_frame = False  # the last answer's corrections may wait for the frame after the one it is applied before
-        self._resend_due: float | None = None  # after a backend restart: when to send the unanswered again
-        self._resend = resend
-        self._backend = bus.Comebacks(session, session_name, "backend")
-
-    def sent(self, messages: FrontendMessages) -> None:
-        """Note the keyframes just sent: each waits for its answer."""
-        self.unanswered.update(zip(messages.keyframe_ids, messages.keyframes, strict=True))
-
-    def schedule(self, messages: FrontendMessages, frames_handled: int) -> None:
-        """Lockstep: the keyframes just sent, made at the frame that brought the count of frames
-        handled to ``frames_handled``, are answered before frame ``frames_handled - 1 + lag_frames``."""
-        for keyframe_id in messages.keyframe_ids:
-            self._answers_due.append((keyframe_id, frames_handled - 1 + self.lag_frames))
-
-    def waits_before(self, frame: int, drain: bool) -> bool:
-        """Lockstep: whether updates are due before tracking frame ``frame`` (counted in frames
-        handled); with ``drain``, whether any is still to come."""
-        corrections = self.due > 0 and (drain or (self._corrections_due is not None and self._corrections_due <= frame))
-        return corrections or bool(self._answers_due and (drain or self._answers_due[0][1] <= frame))
-
-    def apply_due(self, node: FrontendNode, frame: int, drain: bool, should_stop: Callable[[], bool]) -> None:
-        """Lockstep: apply the updates due before frame ``frame`` (every update to come with
-        ``drain``), in the order the backend published them. An answer published before its local BA
-        (``corrections_after_next_frame``) leaves its corrections for the frame after."""
-        if self.due > 0 and (drain or (self._corrections_due is not None and self._corrections_due <= frame)):
-            self.wait_for_corrections(node, should_stop)
-        while self._answers_due and (drain or self._answers_due[0][1] <= frame) and not should_stop():
-            keyframe_id, _ = self._answers_due.popleft()
-            self._wait(node, lambda: self._last_answered >= keyframe_id, f"keyframe {keyframe_id}", should_stop)
-            self._corrections_due = frame + 1 if self._lag_one_frame and not drain else None
-            if self._corrections_due is None:
-                self.wait_for_corrections(node, should_stop)
-
-    def resend_to_a_restarted_backend(self) -> None:
-        """When the backend came back since the last call, send it every unanswered keyframe again,
-        oldest first: those sent to its predecessor and those held while it was gone. Until an
-        answer comes, again every ``_RESEND_S`` seconds: a keyframe sent as the new backend's token
-        arrived may not reach it (measured under load), and one it has already is skipped there."""
-        now = time.monotonic()
-        if self._backend.returned():
-            logger.warning("the backend restarted: sending its %d unanswered keyframe(s) again", len(self.unanswered))
-        elif self._resend_due is None or now < self._resend_due or self._backend.gone or not self.unanswered:
-            return
-        for keyframe_id in sorted(self.unanswered):
-            self._resend(self.unanswered[keyframe_id])
-            self.resent += 1
-        self._resend_due = now + _RESEND_S if self.unanswered else None
-
-    def wait_for_a_restarted_backend(self, timeout_s: float, should_stop: Callable[[], bool]) -> None:
-        """At the end of the frames: a backend that is gone gets up to ``timeout_s`` seconds to come
-        back and receive the unanswered keyframes, before the end of stream is sent after them."""
-        deadline = time.monotonic() + timeout_s
-        if self.backend_gone():
-            logger.warning("the backend is gone: waiting up to %.0f s for it to restart before ending the stream", timeout_s)
-        while self.backend_gone() and not should_stop() and time.monotonic() < deadline:
-            time.sleep(0.05)
-        self.resend_to_a_restarted_backend()
-
-    def backend_gone(self) -> bool:
-        """Whether the backend's process is gone (it crashed, and may be restarted)."""
-        self._backend.poll()
-        return self._backend.gone
-
-    def apply_pending(self, node: FrontendNode) -> None:
-        """Live: apply every update that has arrived."""
-        self.resend_to_a_restarted_backend()
-        while not self.ended and (update := self.inbox.get(timeout_s=0)) is not None:
-            self._apply(node, update)
-
-    def wait_for_corrections(self, node: FrontendNode, should_stop: Callable[[], bool]) -> None:
-        """Lockstep: apply updates until the last answer's corrections (``due``) have all been applied."""
-        self._wait(node, lambda: self.due == 0, f"the corrections of keyframe {self._last_answered}", should_stop)
-
-    def _wait(self, node: FrontendNode, done: Callable[[], bool], what: str, should_stop: Callable[[], bool]) -> None:
-        """Apply updates until ``done()``, the backend has ended its stream (``ended``: it was stopped)
-        or ``should_stop()``."""
-        deadline = time.monotonic() + self.timeout_s
-        while not done() and not should_stop() and not self.ended:
-            self.resend_to_a_restarted_backend()
-            update = self.inbox.get(timeout_s=0.1)
-            if update is not None:
-                self._apply(node, update)
-                deadline = time.monotonic() + self.timeout_s
-            elif time.monotonic() > deadline:
-                raise bus.BusError(
-                    f"lockstep: no map update for {what} from the backend within {self.timeout_s:.0f} s "
-                    "(frontend.update_timeout_s); check the backend's log"
-                )
-
-    def _apply(self, node: FrontendNode, update: MapUpdate | codec.EndOfStream) -> None:
-        """Apply one update; the end of stream marks the stream ended."""
-        if isinstance(update, codec.EndOfStream):
-            self.ended = True
-            return
-        if update.answers_keyframe:
-            if update.keyframe_id < self.first_keyframe_id:
-                logger.info("an answer to keyframe %d, made before this frontend restarted: not applied", update.keyframe_id)
-                return
-            if update.keyframe_id <= self._last_answered:
-                # Answers come in keyframe order; a second one is a restarted backend's, for a
-                # keyframe whose answer its predecessor published just before dying.
-                logger.warning("a second answer to keyframe %d (the backend restarted): ignored", update.keyframe_id)
-                return
-            self._last_answered = int(update.keyframe_id)
-            self.unanswered.pop(int(update.keyframe_id), None)
-            self._resend_due = None  # the restarted backend has its keyframes
-            self.due = update.corrections_following
-            self._lag_one_frame = update.corrections_after_next_frame
-        else:
-            # A correction: one of those announced (each may announce more after it), or one
-            # announced by none (a background global BA's, live or pipelined).
-            self.due = max(self.due - 1, 0) + update.corrections_following
-        node.apply_map_update(update)
-
-    def close(self) -> None:
-        self.inbox.close()
-        self._backend.close()
-
-
 def serve(
     session: zenoh.Session,
     session_name: str,
@@ -505,7 +371,7 @@ def serve(
     (see the module doc); without it the frontend tracks on its own map.
     """
     outputs = _Outputs(session, session_name)
-    updates = _MapUpdates(session, session_name, map_updates, outputs.keyframe.put) if map_updates is not None else None
+    updates = MapUpdateInbox(session, session_name, map_updates, outputs.keyframe.put) if map_updates is not None else None
     node.tracks_backend = updates is not None
     if map_updates is not None:
         node.candidates = RelocalisationQueries(session, session_name, map_updates.relocalisation_timeout_s)
@@ -659,7 +525,7 @@ def _run(stage: StageStart) -> None:
     if stage.stopped_before_joining():
         return
 
-    from zenslam.runtime.rerun_log import FrontendLog
+    from zenslam.frontend.rerun_log import FrontendLog
 
     with stage.rerun_recording() as recording, stage.open_session() as session:
         stage.require_alive(session, args.wait_for)

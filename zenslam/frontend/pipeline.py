@@ -1,4 +1,10 @@
-"""The frontend's step: images in, a tracked pose (and sometimes a keyframe) out, with stage timings."""
+"""The frontend's step: images in, a tracked pose (and sometimes a keyframe) out, with stage timings.
+
+``FrontendPipeline.step`` builds the frame (ORB features, stereo matches or RGB-D depths) and
+tracks it through the tracker's stages (``tracker``) in ORB-SLAM2's order: start or enter a map,
+relocalise a lost frame, the motion model or the reference keyframe, then the local map and the
+keyframe decision; localisation mode has its own order (``localisation``).
+"""
 
 from __future__ import annotations
 
@@ -6,7 +12,6 @@ import dataclasses
 import logging
 import time
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
 
@@ -14,11 +19,16 @@ from zenslam.camera import PinholeCalibration, SensorKind
 from zenslam.errors import ConfigError
 from zenslam.frontend.config import FrontendConfig
 from zenslam.frontend.frame import Frame, make_mono_frame, make_rgbd_frame, make_stereo_frame
-from zenslam.frontend.keyframe import KeyFrame
+from zenslam.frontend.map_sync import MapSync
 from zenslam.frontend.orb_extractor import OrbExtractor
 from zenslam.frontend.relocalisation import BowTransform
 from zenslam.frontend.tracker import CandidateSource, Tracker
+from zenslam.frontend.tracking_state import TrackingOutput
+from zenslam.frontend.visual_odometry import OdometryPose
+from zenslam.geometry import invert_T
 from zenslam.schemas.map_update import MapUpdate
+
+__all__ = ["TIMING_KEYS", "FrontendConfig", "FrontendPipeline", "PreparedFrame", "TrackingOutput"]
 
 logger = logging.getLogger(__name__)
 
@@ -31,38 +41,6 @@ TIMING_KEYS = (
     "keyframe_decision",
     "total",
 )
-
-
-@dataclass(frozen=True)
-class TrackingOutput:
-    """What the frontend says about one frame.
-
-    ``state`` is "initializing" before a map exists (and on the frame that restarts tracking
-    after a long loss), "ok" when the frame was tracked, "lost" otherwise, with ``lost_reason``.
-    ``T_world_cam`` (4x4, camera -> world) is None when lost. ``n_tracked`` counts inlier matches
-    to map points. ``keyframe`` is the keyframe made at this frame, if any. ``timings_ms`` holds
-    milliseconds per stage (keys in ``TIMING_KEYS``): the tracking stages exclude the pose
-    optimisation, which has its own key; "keyframe_decision" includes making the keyframe. Frames
-    that tried to relocalise also have "relocalisation" (the query, matching and local-map tracking).
-    """
-
-    index: int
-    stamp_ns: int
-    state: Literal["ok", "lost", "initializing"]
-    lost_reason: str | None
-    T_world_cam: np.ndarray | None
-    n_tracked: int
-    keyframe: KeyFrame | None
-    timings_ms: dict[str, float]
-    reference_keyframe_id: int = -1  # the keyframe the pose is kept relative to, -1 none
-    T_reference_cam: np.ndarray | None = None  # (4, 4) the camera in that keyframe's frame
-    relocalised: bool = False  # tracking was lost (or, localising, on visual odometry) before this frame and found the map again here
-    earlier_keyframes: tuple[KeyFrame, ...] = ()  # made at this step from earlier frames, sent before ``keyframe``
-
-    @property
-    def keyframes_made(self) -> tuple[KeyFrame, ...]:
-        """Every keyframe made at this step, in the order the backend takes them."""
-        return (*self.earlier_keyframes, *((self.keyframe,) if self.keyframe is not None else ()))
 
 
 @dataclass(frozen=True)
@@ -148,32 +126,105 @@ class FrontendPipeline:
         start = time.perf_counter()
         self._update_camera_rate(stamp_ns)
         timings = dict(prepared.timings_ms)
-        result = self.tracker.track(prepared.frame, keyframes_in_flight, candidates)
-        timings.update(result.timings_ms)
+        out = self.track(prepared.frame, keyframes_in_flight, candidates)
+        timings.update(out.timings_ms)
         timings["total"] = prepared.elapsed_ms + (time.perf_counter() - start) * 1e3
-        return TrackingOutput(
-            index=index,
-            stamp_ns=stamp_ns,
-            state=result.state,
-            lost_reason=result.lost_reason,
-            T_world_cam=result.T_world_cam,
-            n_tracked=result.n_tracked,
-            keyframe=result.keyframe,
-            timings_ms=timings,
-            reference_keyframe_id=result.reference_keyframe_id,
-            T_reference_cam=result.T_reference_cam,
-            relocalised=result.relocalised,
-            earlier_keyframes=result.earlier_keyframes,
-        )
+        return dataclasses.replace(out, timings_ms=timings)
+
+    # ---- tracking a built frame through the tracker's stages ------------------------------------
+    def track(self, frame: Frame, keyframes_in_flight: int = 0, candidates: CandidateSource | None = None) -> TrackingOutput:
+        """Track one built frame: its pose in the world, the inlier count, a keyframe when one is
+        made, and the pose relative to the frame's reference keyframe; the timings are the tracking
+        stages' (``step`` adds the frame building's). ``keyframes_in_flight`` and ``candidates`` as
+        in ``step``."""
+        tracker, state = self.tracker, self.tracker.state
+        out = self._track(frame, keyframes_in_flight, candidates)
+        if out.T_world_cam is not None and tracker.config.start_in_map and candidates is not None:
+            tracker.relocalisation.fetch_window(frame, candidates, keyframes_in_flight + (out.keyframe is not None))
+            if "map_window" in state.timers.ms:
+                out = dataclasses.replace(out, timings_ms={**out.timings_ms, "map_window": state.timers.ms["map_window"]})
+        reference = tracker.map.keyframe(state.reference_slot) if state.reference_slot >= 0 else None
+        if out.T_world_cam is None or reference is None:
+            return out
+        return dataclasses.replace(out, reference_keyframe_id=int(reference.id), T_reference_cam=reference.T_cam_world @ out.T_world_cam)
+
+    def _track(self, frame: Frame, keyframes_in_flight: int, candidates: CandidateSource | None) -> TrackingOutput:
+        tracker, state, timers = self.tracker, self.tracker.state, self.tracker.state.timers
+        outcomes, relocalisation = tracker.outcomes, tracker.relocalisation
+        timers.reset()
+        if state.last is None and tracker.config.start_in_map:
+            return self._enter_map(frame, keyframes_in_flight, candidates)
+        if state.last is None:
+            return tracker.map_start.start(frame, np.eye(4), "no_depth_points_for_init")
+        if tracker.config.localization and state.lost_streak == 0:
+            return tracker.localisation.track(frame, candidates)
+        relocalising = state.lost_streak > 0 and relocalisation.enabled(candidates)
+        failure = None
+        if relocalising:
+            found, failure = relocalisation.relocalise(frame, candidates)
+            if found is not None:
+                return outcomes.tracked(frame, found.T_cam_world, found.rows, found.n_inliers, keyframes_in_flight, relocalised=True)
+        if tracker.starting_map:
+            n_lost = state.lost_streak
+            out = tracker.map_start.start(frame, invert_T(state.last.T_cam_world), "no_depth_points_for_reinit")
+            if out.state == "ok":
+                state.n_reinitialisations += 1
+                logger.warning("tracking restarted at frame %d after %d lost frames", frame.index, n_lost)
+                return dataclasses.replace(out, state="initializing")
+            return out
+        if relocalising:
+            return outcomes.lost(frame, failure, 0)
+        start, pose_ms = time.perf_counter(), timers.pose_ms
+        first = self._track_last_frame_or_reference(frame)
+        timers.add_less_pose("motion_model_tracking", start, pose_ms)
+        if first is None:
+            return outcomes.lost(frame, "too_few_matches_motion_model_and_reference", 0)
+        start, pose_ms = time.perf_counter(), timers.pose_ms
+        local = tracker.local_map_tracking.track(frame, first.T_cam_world, first.rows)
+        timers.add_less_pose("local_map_tracking", start, pose_ms)
+        min_inliers = relocalisation.min_local_map_inliers(frame)
+        if local.n_inliers < min_inliers:
+            return outcomes.lost(frame, f"local_map_inliers_below_{min_inliers}", local.n_inliers)
+        return outcomes.tracked(frame, local.T_cam_world, local.rows, local.n_inliers, keyframes_in_flight)
+
+    def _track_last_frame_or_reference(self, frame: Frame) -> OdometryPose | None:
+        """The pose from the motion model or the reference keyframe, or None."""
+        tracker, state = self.tracker, self.tracker.state
+        last = state.last
+        predicted = state.motion.predict(last.T_cam_world, state.frame_gap(frame))
+        if predicted is not None:
+            found = tracker.motion_tracking.track(frame, last, predicted)
+            if found is not None:
+                return found
+        found = tracker.reference_tracking.track(frame, state.reference_slot, last.T_cam_world)
+        if found is None and predicted is None:
+            found = tracker.motion_tracking.track(frame, last, last.T_cam_world)
+        return found
+
+    def _enter_map(self, frame: Frame, keyframes_in_flight: int, candidates: CandidateSource | None) -> TrackingOutput:
+        """Before the first pose in a saved map: relocalise into it, or stay lost."""
+        outcomes, relocalisation = self.tracker.outcomes, self.tracker.relocalisation
+        if not relocalisation.enabled(candidates):
+            return outcomes.lost(frame, "no_relocalisation_into_the_saved_map", 0)
+        found, failure = relocalisation.relocalise(frame, candidates)
+        if found is None:
+            return outcomes.lost(frame, failure, 0)
+        return outcomes.tracked(frame, found.T_cam_world, found.rows, found.n_inliers, keyframes_in_flight, relocalised=True)
 
     @property
     def may_ask_backend(self) -> bool:
         """Whether the next ``step`` may call its ``candidates`` (``Tracker.may_ask_backend``)."""
         return self.tracker.may_ask_backend
 
+    @property
+    def map_sync(self) -> MapSync:
+        """What applies the backend's map updates to this pipeline's map cache (the node applies
+        them through it directly)."""
+        return self.tracker.map_sync
+
     def apply_map_update(self, update: MapUpdate) -> None:
         """Apply the backend's map correction (replacement semantics) before the next ``step``."""
-        self.tracker.apply_map_update(update)
+        self.tracker.map_sync.apply(update)
 
     def _frames_for_map_start(self) -> bool:
         """The next frame is built with the monocular initialisation's denser extractor."""
