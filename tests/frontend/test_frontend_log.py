@@ -82,9 +82,3 @@ def test_tracked_keypoints_come_from_the_trackers_last_frame_of_that_index():
     np.testing.assert_array_equal(tracked, [False, True])
     assert tracked_keypoints(pipeline, 8) is None  # frame 8 was lost: the tracker kept frame 7
     assert tracked_keypoints(SimpleNamespace(tracker=SimpleNamespace(last_frame=None)), 7) is None  # nothing tracked yet
-
-
-def test_the_runtime_module_still_names_the_frontend_log_for_the_frontends_main():
-    from zenslam.runtime import rerun_log
-
-    assert rerun_log.FrontendLog is FrontendLog

@@ -5,14 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from zenslam.frontend.keyframe import KeyFrame
 from zenslam.frontend.id_allocator import IdAllocator
+from zenslam.frontend.keyframe import KeyFrame
 from zenslam.frontend.local_map import LocalMap, LocalMapConfig
-from zenslam.frontend.map_sync import apply_map_update
 from zenslam.frontend.local_window import local_point_rows, local_window
-from zenslam.map_point_rules import representative_descriptor
+from zenslam.frontend.map_sync import apply_map_update
 from zenslam.frontend.orb_extractor import Features
 from zenslam.geometry import make_T
+from zenslam.map_point_rules import representative_descriptor
+from zenslam.map_rules_config import MapRulesConfig
 from zenslam.schemas.map_update import BACKEND_POINT_ID_BASE, KeyframeCorrection, MapUpdate
 
 
@@ -91,7 +92,7 @@ def test_covisibility_weights_count_shared_points() -> None:
 
 
 def test_weak_links_are_not_covisibility_edges_unless_the_only_one() -> None:
-    lm = LocalMap(LocalMapConfig(min_covisibility_weight=15))
+    lm = LocalMap(LocalMapConfig(map_rules=MapRulesConfig(min_covisibility_weight=15)))
     add_keyframe(lm, [], 100)
     add_keyframe(lm, np.arange(0, 10), 50)  # weight 10 < 15: still the only link -> kept
     add_keyframe(lm, np.concatenate([np.arange(20, 50), np.arange(100, 105)]), 0)  # 30 to kf0, 5 to kf1
