@@ -101,7 +101,10 @@ def test_modes_commands_run_in_order(tmp_path: Path):
     for run_id, mode in (("lockstep40", "lockstep"), ("pipelined40", "pipelined"), ("live40", "live")):
         metrics = _metrics(checkout, run_id)
         assert metrics["run"]["mode"] == mode and metrics["run"]["completed"], metrics["run"]
-        assert metrics["frames"] == 40
+        if mode == "live":  # a slow stage skips frames, as the guide says
+            assert 0 < metrics["frames"] <= 40
+        else:
+            assert metrics["frames"] == 40
 
 
 def _run_pair(block: str, checkout: Path) -> tuple[str, str]:
