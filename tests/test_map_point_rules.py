@@ -115,3 +115,21 @@ def test_padded_viewing_directions_have_the_bits_of_each_point_alone() -> None:
     for k in range(len(counts)):
         alone = mean_viewing_directions(p[k : k + 1], centres[k : k + 1, : counts[k]])[0]
         assert padded[k].tobytes() == alone.tobytes()
+
+
+def test_frustum_verdict_applies_each_visibility_rule() -> None:
+    from zenslam.camera import PinholeCalibration
+    from zenslam.map_point_rules import frustum_verdict
+
+    cal = PinholeCalibration(fx=500.0, fy=500.0, cx=320.0, cy=240.0, width=640, height=480)
+    p_world = np.array([[0.0, 0, 5], [0, 0, 5], [0, 0, 5], [0, 0, 5], [0, 0, 5], [0, 0, 5]])
+    depth = np.array([5.0, -5.0, 5.0, 5.0, 5.0, 5.0])  # the second is behind the camera
+    px = np.array([[320.0, 240], [320, 240], [640, 240], [320, 240], [320, 240], [320, 240]])  # the third off the image
+    normals = np.array([[0, 0, 1.0], [0, 0, 1], [0, 0, 1], [0, 0, 1], [0, 0, 1], [1, 0, 0.2]])  # the last seen from the side
+    min_d = np.array([1.0, 1, 1, 6.3, 1, 1])  # 5 m < 0.8 x 6.3 m: too close
+    max_d = np.array([10.0, 10, 10, 10, 4.1, 10])  # 5 m > 1.2 x 4.1 m: too far
+    verdict = frustum_verdict(p_world, np.zeros(3), depth, px, normals, min_d, max_d, cal, 1.2, 8)
+    assert verdict.visible.tolist() == [True, False, False, False, False, False]
+    assert verdict.distance_m.tolist() == [5.0] * 6
+    assert verdict.view_cos[0] == 1.0 and verdict.view_cos[5] < 0.5
+    assert verdict.level.tolist() == predict_scale_level(np.full(6, 5.0), max_d, 1.2, 8).tolist()

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import types
 import typing
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal, TypeVar, get_args, get_origin
 
@@ -21,9 +22,14 @@ def from_mapping(cls: type[C], data: dict[str, Any] | None, where: str = "") -> 
     Unknown keys are an error; missing keys take the field defaults (a field without a default
     is required). Nested dataclasses are built recursively. All problems are reported at once.
     """
-    data = dict(data or {})
-    if not isinstance(data, dict):
-        raise ConfigError(f"{where or cls.__name__}: expected a mapping, got {type(data).__name__}")
+    if data is None:  # an empty section: every key takes its default
+        data = {}
+    if not isinstance(data, Mapping):
+        raise ConfigError(
+            f"'{where or cls.__name__}' must be a mapping of keys to values (`key: value` lines), "
+            f"got a {type(data).__name__}: {data!r:.80}"
+        )
+    data = dict(data)
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
     problems: list[str] = []

@@ -1,14 +1,18 @@
 """ORB-SLAM's per-map-point rules as vectorised functions, shared by the frontend and the backend.
 
 Representative descriptor, scale-invariance distance range, predicted pyramid level, mean
-viewing direction and the search-window factor by viewing angle (Mur-Artal et al., ORB-SLAM).
+viewing direction, the frustum test (``isInFrustum``) and the search-window factor by viewing
+angle (Mur-Artal et al., ORB-SLAM).
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
+
+from zenslam.camera import PinholeCalibration
 
 
 def representative_descriptor(descriptors: np.ndarray) -> np.ndarray:
@@ -106,6 +110,51 @@ def mean_viewing_directions(p_world: np.ndarray, centres_world: np.ndarray, coun
     counts = np.asarray(counts, dtype=np.int64)
     rays[np.arange(rays.shape[1]) >= counts[:, None]] = -0.0
     return rays.sum(axis=1) / counts[:, None]
+
+
+@dataclass(frozen=True)
+class FrustumVerdict:
+    """ORB-SLAM's ``isInFrustum`` verdict on M projected points, with what it measured on the way."""
+
+    visible: np.ndarray  # (M,) bool: in front, inside the image, within the distance range, viewing angle ok
+    view_cos: np.ndarray  # (M,) cosine between the viewing ray and the point's mean viewing direction
+    distance_m: np.ndarray  # (M,) distance to the camera centre, metres
+    level: np.ndarray  # (M,) int64 predicted pyramid level
+
+
+def frustum_verdict(
+    p_world: np.ndarray,
+    centre_world: np.ndarray,
+    depth_m: np.ndarray,
+    px: np.ndarray,
+    normals: np.ndarray,
+    min_distance_m: np.ndarray,
+    max_distance_m: np.ndarray,
+    calibration: PinholeCalibration,
+    scale_factor: float,
+    n_levels: int,
+    min_view_cos: float = 0.5,
+) -> FrustumVerdict:
+    """The frustum test of points (M, 3, world, metres) already projected by the caller: their depth
+    ``depth_m`` (M,) and pixels ``px`` (M, 2) in the camera centred at ``centre_world`` (3,).
+
+    A point is visible when it is in front of the camera, projects inside the image, its distance
+    to the camera centre is within [0.8 min, 1.2 max] of its scale-invariance range and the
+    viewing ray makes an angle with its mean viewing direction ``normals`` (M, 3) whose cosine is
+    >= ``min_view_cos``. Each stage projects with its own pose representation; the verdict is this one.
+    """
+    rays = p_world - centre_world
+    dist = np.linalg.norm(rays, axis=1)
+    view_cos = np.einsum("ij,ij->i", rays, normals) / np.maximum(dist, 1e-12)
+    u, v = px[:, 0], px[:, 1]
+    visible = (
+        (depth_m > 0)
+        & (u >= 0) & (u < calibration.width) & (v >= 0) & (v < calibration.height)
+        & (dist >= 0.8 * min_distance_m) & (dist <= 1.2 * max_distance_m)
+        & (view_cos >= min_view_cos)
+    )  # fmt: skip
+    level = predict_scale_level(dist, max_distance_m, scale_factor, n_levels)
+    return FrustumVerdict(visible, view_cos, dist, level)
 
 
 def radius_by_viewing_cos(view_cos: np.ndarray) -> np.ndarray:

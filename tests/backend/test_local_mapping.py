@@ -20,6 +20,7 @@ from zenslam.backend.map import MapError
 from zenslam.camera import PinholeCalibration
 from zenslam.errors import ConfigError
 from zenslam.geometry import invert_T, make_T, transform_points
+from zenslam.map_rules_config import MapRulesConfig
 from zenslam.schemas.codec import KeyframeMessage, encode_map_update
 from zenslam.schemas.map_update import BACKEND_POINT_ID_BASE, MapUpdate
 from zenslam.config import from_mapping
@@ -133,10 +134,10 @@ def run(frontend: SyntheticFrontend, mapper: LocalMapper, n_keyframes: int) -> l
 
 
 def test_config_sections_and_threshold_range() -> None:
-    config = from_mapping(LocalMappingConfig, {"min_covisibility_weight": 20, "fusion": {"second_neighbours": 3}})
-    assert config.min_covisibility_weight == 20 and config.fusion.second_neighbours == 3
+    config = from_mapping(LocalMappingConfig, {"map_rules": {"min_covisibility_weight": 20}, "fusion": {"second_neighbours": 3}})
+    assert config.map_rules.min_covisibility_weight == 20 and config.fusion.second_neighbours == 3
     with pytest.raises(ConfigError, match="15..30"):
-        LocalMappingConfig(min_covisibility_weight=10)
+        MapRulesConfig(min_covisibility_weight=10)
     with pytest.raises(ConfigError, match="unknown key"):
         from_mapping(LocalMappingConfig, {"triangulation": {"nn": 3}})
 

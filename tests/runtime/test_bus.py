@@ -6,6 +6,7 @@ import json
 import threading
 import time
 from collections.abc import Iterator
+from contextlib import contextmanager
 
 import pytest
 import zenoh
@@ -165,3 +166,229 @@ def test_count_waiting_counts_the_matching_messages_and_takes_none(two_sessions)
     assert [inbox.get(timeout_s=1.0) for _ in range(4)] == [b"a", b"bb", b"c", b"end"]
     assert inbox.count_waiting(lambda m: True) == 0
     inbox.close()
+
+
+# ---- the wrappers for declarations other than stage topics: raw publishers, callback subscribers,
+# tokens, token watches, queryables and queries ----
+
+
+def _wait_for(condition, timeout_s: float = 10.0, what: str = "the condition") -> None:
+    """Poll ``condition()`` until it holds; fail naming ``what`` after ``timeout_s`` seconds."""
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        assert time.monotonic() < deadline, f"{what} did not happen within {timeout_s} s"
+        time.sleep(0.005)
+
+
+def _next_sample(channel, timeout_s: float = 10.0) -> zenoh.Sample:
+    """The next sample of a FifoChannel-backed subscriber, waiting up to ``timeout_s`` seconds."""
+    deadline = time.monotonic() + timeout_s
+    while (sample := channel.try_recv()) is None:
+        assert time.monotonic() < deadline, f"no sample arrived within {timeout_s} s"
+        time.sleep(0.005)
+    return sample
+
+
+def test_protobuf_encoding_names_the_schema():
+    encoding = bus.protobuf_encoding(codec.KEYFRAME)
+    assert str(encoding) == f"application/protobuf;{codec.KEYFRAME}"
+    assert encoding != bus.protobuf_encoding(codec.MAP_UPDATE)
+
+
+def test_raw_publishers_carry_the_qos_and_encoding_asked_for(two_sessions):
+    hub, peer = two_sessions
+    key = "zenslam/t/raw"
+    got: list[zenoh.Sample] = []
+    arrived = threading.Event()
+    subscriber = bus.declare_callback_subscriber(hub, key, lambda sample: (got.append(sample), arrived.set()))
+    plain = bus.declare_raw_publisher(peer, key, reliable=False, block=False)
+    named = bus.declare_raw_publisher(peer, key, reliable=True, block=True, encoding=bus.protobuf_encoding("foxglove.CompressedImage"))
+    assert plain.reliability == zenoh.Reliability.BEST_EFFORT and plain.congestion_control == zenoh.CongestionControl.DROP
+    assert named.reliability == zenoh.Reliability.RELIABLE and named.congestion_control == zenoh.CongestionControl.BLOCK
+    assert bus.wait_for_subscribers(named, timeout_s=5.0)
+    named.put(b"\x01cdr")
+    assert arrived.wait(timeout=10.0), "the sample of the raw publisher did not arrive"
+    assert got[0].payload.to_bytes() == b"\x01cdr"
+    assert str(got[0].encoding) == "application/protobuf;foxglove.CompressedImage"
+    arrived.clear()
+    plain.put(b"no encoding")
+    assert arrived.wait(timeout=10.0), "the sample of the plain publisher did not arrive"
+    assert got[1].payload.to_bytes() == b"no encoding"
+    assert got[1].encoding == zenoh.Encoding.ZENOH_BYTES  # none declared: zenoh's default, as rmw_zenoh sends
+    for declared in (plain, named, subscriber):
+        declared.undeclare()
+
+
+def test_a_callback_subscriber_gets_each_sample_until_undeclared(two_sessions):
+    hub, peer = two_sessions
+    key = "zenslam/t/callback"
+    payloads: list[bytes] = []
+    control: list[bytes] = []
+    control_got_two = threading.Event()
+
+    def on_control(sample: zenoh.Sample) -> None:
+        control.append(sample.payload.to_bytes())
+        if len(control) == 2:
+            control_got_two.set()
+
+    subscriber = bus.declare_callback_subscriber(hub, key, lambda sample: payloads.append(sample.payload.to_bytes()))
+    control_subscriber = bus.declare_callback_subscriber(hub, key, on_control)
+    publisher = bus.declare_publisher(peer, key, "test.Bytes", "lossless")
+    assert bus.wait_for_subscribers(publisher, timeout_s=5.0)
+    publisher.put(b"first")
+    _wait_for(lambda: payloads == [b"first"], what="the first sample reaching the callback")
+    subscriber.undeclare()
+    publisher.put(b"second")
+    # The control subscriber of the same session had the second sample: the undeclared one would have too.
+    assert control_got_two.wait(timeout=10.0), "the control subscriber did not get the second sample"
+    assert control == [b"first", b"second"]
+    assert payloads == [b"first"]
+    control_subscriber.undeclare()
+
+
+def test_watched_tokens_appear_with_their_history_and_vanish(two_sessions):
+    hub, peer = two_sessions
+    token = bus.declare_token(peer, "zenslam/t/tokens/camera")
+    watch = bus.watch_tokens(hub, "zenslam/t/tokens/**")  # declared after the token: its history has it
+    sample = _next_sample(watch)
+    assert (str(sample.key_expr), sample.kind) == ("zenslam/t/tokens/camera", zenoh.SampleKind.PUT)
+    token.undeclare()
+    sample = _next_sample(watch)
+    assert (str(sample.key_expr), sample.kind) == ("zenslam/t/tokens/camera", zenoh.SampleKind.DELETE)
+    watch.undeclare()
+
+
+def test_watched_tokens_can_go_to_a_callback(two_sessions):
+    hub, peer = two_sessions
+    seen: list[tuple[str, zenoh.SampleKind]] = []
+    appeared, vanished = threading.Event(), threading.Event()
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        seen.append((str(sample.key_expr), sample.kind))
+        (appeared if sample.kind == zenoh.SampleKind.PUT else vanished).set()
+
+    watch = bus.watch_tokens(hub, "zenslam/t/callback_tokens/*", on_sample)
+    token = bus.declare_token(peer, "zenslam/t/callback_tokens/node")
+    assert appeared.wait(timeout=10.0), "the token's appearance did not reach the callback"
+    token.undeclare()
+    assert vanished.wait(timeout=10.0), "the token's disappearance did not reach the callback"
+    assert seen == [("zenslam/t/callback_tokens/node", zenoh.SampleKind.PUT), ("zenslam/t/callback_tokens/node", zenoh.SampleKind.DELETE)]
+    watch.undeclare()
+
+
+@contextmanager
+def _answering(queryable: zenoh.Queryable, handle) -> Iterator[None]:
+    """A worker thread handling each waiting query of ``queryable`` with ``handle(query)``, for the
+    ``with`` block."""
+    stop = threading.Event()
+
+    def work() -> None:
+        while not stop.is_set():
+            for query in bus.waiting_queries(queryable):
+                handle(query)
+            time.sleep(0.002)
+
+    worker = threading.Thread(target=work, daemon=True)
+    worker.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        worker.join(timeout=10.0)
+
+
+def _replies_once_routed(session: zenoh.Session, key: str, **query_args) -> list[zenoh.Reply]:
+    """The replies to a query on ``key``, asked again until some arrive (the queryable's declaration
+    may not have reached ``session`` yet; a query no queryable matches ends at once, with none)."""
+    deadline = time.monotonic() + 10.0
+    while not (replies := list(bus.query(session, key, timeout_s=10.0, **query_args))):
+        assert time.monotonic() < deadline, f"no reply on {key} within 10 s"
+        time.sleep(0.005)
+    return replies
+
+
+def test_a_query_with_a_payload_gets_the_queryables_reply(two_sessions):
+    hub, peer = two_sessions
+    key = "zenslam/t/query/echo"
+    queryable = bus.declare_queryable(hub, key)
+    asked: list[tuple[bytes, str]] = []
+
+    def echo(query: zenoh.Query) -> None:
+        asked.append((query.payload.to_bytes(), str(query.encoding)))
+        bus.reply(query, key, b"re:" + query.payload.to_bytes(), codec.KEYFRAME_TRAJECTORY)
+
+    with _answering(queryable, echo):
+        (reply,) = _replies_once_routed(peer, key, payload=b"hello", schema=codec.RELOCALISATION_QUERY)
+    assert asked[-1] == (b"hello", f"application/protobuf;{codec.RELOCALISATION_QUERY}")
+    assert reply.ok is not None and reply.ok.payload.to_bytes() == b"re:hello"
+    assert str(reply.ok.encoding) == f"application/protobuf;{codec.KEYFRAME_TRAJECTORY}"
+    assert str(reply.ok.key_expr) == key
+    bus.close_queryable(queryable)
+
+
+def test_a_refused_query_gets_an_error_reply(two_sessions):
+    hub, peer = two_sessions
+    key = "zenslam/t/query/refuse"
+    queryable = bus.declare_queryable(hub, key)
+    with _answering(queryable, lambda query: bus.reply_error(query, "not a relocalisation query")):
+        (reply,) = _replies_once_routed(peer, key)
+    assert reply.ok is None
+    assert reply.err.payload.to_bytes() == b"not a relocalisation query"
+    bus.close_queryable(queryable)
+
+
+def test_a_query_nobody_answers_ends_without_replies(two_sessions):
+    _, peer = two_sessions
+    assert list(bus.query(peer, "zenslam/t/query/nobody", timeout_s=5.0)) == []
+
+
+def _ask_until_taken(session: zenoh.Session, key: str, taken: threading.Event, replies: list) -> threading.Thread:
+    """A querier thread on ``key`` (60 s timeout) whose query a worker has taken (``taken``), asked
+    again while the queryable's declaration has not reached ``session`` (such a query ends at once)."""
+
+    def ask() -> threading.Thread:
+        querier = threading.Thread(target=lambda: replies.extend(bus.query(session, key, timeout_s=60.0)), daemon=True)
+        querier.start()
+        return querier
+
+    querier = ask()
+    deadline = time.monotonic() + 10.0
+    while not taken.wait(timeout=0.05):
+        assert time.monotonic() < deadline, "no query reached the queryable"
+        if not querier.is_alive():
+            querier = ask()
+    return querier
+
+
+def test_a_query_taken_but_not_answered_is_finalised_when_the_worker_moves_on(two_sessions):
+    hub, peer = two_sessions
+    key = "zenslam/t/query/unanswered"
+    queryable = bus.declare_queryable(hub, key)
+    taken = threading.Event()
+    replies: list[zenoh.Reply] = []
+    with _answering(queryable, lambda query: taken.set()):  # takes each query, answers none
+        querier = _ask_until_taken(peer, key, taken, replies)
+        # Finalised by the worker's loop, the query ends long before its 60 s timeout, with no reply.
+        querier.join(timeout=20.0)
+    assert not querier.is_alive(), "the querier still waits: the unanswered query was not finalised"
+    assert replies == []
+    bus.close_queryable(queryable)
+
+
+def test_closing_a_queryable_finalises_the_queries_still_waiting_and_answers_no_more(two_sessions):
+    hub, peer = two_sessions
+    key = "zenslam/t/query/closed"
+    closed = bus.declare_queryable(hub, key)  # nobody answers it: queries wait in its channel
+    # A second queryable of the same session on the same key: a query it takes has been handed to
+    # ``closed`` as well, in the same routing step.
+    detector = bus.declare_queryable(hub, key)
+    taken = threading.Event()
+    replies: list[zenoh.Reply] = []
+    with _answering(detector, lambda query: taken.set()):
+        querier = _ask_until_taken(peer, key, taken, replies)
+        bus.close_queryable(closed)
+        querier.join(timeout=20.0)
+    assert not querier.is_alive(), "the querier still waits: the query left in the closed queryable was not finalised"
+    assert replies == []
+    bus.close_queryable(detector)
+    assert list(bus.query(peer, key, timeout_s=5.0)) == []  # nothing answers on the key any more

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import subprocess
 import sys
-from dataclasses import dataclass, field
 from types import SimpleNamespace
 
 import cv2
@@ -13,7 +12,7 @@ import pytest
 
 from zenslam.camera import PinholeCalibration
 from zenslam.runtime import rerun_log
-from zenslam.runtime.rerun_log import BackendLog, FrontendLog, RerunConfig, StageRecording, read_rrd, recording_ids
+from zenslam.runtime.rerun_log import FrontendLog, RerunConfig, StageRecording, read_rrd, recording_ids
 from zenslam.service.sources.frame import SensorFrame
 
 CALIBRATION = PinholeCalibration(400.0, 400.0, 80.0, 60.0, 160, 120, 0.1)
@@ -120,72 +119,6 @@ def test_tracked_keypoints_come_from_the_trackers_last_frame_of_that_index():
     np.testing.assert_array_equal(tracked, [False, True])
     assert rerun_log.tracked_keypoints(pipeline, 8) is None  # frame 8 was lost: the tracker kept frame 7
     assert rerun_log.tracked_keypoints(SimpleNamespace(), 7) is None
-
-
-@dataclass
-class _Keyframe:
-    id: int
-    stamp_ns: int
-    centre_world: np.ndarray
-
-
-@dataclass
-class _Mapper:
-    """What BackendLog reads of a LocalMapper: the map (keyframes, points, covisibility), BA stats, timings."""
-
-    map: SimpleNamespace
-    last_ba_stats: dict = field(default_factory=dict)
-    last_timings_ms: dict = field(default_factory=lambda: {"local_ba": 12.0, "total": 20.0})
-
-
-def _mapper(ba: bool) -> _Mapper:
-    keyframes = {i: _Keyframe(i, 100 * i, np.array([float(i), 0.0, 0.0])) for i in (2, 0, 1)}  # insertion order != time order
-    points = {5: SimpleNamespace(p_world=np.array([0.0, 1.0, 5.0])), 3: SimpleNamespace(p_world=np.array([1.0, 1.0, 4.0]))}
-    graph = SimpleNamespace(edges=lambda: [(0, 1, 40), (0, 2, 20), (1, 2, 30)])
-    stats = {"initial_error": 9.0, "final_error": 1.0} if ba else {}
-    essential = SimpleNamespace(loop_edges=lambda: [(0, 2)])
-    return _Mapper(SimpleNamespace(keyframes=keyframes, points=points, covisibility=graph, essential_graph=essential), stats)
-
-
-def test_the_backend_logs_the_map_its_graphs_local_ba_counts_and_timings(tmp_path):
-    with StageRecording(tmp_path, "r", "backend", RerunConfig()) as recording:
-        backend = BackendLog(recording)
-        backend.log_keyframe(SimpleNamespace(frame_index=4, stamp_ns=400), _mapper(ba=False))
-        backend.log_keyframe(SimpleNamespace(frame_index=9, stamp_ns=900), _mapper(ba=True))
-        backend.log_queue_depth(SimpleNamespace(frame_index=9, stamp_ns=900), 2)
-        backend.finish()  # frame 9 came within map_period_s of frame 4: its map is the final one
-    data = read_rrd(tmp_path / "backend.rrd")
-    assert _value(data, "/backend/keyframes", "Points3D:positions", 9) == [[0, 0, 0], [1, 0, 0], [2, 0, 0]]
-    assert _value(data, "/backend/trajectory", "LineStrips3D:strips", 9) == [[[0, 0, 0], [1, 0, 0], [2, 0, 0]]]
-    assert _value(data, "/backend/map_points", "Points3D:positions", 9) == [[1, 1, 4], [0, 1, 5]]  # ids ascending
-    strips = _value(data, "/backend/covisibility", "LineStrips3D:strips", 4)
-    assert strips == [[[0, 0, 0], [1, 0, 0]], [[0, 0, 0], [2, 0, 0]], [[1, 0, 0], [2, 0, 0]]]
-    assert _value(data, "/backend/loops", "LineStrips3D:strips", 4) == [[[0, 0, 0], [2, 0, 0]]]
-    assert _frames(data, "/backend/local_ba/before", "Scalars:scalars") == [9]  # no BA at frame 4
-    assert _value(data, "/backend/local_ba/after", "Scalars:scalars", 9) == [1.0]
-    assert _value(data, "/backend/counts/map_points", "Scalars:scalars", 4) == [2.0]
-    assert _value(data, "/backend/counts/queue_depth", "Scalars:scalars", 9) == [2.0]
-    assert _frames(data, "/backend/timing/local_ba", "Scalars:scalars") == [4, 9]
-
-
-def test_the_backend_logs_the_map_at_most_once_per_period_and_the_final_map(tmp_path):
-    stamps_ns = (0, 400_000_000, 1_000_000_000, 1_300_000_000)
-    with StageRecording(tmp_path, "r", "backend", RerunConfig(map_period_s=1.0)) as recording:
-        backend = BackendLog(recording)
-        for frame, stamp_ns in enumerate(stamps_ns):
-            backend.log_keyframe(SimpleNamespace(frame_index=frame, stamp_ns=stamp_ns), _mapper(ba=False))
-        backend.finish()
-    data = read_rrd(tmp_path / "backend.rrd")
-    # 0.4 s and 1.3 s came within a second of the previous map; 1.3 s is the last: logged by finish().
-    assert _frames(data, "/backend/map_points", "Points3D:positions") == [0, 2, 3]
-    assert _frames(data, "/backend/covisibility", "LineStrips3D:strips") == [0, 2, 3]
-    assert _frames(data, "/backend/keyframes", "Points3D:positions") == [0, 1, 2, 3]  # small: every keyframe
-    with StageRecording(tmp_path, "r", "backend", RerunConfig(map_period_s=0.0)) as recording:
-        backend = BackendLog(recording)
-        for frame, stamp_ns in enumerate(stamps_ns):
-            backend.log_keyframe(SimpleNamespace(frame_index=frame, stamp_ns=stamp_ns), _mapper(ba=False))
-        backend.finish()
-    assert _frames(read_rrd(tmp_path / "backend.rrd"), "/backend/map_points", "Points3D:positions") == [0, 1, 2, 3]
 
 
 def test_a_stage_recording_keeps_pandas_out_of_the_stage_process(tmp_path):

@@ -13,6 +13,7 @@ from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
 from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 from mcap.reader import make_reader
+import zenoh
 
 from zenslam.camera import PinholeCalibration
 from zenslam.errors import ConfigError
@@ -255,6 +256,42 @@ def test_an_undecodable_message_is_still_recorded(tmp_path):
     assert [m.data for m in _by_topic(path)["/frontend/keyframe"]] == [b"\xff\xff\xff"]
 
 
+class _LoopPolls:
+    """A ``should_stop`` for ``record`` that never stops it, and counts its calls: the recording loop
+    asks it before each look at its ending condition, so two calls after some moment mean a look
+    taken after that moment found the recording not done."""
+
+    def __init__(self) -> None:
+        self._calls = 0
+        self._changed = threading.Condition()
+
+    def __call__(self) -> bool:
+        with self._changed:
+            self._calls += 1
+            self._changed.notify_all()
+        return False
+
+    def wait_for_looks(self, n: int = 2, timeout_s: float = 20.0) -> bool:
+        """True once ``n`` more calls have come from now (the recording still going); False after ``timeout_s``."""
+        with self._changed:
+            until = self._calls + n
+            return self._changed.wait_for(lambda: self._calls >= until, timeout=timeout_s)
+
+
+def _tell_when_recorded(monkeypatch, topic: str) -> threading.Event:
+    """An event set once a Recorder has recorded (and taken what it derives from) a message on ``topic``."""
+    recorded = threading.Event()
+    original = Recorder.record
+
+    def record_and_tell(self, key: str, encoding: str, data: bytes) -> None:
+        original(self, key, encoding, data)
+        if mcap_io.topic_for_key(key, self.session) == topic:
+            recorded.set()
+
+    monkeypatch.setattr(Recorder, "record", record_and_tell)
+    return recorded
+
+
 def test_record_a_session_until_stopped(tmp_path):
     hub_endpoint = bus.free_tcp_endpoint()
     path = tmp_path / "live.mcap"
@@ -285,13 +322,15 @@ def test_record_a_session_until_stopped(tmp_path):
     assert [m.log_time_ns for m in states] == [10 * (i + 1) for i in range(50)] + [500]
 
 
-def test_recording_ends_by_itself_once_the_followed_stages_have_come_and_gone(tmp_path):
+def test_recording_ends_by_itself_once_the_followed_stages_have_come_and_gone(tmp_path, monkeypatch):
     hub_endpoint = bus.free_tcp_endpoint()
     path = tmp_path / "follow.mcap"
+    frames_ended = _tell_when_recorded(monkeypatch, "/sensor/frame")
+    polls = _LoopPolls()
     with bus.open_session(bus.BusConfig(listen=(hub_endpoint,))) as hub, bus.open_session(bus.BusConfig(connect=(hub_endpoint,))) as peer:
         result: dict = {}
         config = RecorderConfig(quiet_s=0.1)
-        thread = threading.Thread(target=lambda: result.update(record(hub, SESSION, path, config, lambda: False, ["source"])))
+        thread = threading.Thread(target=lambda: result.update(record(hub, SESSION, path, config, polls, ["source"])))
         thread.start()
         assert not bus.wait_for_alive(peer, SESSION, ["recorder"], timeout_s=10.0)
         token = bus.declare_alive(peer, SESSION, "source")
@@ -300,10 +339,11 @@ def test_recording_ends_by_itself_once_the_followed_stages_have_come_and_gone(tm
         frames = bus.declare_publisher(peer, keys.sensor_frame(SESSION), codec.SENSOR_FRAME, "lossless")
         publisher.put(codec.encode_stage_status(codec.StageStatusMessage("source", "finished", 3)))
         frames.put(codec.encode_end_of_stream(codec.SENSOR_FRAME, 3))
-        # Nothing to wait for: the recorder must not end. A pause lets a wrong recorder end (on a busy
-        # machine it may hide that, never fail a right one).
-        time.sleep(0.2)
-        assert thread.is_alive()  # the source is still there
+        # The end of stream recorded, the recorder must not end while the source is still there: it
+        # looks at its ending condition again (twice) and goes on.
+        assert frames_ended.wait(timeout=20.0), "the end of stream was not recorded"
+        assert polls.wait_for_looks(), "the recording ended with the source still there"
+        assert thread.is_alive()
         token.undeclare()
         thread.join(timeout=10)
         assert not thread.is_alive()
@@ -317,17 +357,25 @@ def test_a_followed_stage_gone_without_ending_its_stream_is_waited_for_while_it_
     stream. One that never comes back is given up after the restart grace."""
     hub_endpoint = bus.free_tcp_endpoint()
     path = tmp_path / "restart.mcap"
+    polls = _LoopPolls()
     with bus.open_session(bus.BusConfig(listen=(hub_endpoint,))) as hub, bus.open_session(bus.BusConfig(connect=(hub_endpoint,))) as peer:
         result: dict = {}
         config = RecorderConfig(quiet_s=0.1)
         thread = threading.Thread(
-            target=lambda: result.update(record(hub, SESSION, path, config, lambda: False, ["backend"], restart_grace_s=60.0))
+            target=lambda: result.update(record(hub, SESSION, path, config, polls, ["backend"], restart_grace_s=60.0))
         )
         thread.start()
         assert not bus.wait_for_alive(peer, SESSION, ["recorder"], timeout_s=10.0)
         status = bus.declare_publisher(peer, keys.status(SESSION, "backend"), codec.STAGE_STATUS, "lossless")
+        # A watcher in the recorder's session: the backend's token gone for it is gone for the recorder's too.
+        died = threading.Event()
+        watcher = bus.watch_tokens(
+            hub, keys.alive(SESSION, "backend"), lambda sample: sample.kind == zenoh.SampleKind.DELETE and died.set()
+        )
         bus.declare_alive(peer, SESSION, "backend").undeclare()  # the first backend dies
-        time.sleep(0.3)
+        assert died.wait(timeout=20.0), "the backend's token did not vanish"
+        watcher.undeclare()
+        assert polls.wait_for_looks(), "the recording ended while the backend may come back"
         assert thread.is_alive()  # it may come back
         token = bus.declare_alive(peer, SESSION, "backend")  # restarted
         assert bus.wait_for_subscribers(status, timeout_s=5.0)

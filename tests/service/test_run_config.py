@@ -6,8 +6,10 @@ import textwrap
 
 import pytest
 
+from zenslam.backend.local_mapping import LocalMappingConfig
 from zenslam.camera import PinholeCalibration
 from zenslam.errors import CalibrationError, ConfigError
+from zenslam.map_rules_config import MapRulesConfig
 from zenslam.runtime.bus import BusConfig
 from zenslam.service.run_config import (
     BackendConfig,
@@ -18,6 +20,7 @@ from zenslam.service.run_config import (
     load_run_config,
     read_orbslam_settings,
     run_config_to_yaml,
+    with_map_rules,
 )
 from zenslam.service.recorder_config import RecorderConfig
 
@@ -305,3 +308,90 @@ def test_strict_and_no_faults_from_the_command_line(tmp_path):
     assert plain.source.strict is False and [f.kind for f in plain.source.faults] == ["drop"]
     options = run_command.resolve_config(parser.parse_args(["run", "--config", str(path), "--strict", "--no-faults"]))
     assert options.source.strict is True and options.source.faults == ()
+
+
+def test_the_map_section_sets_the_covisibility_threshold_of_both_stages(tmp_path):
+    path = tmp_path / "config.yaml"
+    path.write_text("map:\n  min_covisibility_weight: 20\n")
+    config = load_run_config(path)
+    expected = MapRulesConfig(min_covisibility_weight=20)
+    assert config.map == config.frontend.tracking.local_map.map_rules == config.backend.local_mapping.map_rules == expected
+    path.write_text(run_config_to_yaml(config))
+    assert load_run_config(path) == config  # the resolved file, copies included, reads back
+    assert with_map_rules(RunConfig(), expected) == config
+    with pytest.raises(ConfigError, match=r"map.min_covisibility_weight=10 must be within 15..30"):
+        MapRulesConfig(min_covisibility_weight=10)
+
+
+def test_a_stage_copy_of_the_map_section_cannot_differ_from_it(tmp_path):
+    path = tmp_path / "config.yaml"
+    path.write_text(
+        "map:\n  min_covisibility_weight: 20\n"
+        "backend:\n  local_mapping:\n    map_rules:\n      min_covisibility_weight: 25\n"
+    )
+    with pytest.raises(ConfigError, match=r"backend.local_mapping.map_rules=.*differs from map"):
+        load_run_config(path)
+    backend = BackendConfig(local_mapping=LocalMappingConfig(map_rules=MapRulesConfig(min_covisibility_weight=25)))
+    with pytest.raises(ConfigError, match=r"backend.local_mapping.map_rules=.*differs from map"):
+        RunConfig(backend=backend)
+
+
+@pytest.mark.parametrize(
+    "earlier",
+    [
+        "frontend:\n  tracking:\n    local_map:\n      min_covisibility_weight: 22\n",
+        "backend:\n  local_mapping:\n    min_covisibility_weight: 22\n",
+        "frontend:\n  tracking:\n    local_map:\n      min_covisibility_weight: 22\n"
+        "backend:\n  local_mapping:\n    min_covisibility_weight: 22\n",
+    ],
+)
+def test_the_earlier_per_stage_covisibility_thresholds_move_to_the_map_section(tmp_path, caplog, earlier):
+    path = tmp_path / "config.yaml"
+    path.write_text(earlier)
+    config = load_run_config(path)
+    assert config.map.min_covisibility_weight == 22
+    assert config.frontend.tracking.local_map.map_rules == config.backend.local_mapping.map_rules == config.map
+    for old in ("frontend.tracking.local_map", "backend.local_mapping"):
+        if old.split(".")[0] in earlier:
+            assert f"{old}.min_covisibility_weight -> map.min_covisibility_weight" in caplog.text
+
+
+@pytest.mark.parametrize(
+    "earlier",
+    [
+        "frontend:\n  tracking:\n    local_map:\n      min_covisibility_weight: 20\n"
+        "backend:\n  local_mapping:\n    min_covisibility_weight: 25\n",
+        "map:\n  min_covisibility_weight: 20\nbackend:\n  local_mapping:\n    min_covisibility_weight: 25\n",
+    ],
+)
+def test_earlier_covisibility_thresholds_that_disagree_are_refused(tmp_path, earlier):
+    path = tmp_path / "config.yaml"
+    path.write_text(earlier)
+    with pytest.raises(ConfigError) as info:
+        load_run_config(path)
+    assert "=20" in str(info.value) and "backend.local_mapping.min_covisibility_weight=25" in str(info.value)
+    assert "map.min_covisibility_weight alone" in str(info.value)
+
+
+def test_the_frontend_recent_point_culling_keys_are_dropped(tmp_path, caplog):
+    path = tmp_path / "config.yaml"
+    path.write_text(
+        "frontend:\n  tracking:\n    local_map:\n      best_covisible: 12\n      cull_recent_points: false\n"
+        "      cull_min_found_ratio: 0.5\n      cull_min_keyframe_observations: 3\n      cull_window_keyframes: 4\n"
+    )
+    config = load_run_config(path)
+    assert config.frontend.tracking.local_map.best_covisible == 12
+    for key in ("cull_recent_points", "cull_min_found_ratio", "cull_min_keyframe_observations", "cull_window_keyframes"):
+        assert f"frontend.tracking.local_map.{key}" in caplog.text
+    assert "the backend culls them (backend.point_culling)" in caplog.text
+
+
+def test_the_golden_recording_config_reads_through_the_upgrade(caplog):
+    from pathlib import Path
+
+    golden = Path(__file__).parents[2] / "recordings" / "golden" / "synthetic_loop" / "config.yaml"
+    text = golden.read_text()
+    config = load_run_config(golden)
+    assert config.map == MapRulesConfig() and config.backend.local_mapping.map_rules == config.map
+    assert "map.min_covisibility_weight" in caplog.text and "backend.point_culling" in caplog.text
+    assert golden.read_text() == text  # read, never rewritten

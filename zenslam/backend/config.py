@@ -9,6 +9,9 @@ from zenslam.backend.local_mapping import LocalMappingConfig
 from zenslam.backend.loop_closing_config import LoopClosingConfig
 from zenslam.errors import ConfigError
 
+# Where the backend's config holds its copy of the run's ``map`` section (``MapRulesConfig``),
+# which local mapping builds the map's covisibility graph with; the service fills it from ``map``.
+MAP_RULES_PATH = ("local_mapping", "map_rules")
 
 @dataclass(frozen=True)
 class BackendConfig:

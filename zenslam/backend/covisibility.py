@@ -4,12 +4,15 @@ Weights are kept exact for every pair sharing at least one point. The *edges* ar
 connections (``KeyFrame::UpdateConnections``): pairs whose weight reaches ``min_weight``, plus,
 for a keyframe with no such pair, the single pair with its highest weight (added on both sides,
 as ORB-SLAM's ``AddConnection`` does). Neighbour lists are ordered by decreasing weight, ties by
-increasing keyframe id, so every query is deterministic.
+increasing keyframe id, so every query is deterministic: the rules shared with the frontend,
+``zenslam.covisibility_rules``.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
+
+from zenslam.covisibility_rules import fallback_connection, ranked
 
 
 class CovisibilityGraph:
@@ -105,15 +108,6 @@ class CovisibilityGraph:
         self._cache.clear()
 
     # ---- edges ---------------------------------------------------------------------------------------
-    def _best(self, kf_id: int) -> int | None:
-        links = self._weights[kf_id]
-        if not links:
-            return None
-        return min(links, key=lambda k: (-links[k], k))
-
-    def _has_strong(self, kf_id: int) -> bool:
-        return any(w >= self.min_weight for w in self._weights[kf_id].values())
-
     def connected(self, kf_id: int) -> list[int]:
         """ORB-SLAM's ordered connected keyframes: every edge of ``kf_id``, best first."""
         cached = self._cache.get(kf_id)
@@ -122,11 +116,11 @@ class CovisibilityGraph:
         links = self._weights[kf_id]
         linked = {k for k, w in links.items() if w >= self.min_weight}
         if not linked and links:
-            linked.add(self._best(kf_id))  # type: ignore[arg-type]
+            linked.add(fallback_connection(links, self.min_weight))  # type: ignore[arg-type]
         for other in links:
-            if other not in linked and not self._has_strong(other) and self._best(other) == kf_id:
+            if other not in linked and fallback_connection(self._weights[other], self.min_weight) == kf_id:
                 linked.add(other)  # the other keyframe's single fallback edge lands here
-        ordered = sorted(linked, key=lambda k: (-links[k], k))
+        ordered = ranked(links, linked)
         self._cache[kf_id] = ordered
         return list(ordered)
 
@@ -137,7 +131,7 @@ class CovisibilityGraph:
     def covisible_by_weight(self, kf_id: int, min_weight: int) -> list[int]:
         """Keyframes sharing at least ``min_weight`` points with ``kf_id``, strongest first."""
         links = self._weights[kf_id]
-        return sorted((k for k, w in links.items() if w >= min_weight), key=lambda k: (-links[k], k))
+        return ranked(links, (k for k, w in links.items() if w >= min_weight))
 
     def edges(self) -> list[tuple[int, int, int]]:
         """Every edge once as (a, b, weight) with a < b, sorted by (a, b)."""

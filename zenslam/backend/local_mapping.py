@@ -33,6 +33,7 @@ from zenslam.backend.triangulation import FeatureNodes, TriangulationConfig, cre
 from zenslam.camera import PinholeCalibration
 from zenslam.errors import ConfigError
 from zenslam.geometry import transform_points
+from zenslam.map_rules_config import MapRulesConfig
 from zenslam.schemas.codec import KeyframeMessage
 from zenslam.schemas.map_update import KeyframeCorrection, MapUpdate, MapUpdateKind
 
@@ -82,7 +83,7 @@ class BAWindowConfig:
 class LocalMappingConfig:
     """Settings of the backend's local mapping, one section per step."""
 
-    min_covisibility_weight: int = 15  # shared points for a covisibility edge (ORB-SLAM: 15; 15-30 allowed)
+    map_rules: MapRulesConfig = field(default_factory=MapRulesConfig)  # copy of the run's ``map`` section (covisibility edges)
     essential_min_weight: int = 100  # shared points for a covisibility edge of the essential graph
     min_keyframes_per_point: int = 2  # a point losing observations (BA outliers, culled keyframe) below this goes
     # ORB-SLAM's CheckNewKeyFrames: while more keyframes wait in the inbox, a keyframe is inserted,
@@ -103,13 +104,6 @@ class LocalMappingConfig:
     fusion: FusionConfig = field(default_factory=FusionConfig)
     ba_window: BAWindowConfig = field(default_factory=BAWindowConfig)
     keyframe_culling: KeyframeCullingConfig = field(default_factory=KeyframeCullingConfig)
-
-    def __post_init__(self) -> None:
-        if not 15 <= self.min_covisibility_weight <= 30:
-            raise ConfigError(
-                f"local_mapping.min_covisibility_weight={self.min_covisibility_weight} must be within 15..30 "
-                "(ORB-SLAM's covisibility threshold)"
-            )
 
 
 class BundleAdjuster(Protocol):
@@ -157,7 +151,7 @@ class _BegunWork:
 
 def new_backend_map(config: LocalMappingConfig) -> BackendMap:
     """An empty map with the covisibility and essential-graph thresholds of ``config``."""
-    return BackendMap(config.min_covisibility_weight, config.essential_min_weight)
+    return BackendMap(config.map_rules.min_covisibility_weight, config.essential_min_weight)
 
 
 class LocalMapper:

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from zenslam.backend.global_ba import GlobalBAConfig
-from zenslam.backend.pose_graph import PoseGraphConfig
+from zenslam.backend.pose_graph_types import PoseGraphConfig
 from zenslam.backend.similarity import SimilarityOptimizationConfig, SimilarityRansacConfig
 from zenslam.errors import ConfigError
 

@@ -1,17 +1,34 @@
-"""The backend map's invariants, checked from scratch (tests and debugging; not on the per-keyframe path)."""
+"""The backend map's invariants, checked from scratch (tests and debugging; not on the per-keyframe path).
+
+The check reads the map through ``CheckedMap``, the parts of ``BackendMap`` it needs, so that this
+module sits below the map, which calls it (``BackendMap.check_consistency``).
+"""
 
 from __future__ import annotations
 
 from collections import Counter
-from typing import TYPE_CHECKING
+from collections.abc import Mapping
+from typing import Protocol
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from zenslam.backend.map import BackendMap
+from zenslam.backend.covisibility import CovisibilityGraph
+from zenslam.backend.keyframe import BackendKeyframe
+from zenslam.backend.map_point import MapPoint
+from zenslam.backend.spanning_tree import SpanningTree
 
 
-def consistency_problems(bmap: BackendMap) -> list[str]:
+class CheckedMap(Protocol):
+    """What the consistency check reads of a backend map."""
+
+    keyframes: Mapping[int, BackendKeyframe]
+    points: Mapping[int, MapPoint]
+    covisibility: CovisibilityGraph
+    spanning_tree: SpanningTree
+    first_keyframe_id: int | None
+
+
+def consistency_problems(bmap: CheckedMap) -> list[str]:
     """Every broken invariant of ``bmap``, described (empty when the map is consistent): observations
     mirrored on both sides, weighted observation counts, covisibility weights, the graphs' nodes and
     the spanning tree reaching the first keyframe."""
@@ -48,7 +65,7 @@ def consistency_problems(bmap: BackendMap) -> list[str]:
     return problems
 
 
-def _graph_node_problems(bmap: BackendMap) -> list[str]:
+def _graph_node_problems(bmap: CheckedMap) -> list[str]:
     problems = []
     ids = sorted(bmap.keyframes)
     tree = bmap.spanning_tree

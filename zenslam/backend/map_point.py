@@ -8,7 +8,7 @@ import numpy as np
 
 from zenslam.backend.keyframe import BackendKeyframe
 from zenslam.backend.point_store import PointStore
-from zenslam.map_point_rules import predict_scale_level
+from zenslam.map_point_rules import frustum_verdict
 
 
 class MapPoint:
@@ -153,22 +153,14 @@ class FrustumProjection:
 def frustum_projection(
     kf: BackendKeyframe, points: list[MapPoint] | PointGeometry, min_view_cos: float = 0.5
 ) -> FrustumProjection:
-    """Project map points into ``kf``: visible when z > 0, inside the image, the distance within
-    [0.8 min, 1.2 max] of the point's scale-invariance range and the viewing ray within
-    acos(min_view_cos) of its mean viewing direction (ORB-SLAM's margins)."""
+    """Project map points into ``kf`` and test their visibility (``map_point_rules.frustum_verdict``:
+    z > 0, inside the image, the distance within [0.8 min, 1.2 max] of the point's scale-invariance
+    range and the viewing ray within acos(min_view_cos) of its mean viewing direction)."""
     geometry = points if isinstance(points, PointGeometry) else PointGeometry.of(points)
-    p, normals = geometry.p_world, geometry.normals
-    lo, hi = geometry.min_distance_m, geometry.max_distance_m
+    p, hi = geometry.p_world, geometry.max_distance_m
     px, right_u, z = kf.project(p)
-    rays = p - kf.centre_world
-    dist = np.linalg.norm(rays, axis=1)
-    view_cos = np.einsum("ij,ij->i", rays, normals) / np.maximum(dist, 1e-12)
-    c = kf.calibration
-    visible = (
-        (z > 0)
-        & (px[:, 0] >= 0) & (px[:, 0] < c.width) & (px[:, 1] >= 0) & (px[:, 1] < c.height)
-        & (dist >= 0.8 * lo) & (dist <= 1.2 * hi)
-        & (view_cos >= min_view_cos)
+    verdict = frustum_verdict(
+        p, kf.centre_world, z, px, geometry.normals, geometry.min_distance_m, hi, kf.calibration, kf.scale_factor,
+        kf.n_levels, min_view_cos,
     )  # fmt: skip
-    level = predict_scale_level(dist, hi, kf.scale_factor, kf.n_levels)
-    return FrustumProjection(visible, px, right_u, z, dist, level)
+    return FrustumProjection(verdict.visible, px, right_u, z, verdict.distance_m, verdict.level)

@@ -13,14 +13,18 @@ dropped), tells local mapping how many keyframes wait behind the current one (OR
 CheckNewKeyFrames: a backlog defers fusion, local BA and keyframe culling to the last queued
 keyframe; the end-of-stream marker does not count, so the last keyframe always gets them),
 publishes each keyframe's updates and a backend/status with the step time, the per-step timings
-and the queue depth, and answers the
-queryables between steps, on the same thread, so a reply always shows the map between two
-keyframes. After the frontend's end of stream it forwards the end of stream on backend/map_update
-and keeps answering queries for ``BackendConfig.linger_s`` seconds or until stopped.
+and the queue depth, and answers the queryables between steps, on the same thread, so a reply
+always shows the map between two keyframes. After the frontend's end of stream it forwards the end
+of stream on backend/map_update and keeps answering queries for ``BackendConfig.linger_s`` seconds
+or until stopped.
 
 With ``backend.map_file`` the node starts from a saved map (``map_file``: its keyframe database
 answers relocalisation queries at once); with ``backend.save_map`` it writes its map when its
 input ends (or it is stopped), before it ends its own stream.
+
+The inbox (``keyframe_inbox``), the publishers (``outputs``), the queryables (``queryables``) and
+the rebuild from the journal (``journal_rebuild``) are modules of their own; this one holds the
+map's owner and the loop that drives it.
 """
 
 from __future__ import annotations
@@ -31,7 +35,6 @@ import logging
 import sys
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -39,11 +42,21 @@ import numpy as np
 import zenoh
 
 from zenslam.backend.config import BackendConfig
-from zenslam.backend.journal import JOURNAL_NAME, Answered, Entry, JournaledKeyframe, JournalWriter, read_journal
+from zenslam.backend.journal import JOURNAL_NAME, JournalWriter
+from zenslam.backend.journal_rebuild import journal_entries, rebuild_from_journal
+from zenslam.backend.keyframe_inbox import (
+    Received,
+    count_keyframes_waiting,
+    keyframes_waiting,
+    newer_keyframes_waiting,
+    subscribe_keyframes,
+)
 from zenslam.backend.local_mapping import LocalMapper, bundle_adjuster, map_update_from_changes, new_backend_map
 from zenslam.backend.loop_messages import loop_messages
 from zenslam.backend.keyframe_database import KeyframeDatabase
 from zenslam.backend.map import BackendMap
+from zenslam.backend.outputs import STAGE, BackendOutputs, StepOutput
+from zenslam.backend.queryables import BackendQueryables
 from zenslam.backend.relocalisation_candidates import relocalisation_reply
 from zenslam.errors import ZenslamError
 from zenslam.runtime import bus
@@ -59,7 +72,7 @@ from zenslam.runtime.stage import (
     stopped_before_joining,
     yield_cpu,
 )
-from zenslam.schemas import codec, keys
+from zenslam.schemas import codec
 from zenslam.schemas.map_update import MapUpdate
 from zenslam.schemas.relocalisation import RelocalisationCandidates, RelocalisationQuery
 
@@ -68,21 +81,11 @@ if TYPE_CHECKING:
     from zenslam.backend.map_file import MapHeader
     from zenslam.backend.loop_closing import LoopCloser
     from zenslam.backend.place_recognition import PlaceRecognition
-    from zenslam.runtime.rerun_log import BackendLog
+    from zenslam.backend.rerun_log import BackendLog
 
 logger = logging.getLogger(__name__)
 
-STAGE = "backend"
 _POLL_S = 0.02  # seconds the loop waits for a keyframe before answering queries again
-
-
-@dataclass(frozen=True)
-class StepOutput:
-    """What one keyframe produced: its answer, then any corrections (a closed loop), and the loop
-    candidates that reached verification."""
-
-    updates: list[MapUpdate]  # the answer (kind keyframe) first, then corrections in order
-    loops: list[codec.LoopMessage] = field(default_factory=list)
 
 
 class BackendNode:
@@ -222,7 +225,7 @@ class BackendNode:
         if self.loop_closer is not None and kf_id in self.map.keyframes:
             corrections, loops = self._close_loops(kf_id, update)
         if self.rerun is not None:
-            self.rerun.log_keyframe(keyframe, self.mapper)
+            self.rerun.log_keyframe(keyframe, self.map, self.mapper.last_ba_stats, self.mapper.last_timings_ms)
         return corrections, loops
 
     def refusal(self, keyframe: codec.KeyframeMessage) -> str | None:
@@ -358,83 +361,6 @@ class BackendNode:
         )
 
 
-class _Queryables:
-    """backend/map, backend/trajectory and backend/relocalisation: queries wait in zenoh channels until
-    the worker answers them."""
-
-    def __init__(self, session: zenoh.Session, session_name: str) -> None:
-        self._map_key = keys.backend_map_query(session_name)
-        self._trajectory_key = keys.backend_trajectory_query(session_name)
-        self._relocalisation_key = keys.backend_relocalisation_query(session_name)
-        self._map = session.declare_queryable(self._map_key, zenoh.handlers.FifoChannel(16))
-        self._trajectory = session.declare_queryable(self._trajectory_key, zenoh.handlers.FifoChannel(16))
-        self._relocalisation = session.declare_queryable(self._relocalisation_key, zenoh.handlers.FifoChannel(16))
-
-    def answer(self, node: BackendNode, inbox: bus.Inbox | None = None) -> int:
-        """Reply to every waiting query with the map as it is now; returns how many were answered.
-        ``inbox``: the keyframes waiting there count for the next ids of the trajectory's reply."""
-        answered = 0
-
-        def trajectory() -> bytes:
-            waiting = [m for _, m in inbox.waiting() if not isinstance(m, codec.EndOfStream)] if inbox is not None else []
-            return codec.encode_keyframe_trajectory(node.trajectory(waiting))
-
-        for queryable, key, schema, make in (
-            (self._map, self._map_key, codec.MAP_SNAPSHOT, lambda: codec.encode_map_snapshot(node.snapshot())),
-            (self._trajectory, self._trajectory_key, codec.KEYFRAME_TRAJECTORY, trajectory),
-        ):
-            payload = None
-            while (query := queryable.try_recv()) is not None:
-                payload = make() if payload is None else payload
-                with query:  # leaving the block finalises the query: the querier stops waiting
-                    query.reply(key, payload, encoding=zenoh.Encoding.APPLICATION_PROTOBUF.with_schema(schema))
-                answered += 1
-        return answered + self._answer_relocalisation(node)
-
-    def _answer_relocalisation(self, node: BackendNode) -> int:
-        """Each relocalisation query carries its own bag of words: one reply per query. A query
-        that does not decode gets an error reply (the querier's problem, not the backend's)."""
-        answered = 0
-        while (query := self._relocalisation.try_recv()) is not None:
-            with query:
-                try:
-                    request = codec.decode_relocalisation_query(query.payload.to_bytes() if query.payload is not None else b"")
-                except ZenslamError as exc:
-                    logger.warning("relocalisation query refused: %s", exc)
-                    query.reply_err(str(exc))
-                else:
-                    reply = codec.encode_relocalisation_candidates(node.relocalisation_candidates(request))
-                    encoding = zenoh.Encoding.APPLICATION_PROTOBUF.with_schema(codec.RELOCALISATION_CANDIDATES)
-                    query.reply(self._relocalisation_key, reply, encoding=encoding)
-            answered += 1
-        return answered
-
-    def close(self) -> None:
-        for queryable in (self._map, self._trajectory, self._relocalisation):
-            while (query := queryable.try_recv()) is not None:
-                query.drop()
-            queryable.undeclare()
-
-
-class _Outputs:
-    """The backend's publishers, both lossless: every update and status must arrive, in order."""
-
-    def __init__(self, session: zenoh.Session, session_name: str) -> None:
-        self.update = bus.declare_publisher(session, keys.backend_map_update(session_name), codec.MAP_UPDATE, "lossless")
-        self.status = bus.declare_publisher(session, keys.status(session_name, STAGE), codec.STAGE_STATUS, "lossless")
-        self.loop = bus.declare_publisher(session, keys.backend_loop(session_name), codec.LOOP, "lossless")
-
-    def send_step(self, output: StepOutput) -> None:
-        """The loop messages, then the answer and its corrections, in order."""
-        for loop in output.loops:
-            self.loop.put(codec.encode_loop(loop))
-        for update in output.updates:
-            self.update.put(codec.encode_map_update(update))
-
-    def send_status(self, status: codec.StageStatusMessage) -> None:
-        self.status.put(codec.encode_stage_status(status))
-
-
 def serve(
     session: zenoh.Session,
     session_name: str,
@@ -456,17 +382,16 @@ def serve(
     before the liveliness token appears: a frontend that resends its unanswered keyframes when the
     token comes back loses none (one already journaled is a repeated id, refused without an answer).
     """
-    outputs = _Outputs(session, session_name)
-    # Lossless and bounded: a full inbox blocks the frontend's send; no keyframe is ever dropped.
-    inbox = bus.subscribe(session, keys.frontend_keyframe(session_name), _decode_keeping_bytes, "lossless", config.keyframe_queue)
-    queryables = _Queryables(session, session_name)
+    outputs = BackendOutputs(session, session_name)
+    inbox = subscribe_keyframes(session, session_name, config.keyframe_queue)
+    queryables = BackendQueryables(session, session_name)
     outputs.send_status(codec.StageStatusMessage(STAGE, "starting"))
-    entries = _journal_entries(journal) if rebuild and journal is not None else []
+    entries = journal_entries(journal) if rebuild and journal is not None else []
     writer = JournalWriter(journal) if journal is not None else None
     ended = False
     try:
         with bus.declare_alive(session, session_name, STAGE):
-            rebuilt_upto = _rebuild(outputs, node, entries, writer, should_stop) if rebuild else None
+            rebuilt_upto = rebuild_from_journal(outputs, node, entries, writer, should_stop) if rebuild else None
             ended = _process(outputs, inbox, queryables, node, should_stop, writer, rebuilt_upto, lockstep)
             _save_map(outputs, node, config, finish_global_ba=ended, journal=writer)  # stopped: the map as far as it got
             if ended:
@@ -474,7 +399,7 @@ def serve(
                 _linger(queryables, node, config.linger_s, should_stop)
     finally:
         if not ended:
-            left = inbox.count_waiting(_is_keyframe)
+            left = count_keyframes_waiting(inbox)
             if left:
                 logger.warning("stopped with at least %d keyframe(s) not processed (%d processed)", left, node.processed)
             _end_stream(outputs, node, STOPPED)
@@ -485,62 +410,15 @@ def serve(
     return ended
 
 
-def _decode_keeping_bytes(payload: bytes) -> tuple[bytes, codec.KeyframeMessage | codec.EndOfStream]:
-    """A frontend/keyframe message decoded, with its bytes as received (what the journal keeps)."""
-    return payload, codec.decode_keyframe(payload)
-
-
-def _journal_entries(journal: Path) -> list[Entry]:
-    if not journal.exists():
-        logger.warning("restarted without a journal at %s: the map starts empty", journal)
-        return []
-    return read_journal(journal)
-
-
-def _rebuild(
-    outputs: _Outputs, node: BackendNode, entries: list[Entry], journal: JournalWriter | None, should_stop: Callable[[], bool]
-) -> int:
-    """Replay the journal's keyframes through ``node`` (rerun logging off: the predecessor logged
-    them), then publish the answers that were never published, in order, and journal them; returns
-    the newest keyframe id rebuilt (-1: none)."""
-    started = time.perf_counter()
-    unanswered: dict[int, StepOutput] = {}
-    rerun, node.rerun = node.rerun, None
-    try:
-        for entry in entries:
-            if should_stop():
-                return node.newest_id
-            if isinstance(entry, JournaledKeyframe):
-                keyframe = codec.decode_keyframe(entry.message)
-                unanswered[int(keyframe.id)] = node.step(keyframe, entry.queued)
-                # Heard while rebuilding: a supervisor watching for hung stages sees progress.
-                outputs.send_status(codec.StageStatusMessage(STAGE, "starting", node.processed, detail="rebuilding from the journal"))
-            elif isinstance(entry, Answered):
-                unanswered.pop(entry.keyframe_id, None)
-            else:
-                node.finish_global_ba()  # a background global BA was applied here: wait for the same one, apply it
-    finally:
-        node.rerun = rerun
-    logger.info(
-        "rebuilt the map from the journal: %d keyframes in %.1f s; %d answer(s) not published before, publishing them",
-        node.processed, time.perf_counter() - started, len(unanswered),
-    )  # fmt: skip
-    for keyframe_id, output in unanswered.items():
-        outputs.send_step(output)
-        if journal is not None:
-            journal.answered(keyframe_id)
-    return node.newest_id
-
-
 def _process(
-    outputs: _Outputs, inbox: bus.Inbox, queryables: _Queryables, node: BackendNode, should_stop,
+    outputs: BackendOutputs, inbox: bus.Inbox[Received], queryables: BackendQueryables, node: BackendNode, should_stop,
     journal: JournalWriter | None = None, rebuilt_upto: int | None = None, lockstep: bool = False,
 ) -> bool:
     """The worker loop: answer queries, take a keyframe, map it, publish; True at the end of stream.
     ``rebuilt_upto``: a restarted backend's newest keyframe from the journal; the frontend sends its
     unanswered keyframes again when it sees the restart, and those up to this one are already mapped."""
     while not should_stop():
-        queryables.answer(node, inbox)
+        queryables.answer(node, lambda: keyframes_waiting(inbox))
         if (correction := node.poll_global_ba()) is not None:
             outputs.update.put(codec.encode_map_update(correction))
             if journal is not None:
@@ -565,7 +443,7 @@ def _process(
         started = time.perf_counter()
         # Lockstep never defers local mapping: a backlog there depends on timing (a frontend with
         # frontend.lockstep_lag_frames > 1 sends keyframes while one is mapped).
-        queued = 0 if lockstep else _newer_keyframes_waiting(inbox, int(message.id))
+        queued = 0 if lockstep else newer_keyframes_waiting(inbox, int(message.id))
         if rebuilt_upto is not None and message.id <= rebuilt_upto:
             logger.info("keyframe %d sent again after the restart: mapped from the journal already", message.id)
             continue
@@ -598,28 +476,8 @@ def _process(
     return False
 
 
-def _newer_keyframes_waiting(inbox: bus.Inbox, keyframe_id: int) -> int:
-    """Distinct keyframes after ``keyframe_id`` waiting in the inbox: the end of stream is none, nor
-    is a keyframe a frontend sent again to this restarted backend (its copies would defer local
-    mapping as a backlog does, and the map would no longer be the unharmed run's)."""
-    newer: set[int] = set()
-
-    def is_newer(received: tuple[bytes, codec.KeyframeMessage | codec.EndOfStream]) -> bool:
-        message = received[1]
-        if isinstance(message, codec.EndOfStream) or message.id <= keyframe_id or message.id in newer:
-            return False
-        newer.add(int(message.id))
-        return True
-
-    return inbox.count_waiting(is_newer)
-
-
-def _is_keyframe(received: tuple[bytes, codec.KeyframeMessage | codec.EndOfStream]) -> bool:
-    return not isinstance(received[1], codec.EndOfStream)
-
-
 def _save_map(
-    outputs: _Outputs, node: BackendNode, config: BackendConfig, finish_global_ba: bool, journal: JournalWriter | None = None
+    outputs: BackendOutputs, node: BackendNode, config: BackendConfig, finish_global_ba: bool, journal: JournalWriter | None = None
 ) -> None:
     """With ``backend.save_map``: the map (after a global BA still running and, with
     ``backend.global_ba_before_save``, one more over the final map, when ``finish_global_ba``; a
@@ -639,13 +497,13 @@ def _save_map(
     node.save_map(config.save_map)
 
 
-def _end_stream(outputs: _Outputs, node: BackendNode, detail: str = "") -> None:
+def _end_stream(outputs: BackendOutputs, node: BackendNode, detail: str = "") -> None:
     node.finished = True
     outputs.update.put(codec.encode_end_of_stream(codec.MAP_UPDATE, node.processed))
     outputs.send_status(codec.StageStatusMessage(STAGE, "finished", node.processed, detail=detail))
 
 
-def _linger(queryables: _Queryables, node: BackendNode, linger_s: float, should_stop: Callable[[], bool]) -> None:
+def _linger(queryables: BackendQueryables, node: BackendNode, linger_s: float, should_stop: Callable[[], bool]) -> None:
     deadline = time.monotonic() + linger_s
     while time.monotonic() < deadline and not should_stop():
         queryables.answer(node)
@@ -666,6 +524,7 @@ def main(argv: list[str] | None = None) -> int:
     if stopped_before_joining(stop):  # a stop held while the modules above were imported
         return 0
     try:
+        from zenslam.backend.rerun_log import BackendLog
         from zenslam.runtime import rerun_log
 
         config = load_section(args.config, STAGE, BackendConfig)
@@ -682,7 +541,7 @@ def main(argv: list[str] | None = None) -> int:
             rerun_log.open_stage_recording(STAGE, args.session, args.config, rerun_config, args.restart) as recording,
             bus.open_session(bus_config_with(bus_config, args.connect, args.bus_config)) as session,
         ):
-            node.rerun = rerun_log.BackendLog(recording) if recording is not None else None
+            node.rerun = BackendLog(recording) if recording is not None else None
             bus.require_alive(session, args.session, args.wait_for, bus_config.start_timeout_s, stop.keep_going)
             # The journal lives in the run folder, beside the run's config.yaml; no folder, no journal.
             journal = Path(args.config).parent / JOURNAL_NAME if config.journal and args.config is not None else None

@@ -14,7 +14,7 @@ import numpy as np
 
 from zenslam.backend import gtsam_keys
 from zenslam.backend.essential_graph import EssentialEdge
-from zenslam.backend.pose_graph import PoseGraphConfig, PoseGraphError, PoseGraphResult, similarity_parts
+from zenslam.backend.pose_graph_types import PoseGraphConfig, PoseGraphError, PoseGraphResult, similarity_parts
 
 logger = logging.getLogger(__name__)
 

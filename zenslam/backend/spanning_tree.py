@@ -8,21 +8,21 @@ tree stays connected and the essential graph built on it keeps every keyframe.
 from __future__ import annotations
 
 from zenslam.backend.covisibility import CovisibilityGraph
+from zenslam.covisibility_rules import spanning_parent
 
 
 def choose_parent(kf_id: int, covisibility: CovisibilityGraph, older_ids: list[int]) -> int | None:
-    """The keyframe among ``older_ids`` sharing most points with ``kf_id`` (ties: smallest id).
+    """The keyframe among ``older_ids`` sharing most points with ``kf_id`` (ties: smallest id), the
+    rule shared with the frontend (``covisibility_rules.spanning_parent``).
 
-    With no shared point at all the most recent older keyframe is taken, so the tree never splits;
-    ``None`` when there is no older keyframe (the root).
+    With no shared point at all the most recent older keyframe is taken, so the backend's tree
+    never splits (its essential graph must hold every keyframe); ``None`` when there is no older
+    keyframe (the root).
     """
     if not older_ids:
         return None
-    weights = covisibility.weights(kf_id)
-    shared = [k for k in older_ids if weights.get(k, 0) > 0]
-    if not shared:
-        return older_ids[-1]
-    return min(shared, key=lambda k: (-weights[k], k))
+    parent = spanning_parent(covisibility.weights(kf_id), older_ids)
+    return older_ids[-1] if parent is None else parent
 
 
 class SpanningTree:

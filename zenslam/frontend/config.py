@@ -12,6 +12,9 @@ from zenslam.frontend.stereo_matcher import StereoMatchConfig
 from zenslam.frontend.tracker import TrackingConfig
 from zenslam.pose_optimizer import PoseOptimizerConfig
 
+# Where the frontend's config holds its copy of the run's ``map`` section (``MapRulesConfig``),
+# which the local map builds its covisibility graph with; the service fills it from ``map``.
+MAP_RULES_PATH = ("tracking", "local_map", "map_rules")
 
 @dataclass(frozen=True)
 class FrontendConfig:

@@ -33,6 +33,7 @@ from zenslam.frontend.keyframe import KeyFrame
 from zenslam.frontend.slot_graph import SlotGraph
 from zenslam.geometry import invert_T, transform_points
 from zenslam.map_point_rules import representative_descriptors, scale_invariance_range
+from zenslam.map_rules_config import MapRulesConfig
 from zenslam.schemas.map_update import KeyframeCorrection, MapUpdate
 from zenslam.schemas.relocalisation import MapPoints
 
@@ -49,7 +50,7 @@ class LocalMapConfig:
     keyframe_id_step: int = 1  # increment between consecutive keyframe ids
     max_local_keyframes: int = 80  # stop adding covisible neighbours past this many local keyframes
     best_covisible: int = 10  # neighbours examined per local keyframe (ORB-SLAM: 10)
-    min_covisibility_weight: int = 15  # shared points for a covisibility edge (ORB-SLAM: 15)
+    map_rules: MapRulesConfig = dataclasses.field(default_factory=MapRulesConfig)  # copy of the run's ``map`` section
     cull_recent_points: bool = True  # apply ORB-SLAM's recent map point culling at each keyframe
     cull_min_found_ratio: float = 0.25  # found / visible below this -> point removed
     cull_min_keyframe_observations: int = 2  # keyframes that must see a point 2 keyframes after its birth
@@ -156,7 +157,7 @@ class LocalMap:
         self._slot_of_id: dict[int, int] = {}
         self._kf_rows: list[np.ndarray] = []  # per slot: rows of the points the keyframe observes
         self._kf_centres = np.zeros((0, 3))
-        self._graph = SlotGraph(self.config.min_covisibility_weight)
+        self._graph = SlotGraph(self.config.map_rules.min_covisibility_weight)
         self._n_inserted = 0  # keyframes ever inserted: the serial of the next one
 
     # ---- sizes and accessors -------------------------------------------------------------------

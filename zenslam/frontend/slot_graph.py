@@ -1,12 +1,14 @@
 """The frontend map's covisibility graph and spanning tree over keyframe slots (insertion order).
 
 Edge weights are shared map points, given by the map whenever a keyframe's observations change.
-ORB-SLAM's ordered connections (neighbours with weight >= the threshold, strongest first, or the
-single best one when none reaches it) are re-ranked lazily: a map update relinks ~15 keyframes,
-each touching ~20 neighbours, and ranking each changed keyframe once saved ~90% of that work.
+The ranking, ordered connections and parent choice are the rules shared with the backend
+(``zenslam.covisibility_rules``); ordered connections are re-ranked lazily, once per changed
+keyframe when it is next asked for, since a map update relinks many keyframes at once.
 """
 
 from __future__ import annotations
+
+from zenslam.covisibility_rules import ordered_connections, spanning_parent
 
 
 class SlotGraph:
@@ -22,14 +24,14 @@ class SlotGraph:
 
     def add(self, links: dict[int, int]) -> int:
         """Add the next slot with its ``links`` (other slot -> shared points); its spanning-tree
-        parent is its best connection (-1 when it has none). Returns the new slot."""
+        parent is the slot it shares most points with (-1 when it has none). Returns the new slot."""
         slot = len(self._links)
         self._links.append({})
         self._ordered.append([])
         self._children.append([])
         self.set_links(slot, links)
-        ordered = self.ordered(slot)
-        parent = ordered[0] if ordered else -1
+        parent = spanning_parent(self._links[slot])
+        parent = -1 if parent is None else parent
         self._parent.append(parent)
         if parent >= 0:
             self._children[parent].append(slot)
@@ -88,9 +90,7 @@ class SlotGraph:
         """ORB-SLAM's ordered connections of ``slot`` (slots, strongest first; ties by slot)."""
         if slot in self._unordered:
             self._unordered.discard(slot)
-            links = self._links[slot]
-            ranked = sorted(links, key=lambda s: (-links[s], s))
-            self._ordered[slot] = [s for s in ranked if links[s] >= self.min_weight] or ranked[:1]
+            self._ordered[slot] = ordered_connections(self._links[slot], self.min_weight)
         return self._ordered[slot]
 
     def parent(self, slot: int) -> int:

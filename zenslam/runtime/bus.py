@@ -166,6 +166,27 @@ def reply(query: zenoh.Query, key: str, payload: bytes, schema: str) -> None:
     query.reply(key, payload, encoding=protobuf_encoding(schema))
 
 
+def reply_error(query: zenoh.Query, message: str) -> None:
+    """Refuse ``query`` with an error reply carrying ``message`` (the querier's request was wrong)."""
+    query.reply_err(message)
+
+
+def waiting_queries(queryable: zenoh.Queryable) -> Iterator[zenoh.Query]:
+    """The queries waiting on ``queryable`` (``declare_queryable``), oldest first; each is finalised
+    once the loop's body is done with it, so its querier stops waiting whether it was answered or not."""
+    while (query := queryable.try_recv()) is not None:
+        with query:
+            yield query
+
+
+def close_queryable(queryable: zenoh.Queryable) -> None:
+    """Finalise the queries still waiting on ``queryable`` unanswered (their queriers stop waiting at
+    once instead of at their timeout), then undeclare it."""
+    while (query := queryable.try_recv()) is not None:
+        query.drop()
+    queryable.undeclare()
+
+
 def query(
     session: zenoh.Session, key: str, timeout_s: float, payload: bytes | None = None, schema: str | None = None
 ) -> Iterator[zenoh.Reply]:

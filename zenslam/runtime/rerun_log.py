@@ -21,17 +21,11 @@ Entity paths mirror the packages::
     frontend/state                  the tracking state when it changes (TextLog)
     frontend/counts/<name>          tracked points, keypoints (Scalars)
     frontend/timing/<stage>         milliseconds per tracking stage (Scalars)
-    backend/keyframes               keyframe centres (Points3D, world, metres), per keyframe
-    backend/map_points              every map point (Points3D, world, metres), at most once per
-                                    ``map_period_s`` of sensor time, and the final map
-    backend/covisibility            covisibility edges between keyframe centres (LineStrips3D), as map_points
-    backend/trajectory              the keyframe centres in time order (LineStrips3D)
-    backend/local_ba/before|after   local BA graph error before and after optimisation (Scalars)
-    backend/counts/<name>           keyframes, map points, keyframe queue depth (Scalars)
-    backend/timing/<step>           milliseconds per local-mapping step (Scalars)
+    backend/...                     the backend's map, graphs, local BA errors, counts and timings
+                                    (listed in ``zenslam.backend.rerun_log``)
 
-The loggers read what the algorithms already expose (TrackingOutput, KeyframeMessage, the
-LocalMapper's map and statistics); algorithm modules never import rerun.
+Each stage's logger sits beside its node and reads what that stage's algorithms expose (the
+backend's: ``zenslam.backend.rerun_log``); algorithm modules never import rerun.
 """
 
 from __future__ import annotations
@@ -71,11 +65,6 @@ _FLUSH_BYTES = 4 * 1024 * 1024  # bytes
 # Colours (RGB) the blueprint's views show; fixed so two recordings look alike.
 _KEYPOINT_RGB = (150, 150, 150)
 _MATCH_RGB = (40, 220, 60)
-_KEYFRAME_RGB = (60, 120, 255)
-_MAP_POINT_RGB = (230, 230, 230)
-_COVISIBILITY_RGB = (255, 170, 0)
-_LOOP_RGB = (255, 64, 200)  # loop edges: magenta, drawn thicker than covisibility
-_TRAJECTORY_RGB = (255, 60, 60)
 
 
 def rrd_path(run_dir: str | Path, stage: str) -> Path:
@@ -296,65 +285,6 @@ def tracked_keypoints(pipeline: Any, index: int) -> tuple[np.ndarray, np.ndarray
     px = np.asarray(frame.features.px, dtype=np.float32).reshape(-1, 2)
     rows = np.asarray(last.rows)
     return px, rows >= 0
-
-
-class BackendLog:
-    """What the backend process logs per keyframe: keyframes, local BA errors, counts, timings; the map
-    and its covisibility graph at most once per ``map_period_s`` of sensor time, and the final map."""
-
-    def __init__(self, recording: StageRecording) -> None:
-        self.recording = recording
-        self._map_logged_ns: int | None = None  # stamp of the last logged map
-        self._unlogged: tuple[Any, Any] | None = None  # (keyframe, mapper) of a map change not logged yet
-        _log_world_axes(recording)
-
-    def log_keyframe(self, keyframe: Any, mapper: Any) -> None:
-        """Log the LocalMapper's map after it processed ``keyframe`` (a KeyframeMessage), at that keyframe's frame."""
-        rec = self.recording
-        rec.at(keyframe.frame_index, keyframe.stamp_ns)
-        bmap = mapper.map
-        keyframes = sorted(bmap.keyframes.values(), key=lambda kf: (kf.stamp_ns, kf.id))
-        positions = np.array([kf.centre_world for kf in keyframes], dtype=float).reshape(-1, 3)
-        rec.log("backend/keyframes", rr.Points3D(positions, radii=0.05, colors=_KEYFRAME_RGB))
-        rec.log("backend/trajectory", rr.LineStrips3D([positions], colors=_TRAJECTORY_RGB))
-        period_ns = round(self.recording.config.map_period_s * 1e9)
-        if self._map_logged_ns is None or keyframe.stamp_ns - self._map_logged_ns >= period_ns:
-            self._log_map(keyframe, mapper)
-        else:
-            self._unlogged = (keyframe, mapper)
-        ba = getattr(mapper, "last_ba_stats", {}) or {}
-        if "initial_error" in ba and "final_error" in ba:
-            rec.log("backend/local_ba/before", rr.Scalars(float(ba["initial_error"])))
-            rec.log("backend/local_ba/after", rr.Scalars(float(ba["final_error"])))
-        rec.scalars("backend/counts", {"keyframes": len(keyframes), "map_points": len(bmap.points)})
-        rec.scalars("backend/timing", mapper.last_timings_ms)
-
-    def finish(self) -> None:
-        """Log the final map, if the last keyframes came too soon after the previous logged map."""
-        if self._unlogged is not None:
-            keyframe, mapper = self._unlogged
-            self.recording.at(keyframe.frame_index, keyframe.stamp_ns)
-            self._log_map(keyframe, mapper)
-
-    def _log_map(self, keyframe: Any, mapper: Any) -> None:
-        """The map points, covisibility and loop edges of ``mapper``'s map now, at the current time."""
-        bmap = mapper.map
-        centres = {kf.id: kf.centre_world for kf in bmap.keyframes.values()}
-        point_ids = sorted(bmap.points)
-        p_world = np.array([bmap.points[p].p_world for p in point_ids], dtype=float).reshape(-1, 3)
-        self.recording.log("backend/map_points", rr.Points3D(p_world, radii=0.02, colors=_MAP_POINT_RGB))
-        edges = [(centres[a], centres[b]) for a, b, _ in bmap.covisibility.edges() if a in centres and b in centres]
-        strips = np.array(edges, dtype=float).reshape(-1, 2, 3)
-        self.recording.log("backend/covisibility", rr.LineStrips3D(strips, colors=_COVISIBILITY_RGB))
-        loops = [(centres[a], centres[b]) for a, b in bmap.essential_graph.loop_edges() if a in centres and b in centres]
-        loop_strips = np.array(loops, dtype=float).reshape(-1, 2, 3)
-        self.recording.log("backend/loops", rr.LineStrips3D(loop_strips, colors=_LOOP_RGB, radii=0.03))
-        self._map_logged_ns, self._unlogged = keyframe.stamp_ns, None
-
-    def log_queue_depth(self, keyframe: Any, depth: int) -> None:
-        """Keyframes waiting in the backend's inbox after ``keyframe`` was processed."""
-        self.recording.at(keyframe.frame_index, keyframe.stamp_ns)
-        self.recording.log("backend/counts/queue_depth", rr.Scalars(float(depth)))
 
 
 # ---- reading recordings back (tests, comparisons of runs) ----

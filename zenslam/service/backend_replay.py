@@ -11,6 +11,7 @@ the caller compares them with the recorded backend/map_update messages.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import math
 import sys
@@ -26,7 +27,7 @@ from zenslam.runtime.supervisor import ProcessSpec, Supervisor
 from zenslam.schemas import codec
 from zenslam.service import mcap_io
 from zenslam.service.replay import KEYFRAME_TOPIC, MAP_UPDATE_TOPIC, Comparison, compare_streams, read_topics
-from zenslam.service.run_config import RunConfig, run_config_to_yaml
+from zenslam.service.run_config import RunConfig, run_config_to_yaml, with_map_rules
 from zenslam.service.run_output import CONFIG_FILENAME
 
 if TYPE_CHECKING:
@@ -79,7 +80,8 @@ def replay_backend(recording: str | Path, config: BackendConfig, tolerance: floa
     with tempfile.TemporaryDirectory(prefix="zenslam-backend-replay-") as tmp:
         work = Path(tmp)
         config_path = work / CONFIG_FILENAME
-        config_path.write_text(run_config_to_yaml(RunConfig(backend=config)))
+        run_config = with_map_rules(RunConfig(), config.local_mapping.map_rules)  # the map section the backend's copy came from
+        config_path.write_text(run_config_to_yaml(dataclasses.replace(run_config, backend=config)))
         output = work / _UPDATES_FILENAME
         with Supervisor(work, PROCESS_NAME, config_path, None) as supervisor:
             supervisor.start(ProcessSpec(PROCESS_NAME, __name__, ("--recording", str(recording), "--output", str(output))))

@@ -1,11 +1,15 @@
-"""KITTI odometry reader: the real clip, and small fake sequences for every malformed-input case."""
+"""KITTI odometry reader: the real clip, fake sequences for every malformed-input case, image_0 alone as mono."""
 
+import json
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from zenslam.errors import CalibrationError, DatasetError, ImageReadError, TimestampError
+from zenslam.service.sources import open_source
 from zenslam.service.sources.images import write_png
 from zenslam.service.sources.kitti import KittiSource
 
@@ -90,7 +94,7 @@ def test_missing_image_folder(tmp_path: Path):
     for p in (seq / "image_1").iterdir():
         p.unlink()
     (seq / "image_1").rmdir()
-    with pytest.raises(DatasetError, match=r"image_1 does not exist"):
+    with pytest.raises(DatasetError, match=r"image_1 does not exist.*--sensor mono"):
         KittiSource(seq)
 
 
@@ -161,3 +165,66 @@ def test_gap_in_image_numbering(tmp_path: Path):
         (seq / folder / "000001.png").rename(seq / folder / "000005.png")
     with pytest.raises(DatasetError, match=r"image 1 is 000002\.png, expected 000001\.png"):
         KittiSource(seq)
+
+
+def _left_images_only(seq: Path) -> Path:
+    """``seq`` without image_1: how monocular KITTI clips are shared."""
+    for p in (seq / "image_1").iterdir():
+        p.unlink()
+    (seq / "image_1").rmdir()
+    return seq
+
+
+def test_image_0_alone_plays_as_mono(tmp_path: Path):
+    seq = _left_images_only(make_kitti(tmp_path))
+    (seq / "calib.txt").write_text(f"{P0}\n")  # a monocular clip needs P0 alone
+    source = open_source(f"kitti:{seq}", "mono")
+    assert source.sensor == "mono" and source.name == "kitti/07" and len(source) == 3
+    assert source.calibration.baseline_m is None and source.calibration.fx == pytest.approx(700.0)
+    frames = list(source)
+    assert [f.index for f in frames] == [0, 1, 2]
+    assert all(f.left.shape == (20, 32) and f.right is None and f.depth_m is None for f in frames)
+    np.testing.assert_allclose(source.ground_truth().positions[2], [2.0, 0.0, 4.0])
+
+
+def test_stereo_sequence_played_mono_keeps_its_left_images(tmp_path: Path):
+    source = open_source(f"kitti:{make_kitti(tmp_path)}", "mono")
+    assert source.sensor == "mono" and source.calibration.baseline_m is None
+    assert source.name == "kitti/07 (left images, monocular)"  # the stereo reader, viewed as mono
+    assert next(iter(source)).right is None
+
+
+@pytest.mark.parametrize("sensor", [None, "stereo"])
+def test_image_0_alone_without_mono_names_the_sensor_option(tmp_path: Path, sensor):
+    seq = _left_images_only(make_kitti(tmp_path))
+    with pytest.raises(DatasetError, match=r"image_1 does not exist.*`--sensor mono` .*runs a sequence with image_0 alone"):
+        open_source(f"kitti:{seq}", sensor)
+
+
+def test_image_0_alone_as_mono_still_checks_the_left_numbering(tmp_path: Path):
+    seq = _left_images_only(make_kitti(tmp_path))
+    (seq / "image_0" / "000001.png").rename(seq / "image_0" / "000005.png")
+    with pytest.raises(DatasetError, match=r"image 1 is 000002\.png, expected 000001\.png"):
+        KittiSource(seq, mono_allowed=True)
+
+
+@pytest.mark.dataset
+@pytest.mark.integration
+def test_run_with_sensor_mono_on_a_clip_of_image_0_alone(kitti_root: Path, tmp_path: Path):
+    """``zenslam run kitti:... --sensor mono`` on the clip's left images alone (linked, not copied)."""
+    seq = tmp_path / "kitti" / "sequences" / "06"
+    seq.mkdir(parents=True)
+    clip = kitti_root / "sequences" / "06"
+    (seq / "image_0").symlink_to(clip / "image_0")
+    for name in ("calib.txt", "times.txt"):
+        (seq / name).symlink_to(clip / name)
+    (tmp_path / "kitti" / "poses").symlink_to(kitti_root / "poses")
+    command = [sys.executable, "-m", "zenslam.service.cli", "run", f"kitti:{seq}", "--max-frames", "15",
+               "--output", str(tmp_path), "--run-id", "mono", "--no-progress"]
+    refused = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    assert refused.returncode == 2 and "`--sensor mono`" in refused.stderr, refused.stderr[-2000:]
+    result = subprocess.run([*command, "--sensor", "mono"], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-3000:]
+    metrics = json.loads((tmp_path / "mono" / "metrics.json").read_text())
+    assert metrics["frames"] == 15 and metrics["run"]["completed"]
+    assert "sensor: mono" in (tmp_path / "mono" / "config.yaml").read_text()

@@ -67,11 +67,11 @@ def open_source(spec: str, sensor: SensorKind | None = None) -> Source:
             f"{spec!r} is a live bus source: its frames exist only while a publisher sends them, so it has no length "
             "to inspect or replay; `zenslam run` takes it"
         )
-    source = _open_dataset(spec, kind, argument)
+    source = _open_dataset(spec, kind, argument, sensor)
     return source if sensor is None else as_sensor(source, sensor)
 
 
-def _open_dataset(spec: str, kind: str, argument: str) -> Source:
+def _open_dataset(spec: str, kind: str, argument: str, sensor: SensorKind | None) -> Source:
     if kind not in SOURCE_KINDS:
         raise SourceSpecError(
             f"unknown source {spec!r}: use one of kitti:<root>/sequences/NN, euroc:<folder>, tum:<folder>, "
@@ -83,7 +83,7 @@ def _open_dataset(spec: str, kind: str, argument: str) -> Source:
     if kind == "kitti":
         from zenslam.service.sources.kitti import KittiSource
 
-        return KittiSource(path)
+        return KittiSource(path, mono_allowed=sensor == "mono")  # a clip of image_0 alone plays as mono
     if kind == "euroc":
         from zenslam.service.sources.euroc import EurocSource
 

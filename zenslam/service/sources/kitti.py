@@ -1,9 +1,13 @@
-"""KITTI odometry stereo sequences (rectified grey pairs, calib.txt, times.txt, poses/NN.txt).
+"""KITTI odometry sequences (rectified grey pairs, calib.txt, times.txt, poses/NN.txt).
 
 Layout: ``<root>/sequences/NN/{image_0,image_1}/%06d.png``, ``calib.txt`` (rectified projection
 matrices P0..P3, optionally Tr), ``times.txt`` (seconds, one per frame) and, when published,
 ``<root>/poses/NN.txt`` (3x4 row-major T_world_cam0 per frame, world = first camera). The image
 size is taken from the first left image; every other image must match it.
+
+Monocular clips are often shared as ``image_0`` alone (ORB-SLAM3's monocular KITTI example reads
+nothing else): such a folder is a monocular source when the run asks for one (``--sensor mono``),
+and then ``calib.txt`` needs only P0.
 """
 
 from __future__ import annotations
@@ -24,8 +28,9 @@ from zenslam.trajectory import Trajectory
 log = logging.getLogger(__name__)
 
 
-def read_kitti_calibration(calib_path: Path, width: int, height: int) -> PinholeCalibration:
-    """Rectified left calibration from KITTI ``calib.txt``: fx = P0[0,0], baseline_m = -P1[0,3] / P1[0,0]."""
+def read_kitti_calibration(calib_path: Path, width: int, height: int, stereo: bool = True) -> PinholeCalibration:
+    """Rectified left calibration from KITTI ``calib.txt``: fx = P0[0,0], baseline_m = -P1[0,3] / P1[0,0];
+    with ``stereo`` False only P0 is needed and the calibration has no baseline."""
     calib_path = Path(calib_path)
     if not calib_path.is_file():
         raise CalibrationError(f"KITTI calibration {calib_path} does not exist; every sequence folder has a calib.txt")
@@ -41,21 +46,17 @@ def read_kitti_calibration(calib_path: Path, width: int, height: int) -> Pinhole
                 "expected 12 (3x4)"
             )
         matrices[key.strip()] = numbers.reshape(3, 4)
-    missing = [k for k in ("P0", "P1") if k not in matrices]
+    needed = ("P0", "P1") if stereo else ("P0",)
+    missing = [k for k in needed if k not in matrices]
     if missing:
-        raise CalibrationError(f"KITTI calibration {calib_path} lacks {missing}; it needs the rectified P0 and P1")
-    P0, P1 = matrices["P0"], matrices["P1"]
-    if not (P0[0, 0] > 0 and P1[0, 0] > 0 and P0[1, 1] > 0):
         raise CalibrationError(
-            f"KITTI calibration {calib_path}: focal lengths P0[0,0]={P0[0, 0]}, P0[1,1]={P0[1, 1]}, "
-            f"P1[0,0]={P1[0, 0]} must be positive pixels"
+            f"KITTI calibration {calib_path} lacks {missing}; it needs the rectified {' and '.join(needed)}"
         )
-    baseline_m = -P1[0, 3] / P1[0, 0]
-    if not baseline_m > 0:
-        raise CalibrationError(
-            f"KITTI calibration {calib_path}: P1[0,3]={P1[0, 3]} gives baseline {baseline_m} m; the right camera "
-            "must be a positive distance to the right (P1[0,3] = -fx * baseline)"
-        )
+    P0 = matrices["P0"]
+    focal = {"P0[0,0]": P0[0, 0], "P0[1,1]": P0[1, 1]} | ({"P1[0,0]": matrices["P1"][0, 0]} if stereo else {})
+    if not all(value > 0 for value in focal.values()):
+        named = ", ".join(f"{key}={value}" for key, value in focal.items())
+        raise CalibrationError(f"KITTI calibration {calib_path}: focal lengths {named} must be positive pixels")
     return PinholeCalibration(
         fx=float(P0[0, 0]),
         fy=float(P0[1, 1]),
@@ -63,8 +64,19 @@ def read_kitti_calibration(calib_path: Path, width: int, height: int) -> Pinhole
         cy=float(P0[1, 2]),
         width=int(width),
         height=int(height),
-        baseline_m=float(baseline_m),
+        baseline_m=_baseline_m(calib_path, matrices["P1"]) if stereo else None,
     )
+
+
+def _baseline_m(calib_path: Path, P1: np.ndarray) -> float:
+    """Stereo baseline (m) from the rectified right projection P1 = K [I | (-fx * baseline, 0, 0)]."""
+    baseline_m = -P1[0, 3] / P1[0, 0]
+    if not baseline_m > 0:
+        raise CalibrationError(
+            f"KITTI calibration {calib_path}: P1[0,3]={P1[0, 3]} gives baseline {baseline_m} m; the right camera "
+            "must be a positive distance to the right (P1[0,3] = -fx * baseline)"
+        )
+    return float(baseline_m)
 
 
 def read_kitti_poses(path: Path) -> np.ndarray:
@@ -79,17 +91,22 @@ def read_kitti_poses(path: Path) -> np.ndarray:
 
 
 class KittiSource:
-    """A KITTI odometry sequence as a lazy stereo Source; ``sequence_dir`` is ``<root>/sequences/NN``."""
+    """A KITTI odometry sequence as a lazy Source; ``sequence_dir`` is ``<root>/sequences/NN``.
 
-    def __init__(self, sequence_dir: Path) -> None:
+    A stereo source when the folder has image_0 and image_1; with ``mono_allowed`` (the run plays
+    the source as mono) a folder with image_0 alone is a monocular source instead of an error.
+    """
+
+    def __init__(self, sequence_dir: Path, mono_allowed: bool = False) -> None:
         self._dir = Path(sequence_dir).absolute()
         if not self._dir.is_dir():
             raise DatasetError(
                 f"KITTI sequence folder {self._dir} does not exist; pass <root>/sequences/NN of the odometry dataset"
             )
         self._left = self._list_images("image_0")
-        self._right = self._list_images("image_1")
-        if len(self._left) != len(self._right):
+        stereo = (self._dir / "image_1").exists() or not mono_allowed
+        self._right = self._list_images("image_1") if stereo else None
+        if self._right is not None and len(self._left) != len(self._right):
             raise DatasetError(
                 f"KITTI sequence {self._dir}: image_0 has {len(self._left)} images but image_1 has "
                 f"{len(self._right)}; every left image needs its right partner"
@@ -106,12 +123,15 @@ class KittiSource:
         self._check_names()
         height, width = image_size(self._left[0])
         self._shape = (height, width)
-        self._calibration = read_kitti_calibration(self._dir / "calib.txt", width, height)
+        self._calibration = read_kitti_calibration(self._dir / "calib.txt", width, height, stereo)
 
     def _list_images(self, folder: str) -> list[Path]:
         path = self._dir / folder
         if not path.is_dir():
-            raise DatasetError(f"KITTI image folder {path} does not exist; a stereo sequence has image_0 and image_1")
+            raise DatasetError(
+                f"KITTI image folder {path} does not exist; a stereo sequence has image_0 and image_1, and "
+                "`--sensor mono` (source.sensor: mono) runs a sequence with image_0 alone"
+            )
         images = sorted(path.glob("*.png"))
         if not images:
             raise DatasetError(f"KITTI image folder {path} holds no .png images")
@@ -119,7 +139,7 @@ class KittiSource:
 
     def _check_names(self) -> None:
         expected = [f"{i:06d}.png" for i in range(len(self._stamps))]
-        for images in (self._left, self._right):
+        for images in [self._left] if self._right is None else [self._left, self._right]:
             names = [p.name for p in images]
             if names != expected:
                 first = next(i for i, (a, b) in enumerate(zip(names, expected)) if a != b)
@@ -134,7 +154,7 @@ class KittiSource:
 
     @property
     def sensor(self) -> SensorKind:
-        return "stereo"
+        return "stereo" if self._right is not None else "mono"
 
     @property
     def calibration(self) -> PinholeCalibration:
@@ -148,11 +168,11 @@ class KittiSource:
             yield self.frame(i)
 
     def frame(self, index: int) -> SensorFrame:
-        """Stereo pair ``index``; FrameReadError names the image that cannot be read."""
+        """Stereo pair (or left image) ``index``; FrameReadError names the image that cannot be read."""
         check_frame_index(self.name, index, len(self))
         with reading_frame(index):
             left = read_grey(self._left[index], self._shape)
-            right = read_grey(self._right[index], self._shape)
+            right = None if self._right is None else read_grey(self._right[index], self._shape)
         return SensorFrame(index=index, stamp_ns=int(self._stamps[index]), left=left, right=right)
 
     def stamps_ns(self) -> np.ndarray:
