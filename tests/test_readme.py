@@ -1,4 +1,5 @@
-"""The README's commands are true: CI runs its test command, and its main command works on a fresh clone."""
+"""The README's commands are true: CI runs its test command, its main command works on a fresh clone, and its
+tour and the guide's vocabulary commands run line by line."""
 
 from __future__ import annotations
 
@@ -9,11 +10,13 @@ import sys
 from pathlib import Path
 
 import pytest
+from test_docs import command_lines, run_line, scratch_checkout
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
 
 def readme_command(name: str) -> str:
+    """The README's own shell block named ``name`` (the two commands must be the README's, not the guide's)."""
     text = (REPO_ROOT / "README.md").read_text()
     match = re.search(rf"<!-- readme-command: {name} -->\s*```sh\n(.+?)\n```", text, re.S)
     assert match, f"README has no command marked {name!r}"
@@ -26,6 +29,7 @@ def test_readme_opens_with_the_main_and_test_commands():
     assert first_blocks == [readme_command("main"), readme_command("test")]
     assert "zenslam run" in readme_command("main")
     assert "pytest" in readme_command("test")
+    assert readme_command("tour").startswith("zenslam inspect")  # the tour stays on the front page
 
 
 def test_ci_runs_exactly_the_readme_test_command():
@@ -60,18 +64,9 @@ def test_main_command_on_a_fresh_clone(tmp_path: Path):
 @pytest.mark.slow(70)
 def test_tour_commands_run_in_order(tmp_path: Path, data_root: Path, kitti_root: Path):
     """Every line of the README's tour (it uses the KITTI clip), run from a checkout whose ../shared/data is the real one."""
-    data = data_root
-    checkout = tmp_path / "checkout"
-    checkout.mkdir()
-    (tmp_path / "shared").mkdir()
-    (tmp_path / "shared" / "data").symlink_to(data)
-    bin_dir = Path(sys.executable).parent
-    for line in readme_command("tour").splitlines():
-        result = subprocess.run(
-            ["bash", "-c", line], cwd=checkout, capture_output=True, text=True, timeout=900,
-            env={"PATH": f"{bin_dir}:/usr/local/bin:/usr/bin:/bin", "HOME": str(Path.home())},
-        )
-        assert result.returncode == 0, f"{line}\n{result.stdout[-2000:]}\n{result.stderr[-2000:]}"
+    checkout = scratch_checkout(tmp_path, data_root)
+    for line in command_lines("tour"):
+        result = run_line(line, checkout)
         if line.startswith("zenslam run "):
             assert "ATE RMSE" in result.stdout, result.stdout[-2000:]
         if line.startswith("zenslam replay"):
@@ -83,20 +78,13 @@ def test_tour_commands_run_in_order(tmp_path: Path, data_root: Path, kitti_root:
 
 @pytest.mark.slow(30)  # ORB on 40 frames and a k=10, L=5 tree
 def test_vocab_commands_run_in_order(tmp_path: Path, data_root: Path):
-    """Every line of the README's vocabulary section, run from a checkout whose ../shared/data is the real one."""
+    """Every line of the guide's vocabulary commands (docs/vocabulary.md), run from a checkout whose ../shared/data is
+    the real one."""
     if not (data_root / "euroc" / "V1_01_easy_revisits").is_dir() or not (data_root / "kitti_odometry").is_dir():
         pytest.skip(f"the EuRoC revisits and KITTI clips are not both in {data_root}")
-    checkout = tmp_path / "checkout"
-    checkout.mkdir()
-    (tmp_path / "shared").mkdir()
-    (tmp_path / "shared" / "data").symlink_to(data_root)
-    bin_dir = Path(sys.executable).parent
-    for line in readme_command("vocab").splitlines():
-        result = subprocess.run(
-            ["bash", "-c", line], cwd=checkout, capture_output=True, text=True, timeout=900,
-            env={"PATH": f"{bin_dir}:/usr/local/bin:/usr/bin:/bin", "HOME": str(Path.home())},
-        )
-        assert result.returncode == 0, f"{line}\n{result.stdout[-2000:]}\n{result.stderr[-2000:]}"
+    checkout = scratch_checkout(tmp_path, data_root)
+    for line in command_lines("vocab"):
+        result = run_line(line, checkout)
         if line.startswith("zenslam vocab score"):
             assert re.search(r"^score: 0\.\d{4}$", result.stdout, re.MULTILINE), result.stdout
         if line.startswith("zenslam vocab info"):

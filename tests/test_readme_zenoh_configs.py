@@ -1,8 +1,8 @@
-"""The README's zenoh configs are valid zenoh 1.x configs, and its TLS ones restrict access as it says.
+"""The guide's zenoh configs (docs/machines.md) are valid zenoh 1.x configs, and its TLS ones restrict access as it says.
 
 The TLS check makes a throwaway CA and certificates with the ``openssl`` command (skipped without
-it), opens the README's router config (mTLS, access control) in this process on a free loopback
-port and the README's robot config as clients of it: the robot's certificate gets zenslam's keys
+it), opens the guide's router config (mTLS, access control) in this process on a free loopback
+port and the guide's robot config as clients of it: the robot's certificate gets zenslam's keys
 through, a key outside the session does not, a certificate of the same CA whose name no policy
 lists gets nothing through, and a client without a certificate cannot connect.
 """
@@ -20,17 +20,16 @@ from pathlib import Path
 import pytest
 import zenoh
 
+from test_docs import doc_block
+
 from zenslam.runtime import bus
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
 CONFIG_NAMES = ("router.json5", "server.json5", "robot.json5", "router_tls.json5", "robot_tls.json5")
 
 
 def readme_json5(name: str) -> str:
-    text = (REPO_ROOT / "README.md").read_text()
-    match = re.search(rf"<!-- readme-json5: {re.escape(name)} -->\s*```json5\n(.+?)\n```", text, re.S)
-    assert match, f"README has no json5 block marked {name!r}"
-    return match.group(1)
+    """The zenoh config block named ``name`` (docs/machines.md)."""
+    return doc_block("json5", name)
 
 
 @pytest.mark.parametrize("name", CONFIG_NAMES)

@@ -1,6 +1,6 @@
 """Saved maps end to end: ``zenslam run --save-map``, then runs that start from the map (localisation mode and
-mapping on), and the runs a map refuses at start-up. The first two runs are the README's commands
-(on fewer frames), and the README's snippet reads the map."""
+mapping on), and the runs a map refuses at start-up. The first two runs are the guide's commands
+(on fewer frames), and its snippet (docs/maps.md) reads the map."""
 
 from __future__ import annotations
 
@@ -27,11 +27,11 @@ REPO_ROOT = Path(__file__).resolve().parents[2]
 
 
 def _readme_maps() -> tuple[list[list[str]], str]:
-    """The README's saved-map commands (each a ``zenslam run`` argument list) and its Python snippet."""
-    text = (REPO_ROOT / "README.md").read_text()
-    commands = re.search(r"<!-- readme-command: maps -->\s*```sh\n(.+?)\n```", text, re.S)
+    """The guide's saved-map commands (each a ``zenslam run`` argument list) and its Python snippet (docs/maps.md)."""
+    text = (REPO_ROOT / "docs" / "maps.md").read_text()
+    commands = re.search(r"<!-- docs-command: maps -->\s*```sh\n(.+?)\n```", text, re.S)
     snippet = re.search(r"To read one\nelsewhere:\n\n```python\n(.+?)\n```", text, re.S)
-    assert commands and snippet, "the README lost its saved-map commands or snippet"
+    assert commands and snippet, "docs/maps.md lost its saved-map commands or snippet"
     lines = [shlex.split(line) for line in commands.group(1).splitlines()]
     assert all(line[:2] == ["zenslam", "run"] for line in lines)
     return [line[2:] for line in lines], snippet.group(1)
@@ -84,12 +84,12 @@ def test_a_localisation_run_relocalises_at_once_and_adds_nothing(saved_map, monk
     assert f"keyframe_id_start: {header.next_keyframe_id}" in config
     names: dict = {}
     monkeypatch.chdir(tmp)
-    exec(compile(snippet, "README.md", "exec"), names)  # noqa: S102 - the README's own snippet, run where it says
+    exec(compile(snippet, "docs/maps.md", "exec"), names)  # noqa: S102 - the guide's own snippet, run where it says
     assert names["header"]["format"] == "zenslam-map" and names["poses"].shape == (header.counts["keyframes"], 4, 4)
     assert names["points"].shape == (header.counts["points"], 3)
 
 def test_the_readme_localisation_command_adds_no_keyframe(saved_map):
-    """The README's second command, on a few frames: the figure-eight starts where this short map of
+    """The guide's second command, on a few frames: the figure-eight starts where this short map of
     the loop's first 1.5 s does not reach (the full loop's map does, benchmarks/README.md), so it may
     stay lost; it never makes a keyframe."""
     tmp, _ = saved_map

@@ -136,7 +136,7 @@ def test_the_readme_example_is_a_valid_config():
 
     import yaml
 
-    readme = (Path(__file__).resolve().parents[3] / "README.md").read_text()
+    readme = (Path(__file__).resolve().parents[3] / "docs" / "sources.md").read_text()
     block = next(b for b in re.findall(r"```yaml\n(.+?)\n```", readme, re.S) if "faults:" in b)
     config = from_mapping(RunConfig, yaml.safe_load(block))
     assert [f.kind for f in config.source.faults] == ["black", "drop", "corrupt", "stamp_backwards", "stamp_repeat"]
