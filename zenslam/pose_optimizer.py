@@ -7,11 +7,9 @@ The camera pose ``T_cam_world`` maps world points into the camera frame (x right
 z forward). Observations are level-0 pixels ``(u, v)`` and, for stereo / RGB-D keypoints, the
 right-image coordinate ``u_right = u - bf / z``. This is ORB-SLAM2's ``Optimizer::PoseOptimization``
 (robust rounds, chi-square outlier classification, kernel dropped in the last round) solved by a
-vectorised Levenberg-Marquardt on SE(3) in numpy. Chosen by measurement (``benchmarks/pose_optimizer.py``):
-the same answers as gtsam factor graphs of the problem to 1e-9 m, 2-4 ms per call at 300-800
-observations against 40-120 ms (C++ factors, landmarks held by NonlinearEquality) and 120-220 ms
-(one CustomFactor per observation), because building and linearising per-observation factors from
-Python dominates a single 6-dof solve.
+vectorised Levenberg-Marquardt on SE(3) in numpy: the same answers as gtsam factor graphs of the
+problem, in a fraction of the time, because building and linearising per-observation factors from
+Python dominates a single 6-dof solve (``benchmarks/pose_optimizer.py``, benchmarks/frontend.md).
 """
 
 from __future__ import annotations
@@ -377,7 +375,7 @@ def _linearize(T: np.ndarray, problem: _Problem, robust: bool, min_depth_m: floa
     if problem.information is None:
         Jw = J * ((weight * problem.inv_sigma2)[:, None] * problem.row_mask)[:, :, None]
     else:
-        Jw = (problem.information * weight[:, None, None]) @ (J * problem.row_mask[:, :, None])  # matmul: 6x einsum's speed
+        Jw = (problem.information * weight[:, None, None]) @ (J * problem.row_mask[:, :, None])  # matmul: faster than einsum
     Jw = Jw.reshape(-1, 6)
     return cost, Jw.T @ J.reshape(-1, 6), Jw.T @ residual.reshape(-1)
 

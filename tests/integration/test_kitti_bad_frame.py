@@ -19,8 +19,8 @@ pytestmark = [pytest.mark.dataset, pytest.mark.integration]
 BAD_FRAME = 10
 CLIP_FRAMES = 51
 # Relative: skipping one frame of 51 must not change the accuracy by more than 15%. Any one frame
-# missing moves this clip's ATE by -6% to +22% (frames 5, 10, 20, 30 or 40 dropped; benchmarks/README,
-# "Late map updates"), the tracking's chaos rather than the skip's handling: frame 10 happens to
+# missing moves this clip's ATE by -6% to +22% (frames 5, 10, 20, 30 or 40 dropped;
+# benchmarks/late_map_updates.md), the tracking's chaos rather than the skip's handling: frame 10 happens to
 # be within 10% at the default settings, but any change to tracking or mapping draws again.
 ATE_TOLERANCE = 0.15
 # Rerun logging and the recorder are off: these runs are about the source, and they take long enough.

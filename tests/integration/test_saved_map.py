@@ -90,7 +90,7 @@ def test_a_localisation_run_relocalises_at_once_and_adds_nothing(saved_map, monk
 
 def test_the_readme_localisation_command_adds_no_keyframe(saved_map):
     """The guide's second command, on a few frames: the figure-eight starts where this short map of
-    the loop's first 1.5 s does not reach (the full loop's map does, benchmarks/README.md), so it may
+    the loop's first 1.5 s does not reach (the full loop's map does, benchmarks/saved_maps.md), so it may
     stay lost; it never makes a keyframe."""
     tmp, _ = saved_map
     (_, localise), _ = _readme_maps()

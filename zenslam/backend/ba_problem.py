@@ -23,18 +23,19 @@ class LocalBAConfig:
     # Levenberg-Marquardt on the whole window. schur_lm: each step solved on the reduced camera
     # system, the landmarks eliminated by their Schur complement in numpy (``schur_ba``); batch_lm:
     # gtsam's LevenbergMarquardtOptimizer on the window's factor graph (``local_ba``). The same
-    # problem, steps and stopping rules, so the same optimum; schur_lm takes about a third of the CPU
-    # time on local windows (0.27-0.31x on windows dumped from runs; benchmarks/README.md, "Local bundle adjustment").
+    # problem, steps and stopping rules, so the same optimum; schur_lm is the faster one on local
+    # windows (it skips gtsam's per-landmark factor machinery; benchmarks/local_ba.md).
     method: Literal["schur_lm", "batch_lm"] = "schur_lm"
     # batch_lm's gtsam settings:
     linear_solver: Literal["sequential_cholesky", "multifrontal_cholesky", "multifrontal_qr"] = "sequential_cholesky"
     # Elimination ordering: every landmark, then every pose (the Schur-complement order of BA
-    # solvers), or gtsam's COLAMD / METIS. COLAMD interleaves poses once windows reach ~15 keyframes.
+    # solvers), or gtsam's COLAMD / METIS. COLAMD interleaves poses in larger windows
+    # (benchmarks/local_ba.md).
     ordering: Literal["landmarks_first", "colamd", "metis"] = "landmarks_first"
     robust_iterations: int = 5  # first pass, Huber kernel on every observation (count)
     # Second pass, without outliers and without the kernel (count). ORB-SLAM runs 10; after the
     # robust pass one Levenberg-Marquardt step is what it takes: a second one mostly confirmed
-    # convergence, at the cost of a solve (benchmarks/README.md, "Local bundle adjustment").
+    # convergence, at the cost of a solve (benchmarks/local_ba.md).
     refine_iterations: int = 1
     two_passes: bool = True  # False: the robust pass only, then the final classification
     # Huber thresholds on whitened residual norms (sqrt of the 95% chi2 values, unitless).

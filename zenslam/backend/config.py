@@ -39,13 +39,11 @@ class BackendConfig:
     linger_s: float = 60.0  # seconds
     # Added to the backend process's nice value (0-19, POSIX niceness) in live runs: mapping yields
     # the CPU to tracking, which must keep up with its camera, as ORB-SLAM's tracking is its
-    # real-time thread. Scheduling only: the numerics are the same at any value. Live at 2x on two
-    # cores, 5 (with ``recorder.nice`` 19) kept every KITTI frame in 19 of 20 runs, against 9 of 15
-    # with 0 (with the cheaper triangulation since, 0 and 5 both kept every frame in 10 runs); 10 and
-    # 19 starve mapping (ATE up to 12 cm). Where frames wait for tracking (lockstep,
-    # pipelined) mapping keeps its priority: pipelined at 5, mapping fell behind, the keyframe
-    # throttle held keyframes back and 3 of 10 KITTI runs lost scale (ATE 4.1-6.1 cm); at 0, 20 of
-    # 20 within 3.5 cm (benchmarks/README.md, "Stage priorities").
+    # real-time thread. Scheduling only: the numerics are the same at any value. A small increment
+    # keeps live frames from being dropped without starving mapping, which a large one does. Where
+    # frames wait for tracking (lockstep, pipelined) mapping keeps its priority: a backend that
+    # yields there falls behind, the keyframe throttle holds keyframes back and the map loses scale
+    # (benchmarks/stage_priorities.md).
     nice: int = 5  # niceness increment
     # Append every keyframe mapped to backend.journal in the run folder, so that a backend restarted
     # after a crash rebuilds the same map (backend/journal.py); false: a restarted backend starts empty.
@@ -56,7 +54,7 @@ class BackendConfig:
     # local-mapping thread), and applies the correction before the frame after (a lag of one frame,
     # the same in every run). Stereo and RGB-D keyframes only: a monocular one is answered after its
     # BA (``BackendNode.answers_before_local_ba``). false: every answer waits for its local BA, and
-    # tracking with it. Measured in benchmarks/README.md, "Local mapping" (twenty-first session).
+    # tracking with it. Measured in benchmarks/local_mapping.md.
     answer_before_local_ba: bool = True
 
     def __post_init__(self) -> None:

@@ -12,8 +12,8 @@ live runs) is journaled where its result was applied, so the replay applies it a
 
 Why a journal of its own rather than the run's recording: run.mcap is written in compressed
 chunks that stay in the recorder's memory until full (megabytes of camera frames), the recorder may
-be off or on another machine, and the journal holds only what the backend needs (the keyframes are
-~6% of a default run's recording). Records are flushed to the operating system as they are written,
+be off or on another machine, and the journal holds only what the backend needs (the keyframes, a
+small part of a run's recording). Records are flushed to the operating system as they are written,
 so they survive the death of the process; a record cut short by a crash is ignored when read.
 
 Format (version 1): the 8 bytes ``ZSLAMJ1\\n``, then records of kind (1 byte), payload length

@@ -2,7 +2,7 @@
 
 This is ``local_ba.method: batch_lm``, the reference: the default, ``schur_lm`` (``schur_ba``),
 takes the same steps on the same problem and solves them on the reduced camera system in numpy,
-3-4x faster; global BA runs this one (see ``schur_ba`` for why).
+faster (benchmarks/local_ba.md); global BA runs this one (see ``schur_ba`` for why).
 
 The problem is ORB-SLAM's ``Optimizer::LocalBundleAdjustment``: the local keyframes' poses and
 the local map points are variables, the other keyframes that see those points are held fixed,
@@ -41,7 +41,7 @@ retried; any other failure ends the optimisation with the estimate so far and
 ``stats["failure"]`` set. Invalid input (mis-shaped arrays, ids that do not index, non-finite
 poses) is a bug upstream and raises ``ZenslamError`` when the ``BAProblem`` is built.
 
-Solver choice (the measurements are in benchmarks/README.md and ``benchmarks/local_ba.py``): batch
+Solver choice (the measurements are in benchmarks/local_ba.md and ``benchmarks/local_ba.py``): batch
 Levenberg-Marquardt over the window, rebuilt on every call, sequential Cholesky, landmarks
 eliminated before poses, 5 + 1 iterations as caps (ORB-SLAM: 5 + 10) with a 1e-3
 relative-decrease stop and a 1e-2 damping floor. Fixed iterations with gtsam's default damping,
@@ -299,8 +299,8 @@ def _landmarks_first(window: _Window, point_rows: np.ndarray, pose_rows: np.ndar
     """Landmarks (3x3 blocks, each touching a few poses: no fill-in), then free poses, then fixed ones.
 
     Fixed poses go last: their NonlinearEquality factor is a constrained (sigma 0) model, which
-    makes gtsam eliminate every factor joined with it by QR instead of Cholesky; measured 4x
-    slower when they came first.
+    makes gtsam eliminate every factor joined with it by QR instead of Cholesky, much slower when
+    they come first (benchmarks/local_ba.md).
     """
     ordering = gtsam.Ordering()
     for key in window.point_keys[point_rows].tolist():

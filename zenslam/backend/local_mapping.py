@@ -57,7 +57,7 @@ class BAWindowConfig:
     # culled around: ORB-SLAM's mapping thread likewise skips or aborts BA while keyframes come
     # faster than it maps, but by wall time; stamps keep lockstep deterministic. On a car at 10 Hz
     # (every KITTI frame a keyframe) 0.2 s saves much of the BA time at no loss of accuracy, while
-    # rooms, with slower keyframes, lose accuracy (benchmarks/README.md, local mapping).
+    # rooms, with slower keyframes, lose accuracy (benchmarks/local_mapping.md).
     min_interval_s: float = 0.0
     # Stereo/RGB-D observations deeper than this many baselines get their right-image u's sigma
     # multiplied by ``far_right_sigma_scale`` (a threshold of 0 = never): a disparity of a few

@@ -44,15 +44,15 @@ class LoopClosingConfig:
     pose_graph: PoseGraphConfig = field(default_factory=PoseGraphConfig)
     # The largest move of the current keyframe's position a loop may make in a stereo / RGB-D map, as
     # a fraction of the keyframes' path from the loop keyframe to it (unitless; None: no limit, as
-    # ORB-SLAM). Measured (benchmarks/README.md): true loops of the synthetic scenes need at most 0.5%,
-    # the wrong ones verification lets through ask 9.7% or more (corridor_aliased, RGB-D loop), and
-    # over 1,000 keyframes the pose graph alone accepts wrong loops at 7.3% of the path. A map that
-    # drifts more than 5% of its path (17 deg of heading over 500 m) loses its loops.
+    # ORB-SLAM). True loops ask for a correction of a small fraction of the path; the wrong ones
+    # verification lets through ask for far more, and over a long path the pose graph alone would
+    # accept them. A map that drifts more than the budget loses its loops
+    # (benchmarks/loop_closing.md).
     drift_budget: float | None = 0.05
     # The same for monocular (Sim(3)) maps, larger because scale drift makes true corrections larger.
     # Their pose graphs share the covisibility information
     # (``pose_graph.covisibility_information_monocular``), which lets true loops through and wrong
-    # ones too: this budget is what refuses those (measured in benchmarks/README.md).
+    # ones too: this budget is what refuses those (benchmarks/loop_closing.md).
     drift_budget_monocular: float | None = 0.10
     global_ba: GlobalBAConfig = field(default_factory=GlobalBAConfig)  # after each closed loop
     seed: int = 0  # seeds the verification's RANSAC (with the keyframe id, so each keyframe draws its own)

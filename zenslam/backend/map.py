@@ -188,7 +188,7 @@ class BackendMap:
     def point_rows(self, point_ids) -> np.ndarray:
         """Rows (int64) in ``point_store`` of ``point_ids`` (ints or an int array); MapError when one is unknown."""
         ids = point_ids.tolist() if isinstance(point_ids, np.ndarray) else point_ids
-        try:  # map() over C-level callables: no Python frame per point (~4,400 a KITTI keyframe)
+        try:  # map() over C-level callables: no Python frame per point (thousands a keyframe)
             return np.fromiter(map(_ROW, map(self.points.__getitem__, ids)), dtype=np.int64, count=len(ids))
         except KeyError as missing:
             raise MapError(f"map point {missing.args[0]} is not in the backend map") from None

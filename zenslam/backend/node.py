@@ -155,8 +155,7 @@ class BackendNode:
         """Whether ``keyframe`` is answered before its local BA (``begin`` then ``finish``): with
         ``answer_before_local_ba``, a stereo or RGB-D one. A monocular keyframe is answered after its
         BA: beside a busy local mapping ORB-SLAM's monocular tracking makes no keyframe, and a
-        monocular map starved of keyframes goes wrong (the KITTI 06 clip: 26 keyframes instead of
-        51, Sim(3) ATE 12.7 cm instead of 3.8; benchmarks/README.md, "Local mapping")."""
+        monocular map starved of keyframes goes wrong (benchmarks/local_mapping.md)."""
         return self.answer_before_local_ba and keyframe.sensor != "mono"
 
     def begin(self, keyframe: codec.KeyframeMessage, queued: int = 0) -> StepOutput:
@@ -282,9 +281,8 @@ class BackendNode:
 
         ORB-SLAM's maps get a global BA only after a closed loop. A map saved for localisation is
         all that later runs will track against, and local BA alone leaves far points where few
-        windows could move them: on the synthetic loop with seed 1, which closes no loop, one global
-        BA of 12 s took its points from 11.7-13.2 cm median error per keyframe to 3.6-5.8 cm
-        (benchmarks/README.md, "Saved maps and localisation")."""
+        windows could move them; a global BA over the whole map moves them where every keyframe
+        that sees them agrees (benchmarks/saved_maps.md)."""
         kf_id, stamp_ns = self._newest
         if kf_id < 0 or self.global_ba is None or not self.global_ba.run_in_place():
             return None  # kf_id < 0: no keyframe mapped in this run, the map is the one it loaded

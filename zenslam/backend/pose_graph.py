@@ -30,12 +30,12 @@ graph it can collapse the scale. So when every new loop edge ends with a weight 
 ``reject_below_weight`` the loop is rejected and the result is the poses before correction, which
 are the optimum of the graph without it (every other edge was measured on them), reported in
 ``stats["loop_rejected"]``. GNC (gtsam.GncLMOptimizer, TLS, non-loop edges known inliers) under
-the same rule sorts the same loops the same way on the benchmark's graphs, at 3-15x the time
-(over the 150 ms budget at 500 keyframes) and, without the rule, leaves a distorted graph where
-it rejects; it stays available as ``robust="gnc"``. What separates a wrong loop from drift is the
+the same rule sorts the same loops the same way on the benchmark's graphs, at several times the
+time, and, without the rule, leaves a distorted graph where it rejects; it stays available as
+``robust="gnc"``. What separates a wrong loop from drift is the
 edge noise: a loop whose error the chain can absorb within a few sigma per edge is accepted,
 right or wrong, so the sigmas are the drift a correct loop may show, and verification before
-this step must stop wrong loops within that envelope. Figures: benchmarks/README.md
+this step must stop wrong loops within that envelope. Figures: benchmarks/loop_geometry.md
 (benchmarks/loop_geometry.py).
 """
 

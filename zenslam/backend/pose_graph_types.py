@@ -47,7 +47,7 @@ class PoseGraphConfig:
     # they weigh what the spanning tree and loop edges weigh. "full": every edge at the sigmas above.
     # Stereo / RGB-D (SE(3) graphs): "full". The stiff chain costs some true loops, but it is also what
     # stops a correction that verification got centimetres wrong, which with metric depth does more
-    # harm than a loop left open (benchmarks/README.md, "Loop closing end to end").
+    # harm than a loop left open (benchmarks/loop_closing.md).
     covisibility_information: Literal["full", "shared"] = "full"
     # Monocular (Sim(3) graphs): "shared". Their true loops carry scale drift besides, which a stiff
     # chain cannot take, so it rejects nearly every one; the wrong loops sharing lets through are

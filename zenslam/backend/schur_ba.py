@@ -8,7 +8,7 @@ scaled right u, RGB-D's correlated virtual right u), Huber on the whitened resid
 two passes, stopping rules, damping floor, chi2 classification and points held or removed. What
 differs is how each Levenberg-Marquardt step is solved. gtsam eliminates the landmarks one at a
 time through its generic factor machinery (a HessianFactor assembled, factored and combined per
-landmark: ~13 us each, about two thirds of a KITTI window's time, benchmarks/README.md). BA
+landmark: the largest part of a window's time, benchmarks/local_ba.md). BA
 solvers (g2o's block solver, which ORB-SLAM uses; Ceres' SPARSE_SCHUR) instead exploit that a
 landmark's 3x3 block touches only the poses that see it: every landmark block is factored at once
 (Cholesky), the reduced camera system (6 x free poses, square) is assembled as one product and
@@ -356,7 +356,8 @@ def _linearize(problem: BAProblem, f: _Rows, s: _Structure, at: _Evaluation, rob
         [a2 * R_entries[3 * j] + c2 * R_entries[3 * j + 2] for j in range(3)],
     ]
     # B^T B and B^T e per row from those arrays: the sums numpy's stacked 3x3 matmul makes, in its
-    # order (the same bits), at a quarter of its time on ~5,000 rows (it loops matrix by matrix).
+    # order (the same bits), in a fraction of its time on a window's rows (it loops matrix by matrix;
+    # benchmarks/local_ba.md).
     n_rows = len(rows)
     BtB = np.empty((n_rows, 3, 3))
     for i in range(3):

@@ -10,8 +10,8 @@ cameras agree with the keypoints' pyramid levels.
 As ORB-SLAM does, only keypoints under the same vocabulary node (of the feature vectors' level,
 ``PlaceRecognition.feature_nodes``) are compared; without a vocabulary every pair inside the
 epipolar band is. The assignment is one-to-one, greedy by increasing descriptor distance (ties by
-keypoint index). On the KITTI clip the nodes leave ~1% of the pairs to test, and triangulation
-took 6.9-7.4 ms of CPU per keyframe instead of 10.5-10.9 (benchmarks/README.md, "Local mapping").
+keypoint index). The nodes leave a small share of the pairs to test, which makes triangulation
+cheaper than testing every pair in the band (benchmarks/local_mapping.md).
 """
 
 from __future__ import annotations

@@ -3,8 +3,8 @@
 Delivery is chosen per topic where each publisher or subscription is declared:
 - ``lossless`` (keyframes, poses, states, end-of-stream, lockstep frames): RELIABLE with
   CongestionControl.BLOCK on the publisher, and a bounded zenoh FifoChannel on the subscriber, so a
-  slow consumer slows the producer down instead of losing messages (zenoh's defaults silently
-  dropped 74% of 60 KB messages to a slow subscriber).
+  slow consumer slows the producer down instead of losing messages (with zenoh's defaults a slow
+  subscriber silently loses most large messages; benchmarks/stage_processes.md).
 - ``live`` (camera frames in live mode): BEST_EFFORT with CongestionControl.DROP on the publisher
   and a RingChannel on the subscriber that keeps the newest frames and drops the oldest, as a
   robot's tracker must keep up with the camera rather than fall behind it.

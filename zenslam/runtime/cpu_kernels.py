@@ -6,8 +6,8 @@ differently in the last bits, and one differing bit is enough for a lockstep run
 not replay on another. The supervisor therefore starts every stage with the environment of
 ``with_pinned_kernels``, which makes each such library take a path that every x86-64 CPU able to
 run the installed wheels has. Each pin was checked by running the lockstep KITTI clip with that
-library's choice varied, and by probing the functions concerned (the figures are in the commit
-history):
+library's choice varied, and by probing the functions concerned (the figures are in
+benchmarks/stage_processes.md):
 
 - OpenBLAS (numpy's copy, and scipy's and OpenCV's): OPENBLAS_CORETYPE=Nehalem. OpenBLAS picks its
   BLAS/LAPACK kernels (SkylakeX, Haswell, Zen, ...) by CPU model, and numpy's matmul, dot and
@@ -23,8 +23,8 @@ history):
   leaving the SSE3 baseline its build requires. The ORB features of KITTI frames differ
   between its AVX2 path and the paths CPUs without AVX2 take (its AVX-512 path agreed with AVX2).
 - glibc's libm: GLIBC_TUNABLES glibc.cpu.hwcaps=-FMA,-FMA4. libm has FMA variants of exp, log, pow,
-  atan2, acos, tan, ... that it uses on CPUs with FMA and AVX2; about one result in a few
-  thousand differs in the last bit from the SSE2 variants that CPUs without FMA get. Python's
+  atan2, acos, tan, ... that it uses on CPUs with FMA and AVX2; now and then a result differs in
+  the last bit from the SSE2 variants that CPUs without FMA get. Python's
   math module, numpy's baseline float64 exp/log/power/arctan2/arccos (once its SIMD dispatch is
   pinned: the stages call these), OpenCV and GTSAM call them. The KITTI clip hit none of the
   differing results, but other inputs will; the pin costs next to nothing.

@@ -2,12 +2,12 @@
 and the versions of the libraries that compute them (metrics.json's ``run.environment``).
 
 Lockstep output has the same bits on any x86-64 CPU (``cpu_kernels``), but only for the same library
-versions, and the figures can move with them: up to 2026-11-28 the synthetic scenes were rendered
-through OpenCV's ``warpPerspective``, which OpenCV 5.0 rounds differently from 4.14 (1-3 grey levels
-on ~15% of the pixels), and that alone changed the synthetic loop's map enough that the
-figure-eight's first frame no longer relocalised into it (benchmarks/README.md, "Saved maps and
-localisation"); their texture sampling is now numpy's (``sources/synthetic/texture_sampling``), the
-same on every install. A figure read from a run folder still names the versions that made it.
+versions, and the figures can move with them: when the synthetic scenes were rendered through
+OpenCV's ``warpPerspective``, which OpenCV 5.0 rounds differently from 4.14, that alone changed the
+synthetic loop's map enough that the figure-eight's first frame no longer relocalised into it
+(benchmarks/saved_maps.md); their texture sampling is now numpy's
+(``sources/synthetic/texture_sampling``), the same on every install. A figure read from a run
+folder still names the versions that made it.
 """
 
 from __future__ import annotations

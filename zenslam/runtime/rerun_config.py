@@ -17,10 +17,10 @@ class RerunConfig:
     # frames; the frontend logs every n-th left image it tracks (keypoints and poses: every frame). Every
     # second image keeps the viewer's video smooth enough to follow and halves the images' share of frontend.rrd.
     image_every_n: int = 2
-    # JPEG-compressed images: a third of the CPU and of the file size of raw images.
+    # JPEG-compressed images: less CPU and smaller files than raw images (benchmarks/footprint.md).
     jpeg: bool = True
-    # JPEG quality 1-100 (jpeg true): 50 keeps the features under the keypoints visible at about half
-    # the file size of 90 (the run's recording keeps the lossless frames).
+    # JPEG quality 1-100 (jpeg true): 50 keeps the features under the keypoints visible in smaller
+    # files than higher qualities (benchmarks/footprint.md; the run's recording keeps the lossless frames).
     jpeg_quality: int = 50
     # The backend's whole map (backend/map_points, backend/covisibility) at most this far apart in
     # sensor time, and the final map; each holds every point and edge, so logging one per keyframe

@@ -81,15 +81,15 @@ def stage_environment(env: Mapping[str, str]) -> dict[str, str]:
     already sets keep their values, except the pinned math kernels). They must be in place before
     numpy loads, hence the environment, and hold for a stage started by hand (``zenslam stage``) too."""
     stage_env = dict(env)
-    # Stages run their own threads where it pays (ORB on left/right); library thread pools on a
-    # 2-core machine stalled small BLAS products for 10-60 ms under load, and single-threaded
-    # numerics keep lockstep runs deterministic.
+    # Stages run their own threads where it pays (ORB on left/right); library thread pools stall
+    # small BLAS products on a loaded machine with few cores (benchmarks/stage_processes.md), and
+    # single-threaded numerics keep lockstep runs deterministic.
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         stage_env.setdefault(var, "1")
     # glibc serves blocks above 128 KiB (a 1 MB camera frame, a BA window's arrays) with fresh
-    # mmaps that it unmaps on free, so every frame faults its pages in again. Keeping them in
-    # the heap cut the stages' system CPU on the KITTI clip (lockstep) from 1.41 s to 0.64 s,
-    # for at most trim_threshold of memory held per process.
+    # mmaps that it unmaps on free, so every frame would fault its pages in again. Keeping them in
+    # the heap saves that system CPU (benchmarks/stage_processes.md), for at most trim_threshold
+    # of memory held per process.
     stage_env.setdefault("GLIBC_TUNABLES", MALLOC_TUNABLES)
     return cpu_kernels.with_pinned_kernels(stage_env)  # same bits on any x86-64 CPU: see cpu_kernels
 

@@ -3,7 +3,7 @@
 The hub keeps every frame's state and pose until the run's outputs are written, so a long run's
 hub grows with its frames. As Python objects (a state dataclass, two 4x4 arrays, two dict
 entries) a frame costs a few times its numbers' bytes; as columns it costs little more than
-them, with no per-frame object for the garbage collector to walk (benchmarks/README.md, "Soak").
+them, with no per-frame object for the garbage collector to walk (benchmarks/soak.md).
 
 A state arriving again for a frame it already has (a restarted stage repeats its newest one)
 replaces it, as does a pose for a stamp already posed: the newest word wins.

@@ -17,16 +17,16 @@ class RecorderConfig:
     """The recorder process (the ``recorder`` section): every bus message to ``<run>/run.mcap``."""
 
     enabled: bool = True  # start the recorder with ``zenslam run``
-    # How sensor/frame's images are stored; lossless either way. PNG: on the synthetic scene 1.8x
-    # smaller than raw for about 6 ms of CPU per 640x480 image (KITTI 1.7x, EuRoC 2.0x); raw: no CPU.
+    # How sensor/frame's images are stored; lossless either way. PNG: about half the bytes of raw for
+    # some CPU per image (benchmarks/footprint.md); raw: no CPU.
     frame_images: Literal["png", "raw"] = "png"
     # The /camera/* Foxglove images drawn by viewers; sensor/frame is always recorded losslessly.
     # frame: they are the frames' own PNG images, stored once (sensor/frame refers to them; needs
-    # frame_images png). png or jpeg: separate copies beside the frames' images; JPEG costs on the
-    # KITTI clip's 102 images 0.09 s CPU and 12 MB against PNG's 0.71 s and 27 MB.
+    # frame_images png). png or jpeg: separate copies beside the frames' images; JPEG costs less CPU
+    # and fewer bytes than PNG (benchmarks/footprint.md).
     image_format: Literal["frame", "png", "jpeg"] = "frame"
     jpeg_quality: int = 75  # JPEG quality 1-100 (image_format jpeg); as rerun.jpeg_quality, a viewer's image
-    png_compression: int = 1  # zlib level 0-9 of every PNG (frame_images, image_format png); 1 is fast, higher levels gain ~1%
+    png_compression: int = 1  # zlib level 0-9 of every PNG (frame_images, image_format png); 1 is fast, higher levels gain little (benchmarks/footprint.md)
     # /map/points clouds (the whole map each) at most this far apart in sensor time; the final map is
     # always written. 0: one after every keyframe and map update.
     map_points_period_s: float = 1.0  # seconds
@@ -35,18 +35,18 @@ class RecorderConfig:
     # frames (PNG). Chunks that span several map updates let zstd find what consecutive updates repeat.
     chunk_size: int = 2 * 1024 * 1024  # bytes
     # MCAP chunk compression: zstd, lz4 or none. The images are PNG already, which neither shrinks;
-    # on map updates zstd stores about 30% less than lz4, for about the same CPU.
+    # on map updates zstd stores less than lz4, for about the same CPU (benchmarks/footprint.md).
     chunk_compression: ChunkCompression = "zstd"
     # Messages waiting for the writer thread; when full, publishers block (lossless: nothing is dropped).
     queue: int = 64  # messages
     quiet_s: float = 0.3  # seconds without a message that count as drained, at the end
     # Added to the recorder process's nice value (0-19, POSIX niceness) in pipelined and live runs:
-    # recording (decoding every message, PNG-encoding every image: a fifth of a live
-    # KITTI run's CPU) yields the CPU to tracking, which must keep up with its camera, and catches up
+    # recording (decoding every message, PNG-encoding every image: a large share of a live run's
+    # CPU) yields the CPU to tracking, which must keep up with its camera, and catches up
     # from its queue while tracking waits; a recorder ``queue`` messages behind blocks the publishers,
     # so nothing is left out. What it holds unwritten (the open chunk, and that backlog) is what a
     # crash of the recorder loses: in lockstep it keeps its priority and pace, and loses one chunk
-    # at most (benchmarks/README.md, "Stage priorities"). Scheduling only: the recording is the same.
+    # at most (benchmarks/stage_priorities.md). Scheduling only: the recording is the same.
     nice: int = 19  # niceness increment
 
     def __post_init__(self) -> None:

@@ -22,7 +22,8 @@ that arrived: those passed over are counted in the ``dropped`` field of every so
 messages that could not be used in its ``skipped`` map (reasons ``malformed``, ``oversized``, ...).
 
 The source writes no rerun recording: the frontend logs the images it tracks, under its keypoints.
-Without the rerun SDK (and the pyarrow it loads) the source process holds about 70 MB less.
+Without the rerun SDK (and the pyarrow it loads) the source process holds less memory
+(benchmarks/footprint.md).
 """
 
 from __future__ import annotations

@@ -22,7 +22,7 @@ def png_bytes(image: np.ndarray, compression: int = 1) -> bytes:
     them about as well as the default strategy, and faster. Every row takes PNG's Sub filter (each
     pixel less its left neighbour) rather than libpng's choice per row among all five, which tries
     each: much less CPU for slightly larger images, the trade a recorder of every frame wants
-    (benchmarks/README.md, "Footprint of a run", has the figures). An OpenCV without
+    (benchmarks/footprint.md has the figures). An OpenCV without
     ``IMWRITE_PNG_FILTER`` chooses per row.
     """
     params = [cv2.IMWRITE_PNG_COMPRESSION, compression, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_RLE]

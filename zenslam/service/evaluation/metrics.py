@@ -20,9 +20,9 @@ import numpy as np
 from zenslam.errors import TrajectoryError
 from zenslam.trajectory import Trajectory
 
-# evo is imported where it is used: with pandas, scipy and matplotlib behind it, it adds ~100 MB to a
-# process, and the run's hub, which imports this module to build its command line, needs it only
-# once its stages have exited.
+# evo is imported where it is used: with pandas, scipy and matplotlib behind it, it is the largest
+# import of a process (benchmarks/footprint.md), and the run's hub, which imports this module to
+# build its command line, needs it only once its stages have exited.
 if TYPE_CHECKING:
     from evo.core.trajectory import PoseTrajectory3D
 

@@ -8,8 +8,8 @@ many of them run in process with the machine's own kernels, so it must not chang
 Every step here is an IEEE-754 elementwise operation that numpy rounds exactly (+, -, *, /, floor,
 rint), so a pixel is the exact bilinear interpolation at its projected centre, rounded half to even.
 The homography itself comes from 3x3 products and an inverse (the renderer's); the frames came out
-the same under every OpenBLAS core type and numpy dispatch tried (benchmarks/README.md, "Synthetic
-scenes"), and the stages pin those kernels anyway (``runtime.cpu_kernels``).
+the same under every OpenBLAS core type and numpy dispatch tried (benchmarks/synthetic_scenes.md),
+and the stages pin those kernels anyway (``runtime.cpu_kernels``).
 """
 
 from __future__ import annotations
