@@ -36,7 +36,7 @@ class FrontendConfig:
     # local-mapping thread; where each update is applied is still fixed by the frame count, not
     # by time, so the run stays deterministic. Local mapping counts as busy meanwhile, so fewer
     # keyframes are made: faster, and less accurate where the map's accuracy comes from its
-    # keyframes (README, Configuration). Frames that may ask the backend for relocalisation
+    # keyframes (docs/configuration.md). Frames that may ask the backend for relocalisation
     # candidates (tracking lost, a run entering or localising in a saved map) wait for every update.
     lockstep_lag_frames: int = 1
     # The bag-of-words vocabulary a lost frame is relocalised with: a file (zenslam's format or DBoW2's

@@ -1,9 +1,9 @@
 """Vectorised id -> row lookup: the rows of many point ids at once, without a Python loop.
 
 The frontend's map stores points in rows and receives ids (in keyframes it made and in the
-backend's map updates). A dict looked ids up one Python call at a time, ~0.3 us each: a map update
-naming ~18,000 ids cost ~6 ms in lookups alone. Here the ids are kept sorted with their rows, each
-batch of new ids is merged in (O(n) copying), and a lookup is one ``np.searchsorted``.
+backend's map updates), thousands at a time. A dict looks ids up one Python call at a time; here the
+ids are kept sorted with their rows, each batch of new ids is merged in (O(n) copying), and a lookup
+is one ``np.searchsorted`` (benchmarks/frontend.md).
 """
 
 from __future__ import annotations

@@ -26,8 +26,8 @@ class KeyframeDecisionConfig:
     # keyframes; while local mapping is busy, stereo/RGB-D still insert a due keyframe only while
     # fewer than this many wait in its queue; mono never does. ORB-SLAM's 3: where mapping falls
     # behind tracking, fewer held back keyframes leave tracking on fewer and older points, which
-    # costs more (lost frames, runs several times less accurate) than the local BAs deferred for
-    # the queued ones (benchmarks/README, frames from the bus).
+    # costs more (lost frames, less accurate runs) than the local BAs deferred for the queued
+    # ones (benchmarks/frames_from_bus.md).
     max_queued_keyframes: int = 3
 
 

@@ -273,8 +273,8 @@ class FrontendNode:
         return self.keyframes - self.answers_applied + int(self.local_ba_running)
 
     def log_last_frame(self) -> None:
-        """Log the last handled frame to rerun: called after its messages are sent, so the ~1 ms of
-        logging does not delay the pose, and before a map update changes the tracker's last frame."""
+        """Log the last handled frame to rerun: called after its messages are sent, so logging does
+        not delay the pose, and before a map update changes the tracker's last frame."""
         if self._unlogged is not None:
             self._log_to_rerun(*self._unlogged)
             self._unlogged = None

@@ -59,7 +59,7 @@ class FrontendPipeline:
     With a ``vocabulary``, a lost frame is relocalised against the candidates of the source ``step``
     is given. A monocular camera's frames are extracted with ``monocular.features_factor`` times the
     keypoints while the tracker looks for its two initial frames (ORB-SLAM3 takes 5 times; see
-    benchmarks/README.md for 8), so that enough finest-level keypoints match between frames far
+    benchmarks/monocular.md for 8), so that enough finest-level keypoints match between frames far
     enough apart.
     """
 

@@ -11,7 +11,7 @@ the distance); seen from elsewhere, that error is sideways and moves the point i
 Localisation mode weighs each map point by it (``pose_optimizer.optimize_pose``'s
 ``point_covariance``): the saved map's points are final, and a frame that sees them from another
 side than the keyframes that made them would otherwise take their depth errors as exact
-(benchmarks/README.md, "Saved maps and localisation").
+(benchmarks/saved_maps.md).
 """
 
 from __future__ import annotations

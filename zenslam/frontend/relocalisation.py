@@ -66,15 +66,14 @@ class RelocalisationConfig:
     # centre's largest standard deviation (``pose_optimizer.position_sigma``: pixel noise only, the
     # rotation marginalised) over the inliers' median depth. Views of far points on one surface
     # trade sideways motion for rotation, and there a 50-inlier pose can be metres off
-    # (benchmarks/README.md, "Saved maps and localisation"). None: no such check.
+    # (benchmarks/saved_maps.md). None: no such check.
     max_position_sigma_ratio: float | None = None
     # Not ORB-SLAM's either, which takes any relocalisation: in localisation mode, a frame on visual
     # odometry relocalises only near its odometry pose, within vo_agreement_m + vo_agreement_per_m x
     # the path travelled on odometry since the map was last tracked, and within vo_agreement_deg +
     # vo_agreement_deg_per_m x that path. Depth errors of far or grazing points that several
     # keyframes share can put a 50-100-inlier relocalisation metres off, where stereo or RGB-D
-    # odometry drifts by a few percent of its path (benchmarks/README.md, "Saved maps and
-    # localisation"). A frame that lost its odometry too relocalises anywhere. None: no such check.
+    # odometry drifts by a few percent of its path (benchmarks/saved_maps.md). A frame that lost its odometry too relocalises anywhere. None: no such check.
     vo_agreement_m: float | None = 0.3  # metres
     vo_agreement_per_m: float = 0.1  # metres per metre travelled on odometry
     vo_agreement_deg: float = 10.0  # degrees

@@ -62,8 +62,8 @@ class TrackingConfig:
     # bounded at this standard deviation (metres), so a far point's depth error, seen from the side,
     # does not move the pose as if it were exact. None: every point exact, as ORB-SLAM. An RGB-D or
     # monocular camera keeps its points exact: a depth sensor's depths are far better than the
-    # pixel model of the virtual right image says, and there the weighing measured worse
-    # (benchmarks/README.md, "Saved maps and localisation"); monocular is not measured.
+    # pixel model of the virtual right image says, and there the weighing made localisation
+    # worse (benchmarks/saved_maps.md); monocular is not measured.
     localization_point_max_sigma_m: float | None = 10.0
     visual_odometry: VisualOdometryConfig = field(default_factory=VisualOdometryConfig)
     monocular: MonocularInitialisationConfig = field(default_factory=MonocularInitialisationConfig)

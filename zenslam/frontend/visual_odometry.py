@@ -59,7 +59,7 @@ class VisualOdometryConfig:
     max_points: int = 100  # VO points made beyond the close-depth threshold, nearest first
     # Localisation mode: a frame tracked in the map is optimised once more with its VO matches added
     # when it has fewer inlier map matches than this (None: always, as ORB-SLAM2; 0: never; the
-    # measurements are in benchmarks/README.md, "Saved maps and localisation").
+    # measurements are in benchmarks/saved_maps.md).
     joint_below_map_inliers: int | None = None
     # Localisation mode: a frame on visual odometry is matched to the VO points of an anchor frame
     # (the first frame on VO, then each frame that re-anchors) rather than of the last frame, so the
@@ -73,8 +73,7 @@ class VisualOdometryConfig:
     # frame's pose uncertain too (frontend/pose_filter.py); with a stereo camera whose map points
     # are weighed by their covariances (``tracking.localization_point_max_sigma_m``), else as
     # "exact_points": optimised again with the VO points taken as exact in the world (ORB-SLAM2),
-    # which holds each frame to the last one's pose as if that were exact (benchmarks/README.md,
-    # "Saved maps and localisation").
+    # which holds each frame to the last one's pose as if that were exact (benchmarks/saved_maps.md).
     fusion: Literal["filter", "exact_points"] = "filter"
     # The filter's innovation test: a pose from the map further from the odometry's prediction than
     # this squared Mahalanobis distance (unitless, 6 dof; 22.46 is chi2's 99.9%) replaces it
@@ -83,9 +82,8 @@ class VisualOdometryConfig:
     # The filter's weight on the map: the information of a pose from the map (pixel noise and the
     # points' covariances) is multiplied by this (unitless, 1: as computed). The map's points share
     # their errors (the same keyframes placed them), which the covariances, taken independent, leave
-    # out: on the figure-eight in the loop's map the map poses' errors exceed the standard
-    # deviations their information gives (1.2-1.6x), and 0.25 measured better than 1 on four seeds
-    # (benchmarks/README.md, "Saved maps and localisation").
+    # out, so the map poses' errors exceed the standard deviations their information gives, and a
+    # weight below 1 trusts the map as much as its errors warrant (benchmarks/saved_maps.md).
     filter_map_information_scale: float = 0.25
 
     def __post_init__(self) -> None:

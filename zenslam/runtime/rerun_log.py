@@ -9,8 +9,8 @@ index) and ``sensor_time`` (the frame's stamp); rerun's automatic wall-clock ``l
 runs log the same data (the timing entities aside, which hold measured milliseconds).
 
 The source and the recorder log nothing to rerun: the frontend logs the images it tracks (under its
-keypoints), and the rerun SDK with the pyarrow it loads costs each process that imports it about
-70 MB. The recorder's run.mcap holds every bus message, for Foxglove or a replay.
+keypoints), and the rerun SDK with the pyarrow it loads costs each process that imports it memory
+of its own (benchmarks/footprint.md). The recorder's run.mcap holds every bus message, for Foxglove or a replay.
 
 Entity paths mirror the packages (the frontend's are listed in ``zenslam.frontend.rerun_log``)::
 
@@ -50,8 +50,8 @@ RRD_SUFFIX = ".rrd"
 _EPOCH_STAMP_MIN_NS = 946_684_800 * 1_000_000_000
 # Logged rows are gathered into chunks (one per entity) until this much time or data has piled up.
 # rerun's default (200 ms) suits a live viewer; saved to a file it makes a chunk of one row for most
-# of a stage's per-frame entities, each with its own schema, so that the file's size depended on
-# the machine's speed and was up to half overhead. A stage killed with SIGKILL loses what is pending.
+# of a stage's per-frame entities, each with its own schema, so that the file's size would depend
+# on the machine's speed and much of it be overhead (benchmarks/footprint.md). A stage killed with SIGKILL loses what is pending.
 _FLUSH_TICK_S = 5.0  # seconds
 _FLUSH_BYTES = 4 * 1024 * 1024  # bytes
 
@@ -116,7 +116,7 @@ def _pandas_hidden() -> Iterator[None]:
 
     pyarrow imports pandas (when installed, as evo needs it) the first time it builds an array from
     a Python list, only to check for pandas types; rerun does that on its first log call. That
-    import costs a stage process about 27 MB. pyarrow looks once per process, so after the first
+    import costs a stage process memory for nothing (benchmarks/footprint.md). pyarrow looks once per process, so after the first
     log call pandas can be importable again (and its explicit conversions still import it).
     """
     if "pandas" in sys.modules:

@@ -162,7 +162,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--save-map", type=Path, default=None, metavar="FILE",
-        help="write the backend's map to FILE at the end of the run (backend.save_map; format: zenslam-map, see the README)",
+        help="write the backend's map to FILE at the end of the run (backend.save_map; format: zenslam-map, see docs/maps.md)",
     )
     parser.add_argument(
         "--map", type=Path, default=None, metavar="FILE",
