@@ -92,15 +92,18 @@ def test_euroc_micro_monocular_never_starts_a_map(euroc_micro: Path) -> None:
 
 @pytest.mark.extended
 @pytest.mark.slow(25)
-@pytest.mark.parametrize(("scene", "sensor"), [("loop", "stereo"), ("figure_eight", "rgbd")])
-def test_the_backend_beats_the_frontend_alone_on_synthetic_scenes(scene: str, sensor: str) -> None:
+# The most ATE the backend may keep of the frontend's alone. The figure-eight's RGB-D depths are
+# near exact, so the frontend alone (no local BA, and no point culling: the backend owns that) is
+# already close; the loop's stereo depths leave the backend more to gain.
+@pytest.mark.parametrize(("scene", "sensor", "max_ratio"), [("loop", "stereo", 0.6), ("figure_eight", "rgbd", 0.95)])
+def test_the_backend_beats_the_frontend_alone_on_synthetic_scenes(scene: str, sensor: str, max_ratio: float) -> None:
     from zenslam.service.sources.synthetic import SyntheticSource, scene_config
 
     source = SyntheticSource(scene_config(scene, sensor=sensor))
     frontend_m, _, _ = run_lockstep(source, with_backend=False, max_frames=FRAMES)
     backend_m, states, _ = run_lockstep(source, with_backend=True, max_frames=FRAMES)
     assert states == ["ok"] * FRAMES
-    assert backend_m < 0.9 * frontend_m, f"ATE {backend_m * 100:.2f} cm with the backend, {frontend_m * 100:.2f} cm without"
+    assert backend_m < max_ratio * frontend_m, f"ATE {backend_m * 100:.2f} cm with the backend, {frontend_m * 100:.2f} cm without"
 
 
 FRAMES = 80  # the loop's first 8 s (10 Hz), the figure-eight's first 4 s (20 Hz)
