@@ -60,6 +60,7 @@ def _metrics(checkout: Path, run_id: str) -> dict:
     return json.loads((checkout / "recordings" / run_id / "metrics.json").read_text())
 
 
+@pytest.mark.extended  # runs zenslam: CI runs it after the README's command
 def test_sources_commands_run_in_order(tmp_path: Path):
     checkout = scratch_checkout(tmp_path)
     outputs = [run_line(line, checkout).stdout for line in command_lines("sources")]

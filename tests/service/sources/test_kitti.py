@@ -208,6 +208,7 @@ def test_image_0_alone_as_mono_still_checks_the_left_numbering(tmp_path: Path):
         KittiSource(seq, mono_allowed=True)
 
 
+@pytest.mark.extended  # a whole run: CI runs it after the README's command; the reader's own tests above cover the folder
 @pytest.mark.dataset
 @pytest.mark.integration
 def test_run_with_sensor_mono_on_a_clip_of_image_0_alone(kitti_root: Path, tmp_path: Path):
