@@ -3,7 +3,6 @@ bytes it arrived as (what the journal writes), and what waits in it behind the k
 
 from __future__ import annotations
 
-import zenoh
 
 from zenslam.runtime import bus
 from zenslam.schemas import codec, keys
@@ -11,7 +10,7 @@ from zenslam.schemas import codec, keys
 Received = tuple[bytes, codec.KeyframeMessage | codec.EndOfStream]  # the bytes as received, decoded
 
 
-def subscribe_keyframes(session: zenoh.Session, session_name: str, capacity: int) -> bus.Inbox[Received]:
+def subscribe_keyframes(session: bus.Session, session_name: str, capacity: int) -> bus.Inbox[Received]:
     """The frontend's keyframes and its end of stream, up to ``capacity`` messages waiting."""
     # Lossless and bounded: a full inbox blocks the frontend's send; no keyframe is ever dropped.
     return bus.subscribe(session, keys.frontend_keyframe(session_name), decode_keeping_bytes, "lossless", capacity)

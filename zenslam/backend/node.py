@@ -38,7 +38,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-import zenoh
 
 from zenslam.backend.config import BackendConfig
 from zenslam.backend.journal import JOURNAL_NAME, JournalWriter
@@ -348,7 +347,7 @@ class BackendNode:
 
 
 def serve(
-    session: zenoh.Session,
+    session: bus.Session,
     session_name: str,
     node: BackendNode,
     config: BackendConfig,

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import zenoh
 
 from zenslam.runtime import bus
 from zenslam.schemas import codec, keys
@@ -26,7 +25,7 @@ class StepOutput:
 class BackendOutputs:
     """The backend's publishers, all lossless: every update and status must arrive, in order."""
 
-    def __init__(self, session: zenoh.Session, session_name: str) -> None:
+    def __init__(self, session: bus.Session, session_name: str) -> None:
         self.update = bus.declare_publisher(session, keys.backend_map_update(session_name), codec.MAP_UPDATE, "lossless")
         self.status = bus.declare_publisher(session, keys.status(session_name, STAGE), codec.STAGE_STATUS, "lossless")
         self.loop = bus.declare_publisher(session, keys.backend_loop(session_name), codec.LOOP, "lossless")

@@ -11,7 +11,6 @@ import logging
 from collections.abc import Callable, Sequence
 from typing import Protocol
 
-import zenoh
 
 from zenslam.errors import ZenslamError
 from zenslam.runtime import bus
@@ -34,7 +33,7 @@ class MapAnswers(Protocol):
 class BackendQueryables:
     """backend/map, backend/trajectory and backend/relocalisation, declared through the bus wrapper."""
 
-    def __init__(self, session: zenoh.Session, session_name: str) -> None:
+    def __init__(self, session: bus.Session, session_name: str) -> None:
         self._map_key = keys.backend_map_query(session_name)
         self._trajectory_key = keys.backend_trajectory_query(session_name)
         self._relocalisation_key = keys.backend_relocalisation_query(session_name)

@@ -10,7 +10,6 @@ from collections import deque
 from collections.abc import Callable
 from typing import Protocol
 
-import zenoh
 
 from zenslam.frontend.config import FrontendConfig
 from zenslam.runtime import bus
@@ -41,7 +40,7 @@ class MapUpdateInbox:
     keyframes still waiting for their answer, sent again to a backend that comes back after a crash
     (it rebuilds its map from its journal; one it had taken already it refuses without an answer)."""
 
-    def __init__(self, session: zenoh.Session, session_name: str, config: FrontendConfig, resend: Callable[[bytes], None]):
+    def __init__(self, session: bus.Session, session_name: str, config: FrontendConfig, resend: Callable[[bytes], None]):
         # Answers to keyframes below this id are to keyframes of a frontend before this one (it
         # crashed): this one entered the map by relocalising and fetches what it needs of it.
         self.first_keyframe_id = config.tracking.local_map.keyframe_id_start

@@ -39,7 +39,6 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
-import zenoh
 
 from zenslam.camera import PinholeCalibration, SensorKind
 from zenslam.errors import CalibrationError, ZenslamError
@@ -300,7 +299,7 @@ class FrontendNode:
 class _Outputs:
     """The frontend's publishers: everything it sends is lossless (poses, states and keyframes must arrive)."""
 
-    def __init__(self, session: zenoh.Session, session_name: str):
+    def __init__(self, session: bus.Session, session_name: str):
         self.pose = bus.declare_publisher(session, keys.frontend_pose(session_name), codec.POSE_IN_FRAME, "lossless")
         self.state = bus.declare_publisher(session, keys.frontend_state(session_name), codec.TRACKING_STATE, "lossless")
         self.keyframe = bus.declare_publisher(session, keys.frontend_keyframe(session_name), codec.KEYFRAME, "lossless")
@@ -333,11 +332,11 @@ class RelocalisationQueries:
     """Asks the backend for relocalisation candidates on backend/relocalisation (the tracker's
     ``CandidateSource``); None, with a warning, when no answer comes within ``timeout_s`` seconds."""
 
-    def __init__(self, session: zenoh.Session, session_name: str, timeout_s: float) -> None:
+    def __init__(self, session: bus.Session, session_name: str, timeout_s: float) -> None:
         self._session = session
         self._key = keys.backend_relocalisation_query(session_name)
         self._timeout_s = timeout_s
-        self._encoding = zenoh.Encoding.APPLICATION_PROTOBUF.with_schema(codec.RELOCALISATION_QUERY)
+        self._encoding = bus.Encoding.APPLICATION_PROTOBUF.with_schema(codec.RELOCALISATION_QUERY)
         self.asked = 0  # queries sent
         self.unanswered = 0  # queries without an answer
 
@@ -357,7 +356,7 @@ class RelocalisationQueries:
 
 
 def serve(
-    session: zenoh.Session,
+    session: bus.Session,
     session_name: str,
     node: FrontendNode,
     mode: RunMode,
@@ -468,7 +467,7 @@ def default_pipeline_factory(frontend_config: Any, vocabulary: Any = None) -> Pi
     return make
 
 
-def continuing_config(session: zenoh.Session, session_name: str, config: FrontendConfig, timeout_s: float) -> tuple[FrontendConfig, int]:
+def continuing_config(session: bus.Session, session_name: str, config: FrontendConfig, timeout_s: float) -> tuple[FrontendConfig, int]:
     """A restarted frontend's configuration, and the keyframes the backend has processed: it enters
     the backend's map by relocalising, as a run from a saved map does, with keyframe and point ids
     past every id the backend knows (its backend/trajectory reply names them)."""

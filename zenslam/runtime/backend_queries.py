@@ -8,24 +8,23 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-import zenoh
 
 from zenslam.runtime import bus
 from zenslam.schemas import codec, keys
 
 
-def _query(session: zenoh.Session, key: str, decode: Callable[[bytes], object], timeout_s: float):
+def _query(session: bus.Session, key: str, decode: Callable[[bytes], object], timeout_s: float):
     for reply in bus.query(session, key, timeout_s):
         if reply.ok is not None:
             return decode(reply.ok.payload.to_bytes())
     return None
 
 
-def query_trajectory(session: zenoh.Session, session_name: str, timeout_s: float = 10.0) -> codec.KeyframeTrajectoryMessage | None:
+def query_trajectory(session: bus.Session, session_name: str, timeout_s: float = 10.0) -> codec.KeyframeTrajectoryMessage | None:
     """Ask the backend for its keyframe poses; None when no backend answers within ``timeout_s`` seconds."""
     return _query(session, keys.backend_trajectory_query(session_name), codec.decode_keyframe_trajectory, timeout_s)
 
 
-def query_map(session: zenoh.Session, session_name: str, timeout_s: float = 10.0) -> codec.MapSnapshotMessage | None:
+def query_map(session: bus.Session, session_name: str, timeout_s: float = 10.0) -> codec.MapSnapshotMessage | None:
     """Ask the backend for a snapshot of its map; None when no backend answers within ``timeout_s`` seconds."""
     return _query(session, keys.backend_map_query(session_name), codec.decode_map_snapshot, timeout_s)

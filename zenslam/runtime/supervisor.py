@@ -23,7 +23,6 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
-import zenoh
 
 from zenslam.errors import ConfigError, ProcessError
 from zenslam.runtime import bus, cpu_kernels
@@ -269,7 +268,7 @@ class Supervisor:
         return all(child.popen.poll() is None for child in self._children.values())
 
     def wait_until_alive(
-        self, session: zenoh.Session, names: list[str], timeout_s: float, keep_waiting: Callable[[], bool] = lambda: True
+        self, session: bus.Session, names: list[str], timeout_s: float, keep_waiting: Callable[[], bool] = lambda: True
     ) -> None:
         """Wait for the named children's liveliness tokens; raise if one dies or the time runs out.
 

@@ -20,10 +20,9 @@ import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
-import zenoh
-
 from zenslam.camera import PinholeCalibration
 from zenslam.errors import ConfigError
+from zenslam.runtime import bus
 from zenslam.schemas.sensor_data import SensorFrame
 from zenslam.service.ros2 import cdr, keys
 from zenslam.service.ros2.messages import encode_camera_info, encode_image
@@ -85,7 +84,7 @@ def _wait_for_subscribers(publishers: list[Ros2Publisher], timeout_s: float, sto
 
 
 def publish_frames_ros2(
-    session: zenoh.Session,
+    session: bus.Session,
     frames: Iterable[SensorFrame],
     calibration: PinholeCalibration,
     topic_prefix: str,

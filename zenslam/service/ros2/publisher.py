@@ -16,8 +16,8 @@ import logging
 import time
 
 import xxhash
-import zenoh
 
+from zenslam.runtime import bus
 from zenslam.service.ros2 import cdr, keys
 from zenslam.service.ros2.attachment import Attachment, encode_attachment
 
@@ -33,7 +33,7 @@ class Ros2Publisher:
     """Publishes CDR messages of one ROS 2 type on one topic; made by ``Ros2Node.publisher``."""
 
     def __init__(
-        self, session: zenoh.Session, node: keys.NodeIdentity, entity_id: int, topic: str, ros_type: str, qos: keys.Qos
+        self, session: bus.Session, node: keys.NodeIdentity, entity_id: int, topic: str, ros_type: str, qos: keys.Qos
     ):
         type_hash = cdr.type_hash(ros_type)
         self.topic = topic
@@ -43,12 +43,8 @@ class Ros2Publisher:
         self.gid = gid_of(self.token_key)
         reliable = qos.reliability == "reliable"
         # As rmw_zenoh: drop rather than block unless the QoS is reliable keep-all.
-        self._publisher = session.declare_publisher(
-            self.key,
-            reliability=zenoh.Reliability.RELIABLE if reliable else zenoh.Reliability.BEST_EFFORT,
-            congestion_control=zenoh.CongestionControl.BLOCK if qos.blocks else zenoh.CongestionControl.DROP,
-        )
-        self._token = session.liveliness().declare_token(self.token_key)
+        self._publisher = bus.declare_raw_publisher(session, self.key, reliable=reliable, block=qos.blocks)
+        self._token = bus.declare_token(session, self.token_key)
         self._sequence_number = 1
         self._closed = False
 
@@ -78,13 +74,13 @@ class Ros2Node:
     Use with ``with``; closing undeclares the publishers and the node's token (the session stays open).
     """
 
-    def __init__(self, session: zenoh.Session, name: str, domain_id: int = 0, namespace: str = keys.ROOT_NAMESPACE):
+    def __init__(self, session: bus.Session, name: str, domain_id: int = 0, namespace: str = keys.ROOT_NAMESPACE):
         self._session = session
         self.identity = keys.NodeIdentity(domain_id=domain_id, zid=str(session.zid()), node_id=0, name=name, namespace=namespace)
         self._next_entity_id = self.identity.node_id + 1
         self._publishers: list[Ros2Publisher] = []
         self.token_key = keys.node_token_key(self.identity)
-        self._token = session.liveliness().declare_token(self.token_key)
+        self._token = bus.declare_token(session, self.token_key)
         logger.info("ROS 2 node %s%s on domain %d (zenoh session %s)", namespace.rstrip("/") + "/", name, domain_id, self.identity.zid)
 
     def publisher(self, topic: str, ros_type: str, qos: keys.Qos = keys.Qos()) -> Ros2Publisher:
@@ -94,12 +90,12 @@ class Ros2Node:
         self._publishers.append(publisher)
         return publisher
 
-    def announce_subscription(self, topic: str, ros_type: str, qos: keys.Qos = keys.Qos()) -> zenoh.LivelinessToken:
+    def announce_subscription(self, topic: str, ros_type: str, qos: keys.Qos = keys.Qos()) -> bus.LivelinessToken:
         """Declare the liveliness token of a subscription of this node to ``topic`` (the zenoh subscriber
         itself is the caller's, on ``keys.topic_subscription_key``); undeclare it to leave the graph."""
         key = keys.subscription_token_key(self.identity, self._next_entity_id, topic, ros_type, cdr.type_hash(ros_type), qos)
         self._next_entity_id += 1
-        return self._session.liveliness().declare_token(key)
+        return bus.declare_token(self._session, key)
 
     def close(self) -> None:
         for publisher in self._publishers:
