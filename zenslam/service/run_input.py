@@ -57,7 +57,8 @@ def read_ground_truth(value: str) -> Trajectory:
     ground truth) or a trajectory file (TUM, EuRoC, or KITTI poses with stamps = frame index)."""
     kind = value.partition(":")[0]
     if kind in SOURCE_KINDS:
-        truth = open_source(value).ground_truth()
+        # KITTI's poses are the left camera's: read as mono, a sequence of image_0 alone gives them too.
+        truth = open_source(value, "mono" if kind == "kitti" else None).ground_truth()
         if truth is None:
             raise ConfigError(f"--ground-truth {value}: that source has no ground truth")
         return truth

@@ -187,6 +187,16 @@ def test_image_0_alone_plays_as_mono(tmp_path: Path):
     np.testing.assert_allclose(source.ground_truth().positions[2], [2.0, 0.0, 4.0])
 
 
+def test_image_0_alone_gives_its_ground_truth_to_a_run_of_another_source(tmp_path: Path):
+    """``--ground-truth kitti:<folder>`` (e.g. for frames published over zenoh) needs the poses only."""
+    from zenslam.service.run_input import read_ground_truth
+
+    seq = _left_images_only(make_kitti(tmp_path))
+    (seq / "calib.txt").write_text(f"{P0}\n")
+    np.testing.assert_allclose(read_ground_truth(f"kitti:{seq}").positions[2], [2.0, 0.0, 4.0])
+    np.testing.assert_allclose(read_ground_truth(f"kitti:{make_kitti(tmp_path / 'stereo')}").positions[2], [2.0, 0.0, 4.0])
+
+
 def test_stereo_sequence_played_mono_keeps_its_left_images(tmp_path: Path):
     source = open_source(f"kitti:{make_kitti(tmp_path)}", "mono")
     assert source.sensor == "mono" and source.calibration.baseline_m is None
