@@ -16,7 +16,6 @@ from zenslam.frontend.config import FrontendConfig
 from zenslam.frontend.keyframe_decision import KeyframeDecisionConfig
 from zenslam.frontend.pipeline import FrontendPipeline
 from zenslam.frontend.tracker import TrackingConfig
-from zenslam.pose_optimizer import PoseOptimizerConfig
 from zenslam.frontend.visual_odometry import LastFrameSearch, last_frame_points, optimise_with_odometry, track_last_frame
 from zenslam.geometry import invert_T, make_T, se3_exp, so3_exp, so3_log
 from zenslam.pose_optimizer import PoseOptimizerConfig

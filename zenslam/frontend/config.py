@@ -9,7 +9,7 @@ from zenslam.errors import ConfigError
 from zenslam.frontend.keyframe_decision import KeyframeDecisionConfig
 from zenslam.frontend.orb_extractor import OrbConfig
 from zenslam.frontend.stereo_matcher import StereoMatchConfig
-from zenslam.frontend.tracker import TrackingConfig
+from zenslam.frontend.tracking_config import TrackingConfig
 from zenslam.pose_optimizer import PoseOptimizerConfig
 
 # Where the frontend's config holds its copy of the run's ``map`` section (``MapRulesConfig``),

@@ -23,7 +23,7 @@ from zenslam.frontend.map_sync import MapSync
 from zenslam.frontend.orb_extractor import OrbExtractor
 from zenslam.frontend.relocalisation import BowTransform
 from zenslam.frontend.tracker import CandidateSource, Tracker
-from zenslam.frontend.tracking_state import TrackingOutput
+from zenslam.frontend.tracking_state import STAGE_TIMING_KEYS, TrackingOutput
 from zenslam.frontend.visual_odometry import OdometryPose
 from zenslam.geometry import invert_T
 from zenslam.schemas.map_update import MapUpdate
@@ -32,15 +32,7 @@ __all__ = ["TIMING_KEYS", "FrontendConfig", "FrontendPipeline", "PreparedFrame",
 
 logger = logging.getLogger(__name__)
 
-TIMING_KEYS = (
-    "extraction",
-    "stereo_matching",
-    "motion_model_tracking",
-    "local_map_tracking",
-    "pose_optimization",
-    "keyframe_decision",
-    "total",
-)
+TIMING_KEYS = ("extraction", "stereo_matching", *STAGE_TIMING_KEYS, "total")
 
 
 @dataclass(frozen=True)

@@ -73,7 +73,8 @@ class RelocalisationConfig:
     # the path travelled on odometry since the map was last tracked, and within vo_agreement_deg +
     # vo_agreement_deg_per_m x that path. Depth errors of far or grazing points that several
     # keyframes share can put a 50-100-inlier relocalisation metres off, where stereo or RGB-D
-    # odometry drifts by a few percent of its path (benchmarks/saved_maps.md). A frame that lost its odometry too relocalises anywhere. None: no such check.
+    # odometry drifts by a few percent of its path (benchmarks/saved_maps.md). A frame that lost its
+    # odometry too relocalises anywhere. None: no such check.
     vo_agreement_m: float | None = 0.3  # metres
     vo_agreement_per_m: float = 0.1  # metres per metre travelled on odometry
     vo_agreement_deg: float = 10.0  # degrees

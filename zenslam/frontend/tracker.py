@@ -68,11 +68,9 @@ class Tracker:
         camera_fps: float = 10.0,
         vocabulary: BowTransform | None = None,
     ) -> None:
-        self.calibration = calibration
-        self.sensor = sensor
         self.config = config = config or TrackingConfig()
-        self.pose_config = pose_config = pose_config or PoseOptimizerConfig()
-        self.keyframe_config = keyframe_config = keyframe_config or KeyframeDecisionConfig()
+        pose_config = pose_config or PoseOptimizerConfig()
+        keyframe_config = keyframe_config or KeyframeDecisionConfig()
         self.map = LocalMap(config.local_map)
         self.eviction = CacheEviction(self.map)
         self.state = state = TrackerState(camera_fps)

@@ -142,7 +142,7 @@ class TrackerState:
     n_reinitialisations: int = 0
     n_relocalisations: int = 0
     timers: StageTimers = field(default_factory=StageTimers)
-    odometry: OdometryState = field(default_factory=lambda: OdometryState())
+    odometry: OdometryState = field(default_factory=OdometryState)
 
     def frame_gap(self, frame: Frame) -> int:
         """Frames from the last tracked frame to ``frame`` (1 unless live mode skipped frames), by index
