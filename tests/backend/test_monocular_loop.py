@@ -4,7 +4,7 @@ mapped in lockstep in one process (``FrontendPipeline`` + ``BackendNode`` throug
 With the monocular defaults (covisibility information shared in Sim(3) pose graphs, a 10% drift
 budget) the true loop back to the start is accepted and corrects the keyframes to under a
 centimetre; with the stereo graphs' full information it is rejected at every verification and the
-keyframes stay ~3.4 cm off (benchmarks/loop_closing.md).
+keyframes stay centimetres off (benchmarks/loop_closing.md).
 """
 
 from __future__ import annotations

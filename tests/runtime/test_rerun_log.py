@@ -1,4 +1,4 @@
-"""The stage recordings: the file each stage writes, its timelines, and what the stage loggers put in it."""
+"""The stage recordings: the file each stage writes and its timelines (the stage loggers' own tests sit beside them)."""
 
 from __future__ import annotations
 
@@ -10,11 +10,6 @@ import numpy as np
 from zenslam.runtime import rerun_log
 from zenslam.runtime.rerun_log import RerunConfig, StageRecording, read_rrd, recording_ids
 
-
-
-def _frames(data: dict, entity: str, component: str) -> list[int | None]:
-    """The frame indices at which ``entity`` logged ``component``, ascending (None = static, first)."""
-    return sorted((k[2] for k in data if k[0] == entity and k[1] == component), key=lambda f: -1 if f is None else f)
 
 
 def _value(data: dict, entity: str, component: str, frame: int | None) -> list:

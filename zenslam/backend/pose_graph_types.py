@@ -41,7 +41,7 @@ class PoseGraphConfig:
     gnc_loss: Literal["tls", "gm"] = "tls"
     relative_error_tolerance: float = 1e-6  # LM stops when the error drops by less than this fraction
     # Covisibility edges are relative poses of the same map poses the spanning tree already links, not
-    # independent measurements: given each the full information (ORB-SLAM's identity), a room's 13
+    # independent measurements: given each the full information (ORB-SLAM's identity), the many
     # covisibility edges per keyframe make the chain so stiff that it rejects true loops of a few
     # centimetres. "shared": their sigmas times sqrt(covisibility edges / other edges), so together
     # they weigh what the spanning tree and loop edges weigh. "full": every edge at the sigmas above.

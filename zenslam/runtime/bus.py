@@ -157,7 +157,7 @@ def watch_tokens(session: zenoh.Session, key: str, on_sample: Callable[[zenoh.Sa
 
 def declare_queryable(session: zenoh.Session, key: str, capacity: int = 16) -> zenoh.Queryable:
     """A queryable on ``key`` whose queries wait (up to ``capacity``) in a FifoChannel until the owner's
-    worker answers them with ``reply``; the caller drops the unanswered ones and undeclares it."""
+    worker answers them with ``reply``; the caller closes it with ``close_queryable``."""
     return session.declare_queryable(key, zenoh.handlers.FifoChannel(capacity))
 
 
@@ -402,8 +402,8 @@ def parent_alive(parent_pid: int | None) -> bool:
     return parent_pid is None or os.getppid() == parent_pid
 
 
-# The zenoh types that modules above the bus name in their signatures, so that only this module
-# imports zenoh.
+# The zenoh types that modules above the bus name in their signatures, so that they need not import
+# zenoh (only service/ros2/session.py does besides, to build rmw_zenoh's own session config).
 Session = zenoh.Session
 Sample = zenoh.Sample
 Encoding = zenoh.Encoding

@@ -51,11 +51,10 @@ _EPOCH_STAMP_MIN_NS = 946_684_800 * 1_000_000_000
 # Logged rows are gathered into chunks (one per entity) until this much time or data has piled up.
 # rerun's default (200 ms) suits a live viewer; saved to a file it makes a chunk of one row for most
 # of a stage's per-frame entities, each with its own schema, so that the file's size would depend
-# on the machine's speed and much of it be overhead (benchmarks/footprint.md). A stage killed with SIGKILL loses what is pending.
+# on the machine's speed and much of it be overhead (benchmarks/footprint.md). A stage killed with
+# SIGKILL loses what is pending.
 _FLUSH_TICK_S = 5.0  # seconds
 _FLUSH_BYTES = 4 * 1024 * 1024  # bytes
-
-# Colours (RGB) the blueprint's views show; fixed so two recordings look alike.
 
 
 def rrd_path(run_dir: str | Path, stage: str) -> Path:
