@@ -395,3 +395,13 @@ def test_the_golden_recording_config_reads_through_the_upgrade(caplog):
     assert config.map == MapRulesConfig() and config.backend.local_mapping.map_rules == config.map
     assert "map.min_covisibility_weight" in caplog.text and "backend.point_culling" in caplog.text
     assert golden.read_text() == text  # read, never rewritten
+
+
+def test_a_written_config_with_its_map_section_edited_loads_with_the_new_rules(tmp_path):
+    """The run's config.yaml holds the stages' copies of ``map``; editing ``map`` alone in a copy of it works."""
+    path = tmp_path / "config.yaml"
+    path.write_text(run_config_to_yaml(RunConfig()).replace("min_covisibility_weight: 15", "min_covisibility_weight: 20", 1))
+    config = load_run_config(path)
+    assert config.map.min_covisibility_weight == 20
+    assert config.frontend.tracking.local_map.map_rules.min_covisibility_weight == 20
+    assert config.backend.local_mapping.map_rules.min_covisibility_weight == 20

@@ -182,7 +182,10 @@ def _with_map_rules_copies(data: dict[str, Any], path: Path) -> dict[str, Any]:
     for section, names in _MAP_RULES_COPIES.items():
         *parents, leaf = (section, *names)
         given = (_section(data, tuple(parents)) or {}).get(leaf)
-        if given is not None and from_mapping(MapRulesConfig, given, _dotted(section, *names)) != rules:
+        copy = None if given is None else from_mapping(MapRulesConfig, given, _dotted(section, *names))
+        # A copy at the defaults or at ``map`` is zenslam's (a written config.yaml whose map section was
+        # edited holds the old copies): filled from ``map``. Any other was set by hand.
+        if copy is not None and copy not in (rules, MapRulesConfig()):
             raise ConfigError(
                 f"{path}: {_dotted(section, *names)}={given!r} differs from map={data.get('map')!r}: it is the "
                 f"{section}'s copy of the map section, filled from it; set map alone"
