@@ -100,6 +100,7 @@ CLIPS = {
     "euroc_micro_stereo": Clip("euroc:{data}/euroc/V1_01_easy_micro"),
     "loop_stereo": Clip("synthetic:loop/stereo"),
     "loop_rgbd": Clip("synthetic:loop/rgbd"),
+    "corridor_stereo": Clip("synthetic:corridor/stereo"),  # 901 frames of 640x480 at 10 Hz, a loop
 }
 
 
@@ -183,6 +184,13 @@ def read_orbslam3_trajectory(path: Path, stamp0_ns: int, stamps_ns: np.ndarray) 
     return Trajectory(stamps_ns=stamps_ns[nearest], T_world_cam=poses)
 
 
+def _line_count(path: Path) -> int | None:
+    """Poses in a trajectory file (its lines that are not comments), None if there is no such file."""
+    if not path.exists():
+        return None
+    return sum(1 for line in path.read_text().splitlines() if line.strip() and not line.startswith("#"))
+
+
 def ratio(numerator: float | None, denominator: float | None) -> float | None:
     if numerator is None or denominator in (None, 0):
         return None
@@ -240,6 +248,7 @@ def orbslam3_child(request_path: Path) -> None:
     slam.shutdown()
     out = Path(request["result"])
     slam.save_trajectory_euroc(str(out.with_suffix(".final.txt")))
+    slam.save_keyframe_trajectory_euroc(str(out.with_suffix(".keyframes.txt")))
     np.savez(out.with_suffix(".tracked.npz"), stamps_ns=np.asarray(tracked_stamps, dtype=np.int64),
              T_world_cam=np.asarray(tracked_poses).reshape(-1, 4, 4))  # fmt: skip
     out.write_text(json.dumps({
@@ -309,7 +318,9 @@ def run_orbslam3(spec: str, source: Source, files: dict[str, Path], work: Path, 
         as_tracked = Trajectory(tracked["stamps_ns"], tracked["T_world_cam"]) if len(tracked["stamps_ns"]) else None
     final = read_orbslam3_trajectory(result_file.with_suffix(".final.txt"), child["stamp0_ns"], source.stamps_ns())
     ate, ate_final = ate_of(as_tracked, ground_truth, sensor), ate_of(final, ground_truth, sensor)
+    keyframes_file = result_file.with_suffix(".keyframes.txt")
     return {
+        "keyframes": _line_count(keyframes_file),  # its saved keyframe trajectory: the keyframes left after culling
         "ate_m": (ate or {}).get("rmse_m"),
         "ate_final_m": (ate_final or {}).get("rmse_m"),
         "tracked_ok": sum(s == "OK" for s in child["states"]),
@@ -345,7 +356,9 @@ def run_zenslam(spec: str, sensor: str | None, work: Path, mode: str, config: Pa
         "frames": metrics.get("frames"),
         "tracking_median_ms": metrics["timing"].get("total", {}).get("median_ms"),
         "backend_median_ms_per_keyframe": metrics["backend_timing"].get("total", {}).get("median_ms"),
-        "keyframes": metrics.get("keyframes"),
+        # keyframes.tum holds the keyframes left after culling, as ORB-SLAM3's saved keyframe trajectory
+        "keyframes": _line_count(work / tag / "keyframes.tum"),
+        "keyframes_made": (metrics.get("keyframes") or {}).get("sent"),
         "wall_s": wall_s,
         "cpu_s": cpu_s,
         "peak_rss_sum_mb": sum(peaks.values()) / _MB,
@@ -372,7 +385,7 @@ def prepare_orbslam3_inputs(
 
 _COLUMNS = (("ate_m", "ATE m", "{:.4f}"), ("ate_final_m", "final m", "{:.4f}"), ("tracked_ok", "ok", "{:.0f}"),
             ("tracking_median_ms", "track ms", "{:.1f}"), ("wall_s", "wall s", "{:.1f}"), ("cpu_s", "CPU s", "{:.1f}"),
-            ("peak_rss_mb", "peak RSS MB", "{:.0f}"))  # fmt: skip
+            ("peak_rss_mb", "peak RSS MB", "{:.0f}"), ("keyframes", "keyframes", "{:.0f}"))  # fmt: skip
 
 
 def summarise(clip: dict) -> None:
@@ -395,6 +408,7 @@ def summarise(clip: dict) -> None:
         "wall_s": ratio(z.get("wall_s"), o.get("wall_s")),
         "cpu_s": ratio(z.get("cpu_s"), o.get("cpu_s")),
         "peak_rss_mb": ratio(z_rss, o.get("peak_rss_mb")),  # zenslam's: the sum of its processes' peaks
+        "keyframes": ratio(z.get("keyframes"), o.get("keyframes")),
     }
 
 
