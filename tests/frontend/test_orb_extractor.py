@@ -15,10 +15,10 @@ from zenslam.frontend.orb_extractor import (
     OrbExtractor,
     _fast_in_cells,
     base_to_level_px,
-    distribute_quadtree,
     features_per_level,
     level_to_base_px,
 )
+from zenslam.frontend.orb_quadtree import distribute_quadtree
 
 
 def textured_image(seed: int = 0, height: int = 480, width: int = 640) -> np.ndarray:

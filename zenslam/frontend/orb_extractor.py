@@ -13,16 +13,16 @@ import cv2
 import numpy as np
 
 from zenslam.errors import ConfigError, ImageReadError
+from zenslam.frontend.orb_orientation import disc_half_widths, intensity_centroid_angles
+from zenslam.frontend.orb_quadtree import distribute_quadtree
 
 logger = logging.getLogger(__name__)
 
 # Constants of the ORB descriptor itself (the rBRIEF pattern is defined on a 31 px patch), not tunables.
 _PATCH_SIZE = 31  # level pixels: descriptor / orientation patch diameter
-_HALF_PATCH = 15  # level pixels: intensity-centroid radius
 _EDGE_THRESHOLD = 19  # level pixels: keypoints stay this far from the border so the rotated pattern fits
 _FAST_RADIUS = 3  # level pixels: FAST never fires closer than this to the image it is given
 _MOSAIC_TILES = 24  # windows per mosaic row in the FAST fallback: rows of ~900 px keep FAST's SIMD busy
-_QUADTREE_DEPTH = 16  # deepest quadtree split: 2**16 nodes per side is far finer than a pixel
 
 
 @dataclass(frozen=True)
@@ -131,7 +131,7 @@ class OrbExtractor:
         self._scale_factors = c.scale_factor ** np.arange(c.n_levels, dtype=np.float64)
         self._inv_level_sigma2 = 1.0 / self._scale_factors**2
         self._per_level = features_per_level(c.n_features, c.scale_factor, c.n_levels)
-        self._circle_weights = _centroid_weights()
+        self._disc_half_widths = disc_half_widths()
         self._executor: ThreadPoolExecutor | None = None
         self._executor_lock = threading.Lock()
 
@@ -187,7 +187,7 @@ class OrbExtractor:
         parts = []
         for level, level_image in enumerate(pyramid):
             xy, response = _detect_distributed(level_image, int(self._per_level[level]), c, fast_ini, fast_min)
-            angle = _intensity_centroid_angles(level_image, xy, self._circle_weights)
+            angle = intensity_centroid_angles(level_image, xy, self._disc_half_widths)
             descriptors = _describe(orb, level_image, xy, angle)
             level_ids = np.full(len(xy), level, np.int16)
             parts.append((level_to_base_px(xy, level_image.shape, image.shape), level_ids, angle, response, descriptors))
@@ -374,156 +374,6 @@ def _keypoint_arrays(keypoints: list[cv2.KeyPoint]) -> tuple[np.ndarray, np.ndar
     xy = cv2.KeyPoint_convert(keypoints).astype(np.float32).reshape(-1, 2)
     response = np.fromiter(map(_RESPONSE, keypoints), np.float32, len(keypoints))
     return xy, response
-
-
-def distribute_quadtree(xy: np.ndarray, response: np.ndarray, width: int, height: int, n_target: int) -> np.ndarray:
-    """Indices of the keypoints ORB-SLAM's quadtree keeps: one (the best response) per final node.
-
-    ``xy`` (K, 2) are pixel coordinates inside the region [0, width) x [0, height). As in ORB-SLAM's
-    DistributeOctTree the region starts as round(width / height) nodes; every node holding more
-    than one keypoint splits into four until there are at least ``n_target`` nodes or every node
-    holds one keypoint, and when a full round would overshoot, the most populated nodes split
-    first. (ORB-SLAM also stops when a round leaves the node count unchanged, which returns one
-    keypoint for a cluster inside one quadrant; here such nodes keep splitting.)
-    Nodes are addressed by Morton codes of the keypoints, so each round is a few vector
-    operations on the keypoints sorted once. Ties go to the lower Morton code: deterministic.
-    Returns sorted int64 indices into ``xy``.
-    """
-    n_keys = len(xy)
-    if n_keys == 0 or n_target <= 0:
-        return np.zeros(0, np.int64)
-    n_ini = max(1, int(round(width / height)))
-    step = width / n_ini
-    side = 1 << _QUADTREE_DEPTH
-    ini = np.minimum(np.maximum((xy[:, 0] / step).astype(np.int64), 0), n_ini - 1)
-    ix = np.minimum(np.maximum(((xy[:, 0] - ini * step) * (side / step)).astype(np.int64), 0), side - 1)
-    iy = np.minimum(np.maximum((xy[:, 1] * (side / height)).astype(np.int64), 0), side - 1)
-    code = (ini << (2 * _QUADTREE_DEPTH)) | _spread_bits(ix) | (_spread_bits(iy) << 1)
-    order = np.argsort(code)  # codes of distinct pixels differ: the result does not depend on ties
-    code = code[order]
-    depth = 0
-    while depth + 1 < _QUADTREE_DEPTH and n_ini * 4 ** (depth + 2) <= n_target:
-        depth += 1  # depth + 1 has too few nodes for either stopping test: skip checking it
-    while depth < _QUADTREE_DEPTH:
-        depth += 1
-        starts = _node_starts(code, depth)
-        n_to_expand = int(np.count_nonzero(_node_sizes(starts, n_keys) > 1))
-        if len(starts) >= n_target or n_to_expand == 0:
-            break
-        if len(starts) + 3 * n_to_expand > n_target:
-            starts = _split_largest_first(code, starts, depth, n_target)
-            break
-    return np.sort(order[_best_per_node(response[order], starts)])
-
-
-def _split_largest_first(code: np.ndarray, starts: np.ndarray, depth: int, n_target: int) -> np.ndarray:
-    """ORB-SLAM's last phase: split nodes, most keypoints first, until there are n_target nodes.
-
-    ``starts`` are the first sorted-key index of each node, all nodes at ``depth`` (or single).
-    Returns the final node starts.
-    """
-    n_keys = len(code)
-    while depth < _QUADTREE_DEPTH:
-        sizes = _node_sizes(starts, n_keys)
-        candidates = np.flatnonzero(sizes > 1)
-        if len(candidates) == 0:
-            return starts
-        is_child_start = _node_start_mask(code, depth + 1)
-        n_children = np.add.reduceat(is_child_start, starts, dtype=np.int64)
-        # most populated first; ties by position (ORB-SLAM breaks them by pointer value)
-        candidates = candidates[np.argsort(-sizes[candidates], kind="stable")]
-        reached = np.flatnonzero(np.cumsum(n_children[candidates] - 1) >= n_target - len(starts))
-        chosen = candidates if len(reached) == 0 else candidates[: reached[0] + 1]
-        in_chosen = np.zeros(len(starts), bool)
-        in_chosen[chosen] = True
-        is_child_start &= np.repeat(in_chosen, sizes)
-        is_child_start[starts] = True
-        new_starts = np.flatnonzero(is_child_start)
-        if len(new_starts) >= n_target:
-            return new_starts
-        starts = new_starts
-        depth += 1
-    return starts
-
-
-def _node_start_mask(sorted_code: np.ndarray, depth: int) -> np.ndarray:
-    """(K,) bool: key k is the first of its quadtree node at ``depth`` (keys sorted by Morton code)."""
-    prefix = sorted_code >> (2 * (_QUADTREE_DEPTH - depth))
-    change = np.empty(len(prefix), bool)
-    change[0] = True
-    np.not_equal(prefix[1:], prefix[:-1], out=change[1:])
-    return change
-
-
-def _node_starts(sorted_code: np.ndarray, depth: int) -> np.ndarray:
-    """First index of each quadtree node at ``depth`` among keys sorted by Morton code."""
-    return np.flatnonzero(_node_start_mask(sorted_code, depth))
-
-
-def _node_sizes(starts: np.ndarray, n_keys: int) -> np.ndarray:
-    """Keys per node, from the nodes' first indices among ``n_keys`` sorted keys."""
-    sizes = np.empty(len(starts), np.int64)
-    np.subtract(starts[1:], starts[:-1], out=sizes[:-1])
-    sizes[-1] = n_keys - starts[-1]
-    return sizes
-
-
-def _best_per_node(response: np.ndarray, starts: np.ndarray) -> np.ndarray:
-    """Index of the highest response in each node (the first one on ties)."""
-    sizes = _node_sizes(starts, len(response))
-    best = np.maximum.reduceat(response, starts)
-    candidates = np.flatnonzero(response == np.repeat(best, sizes))
-    node = np.repeat(np.arange(len(starts)), sizes)[candidates]
-    first = np.ones(len(candidates), bool)
-    np.not_equal(node[1:], node[:-1], out=first[1:])
-    return candidates[first]
-
-
-_SPREAD_BYTE = np.array(
-    [sum(((v >> bit) & 1) << (2 * bit) for bit in range(8)) for v in range(256)], np.int64
-)  # byte b with a zero bit inserted above each of its bits
-
-
-def _spread_bits(v: np.ndarray) -> np.ndarray:
-    """Interleave zeros between the 16 low bits of v (Morton encoding of one axis)."""
-    return _SPREAD_BYTE[v & 0xFF] | (_SPREAD_BYTE[(v >> 8) & 0xFF] << 16)
-
-
-def _centroid_weights() -> np.ndarray:
-    """(2, 31*31) float32 weights (u; v) on the circular patch, zero outside: w @ patch = (m_10, m_01)."""
-    u_max = np.zeros(_HALF_PATCH + 1, np.int64)
-    v_max = int(math.floor(_HALF_PATCH * math.sqrt(2.0) / 2 + 1))
-    v_min = int(math.ceil(_HALF_PATCH * math.sqrt(2.0) / 2))
-    for v in range(v_max + 1):
-        u_max[v] = int(round(math.sqrt(_HALF_PATCH**2 - v * v)))
-    # make the circle symmetric under transposition, as ORB-SLAM / OpenCV do
-    v0 = 0
-    for v in range(_HALF_PATCH, v_min - 1, -1):
-        while u_max[v0] == u_max[v0 + 1]:
-            v0 += 1
-        u_max[v] = v0
-        v0 += 1
-    offsets = np.arange(-_HALF_PATCH, _HALF_PATCH + 1)
-    v_grid, u_grid = np.meshgrid(offsets, offsets, indexing="ij")
-    inside = np.abs(u_grid) <= u_max[np.abs(v_grid)]
-    weights = np.stack([(u_grid * inside).reshape(-1), (v_grid * inside).reshape(-1)])
-    return weights.astype(np.float32)
-
-
-def _intensity_centroid_angles(image: np.ndarray, xy: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """Orientation (degrees in [0, 360), image axes) of the intensity centroid in a radius-15 disc."""
-    if len(xy) == 0:
-        return np.zeros(0, np.float32)
-    cols = np.rint(xy[:, 0]).astype(np.int64) - _HALF_PATCH
-    rows = np.rint(xy[:, 1]).astype(np.int64) - _HALF_PATCH
-    step_y, step_x = image.strides
-    shape = (image.shape[0] - _PATCH_SIZE + 1, image.shape[1] - _PATCH_SIZE + 1, _PATCH_SIZE, _PATCH_SIZE)
-    windows = np.lib.stride_tricks.as_strided(image, shape, (step_y, step_x, step_y, step_x), writeable=False)[rows, cols]
-    # einsum, not @: it stays off OpenBLAS, whose threaded gemm can stall a busy machine.
-    # float32 is exact here: |m| < 2**24.
-    moments = np.einsum("nk,ck->nc", windows.reshape(len(xy), -1).astype(np.float32), weights)
-    angle = np.degrees(np.arctan2(moments[:, 1], moments[:, 0]))
-    return np.mod(angle, 360.0).astype(np.float32)
 
 
 def _describe(orb: cv2.ORB, image: np.ndarray, xy: np.ndarray, angle_deg: np.ndarray) -> np.ndarray:

@@ -1,0 +1,70 @@
+"""Compiled kernels: the same bits from numba's generic x86-64 build as from the machine's own, and a second start loads them from the cache."""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from conftest import shared_data_root  # noqa: E402  (tests/ is on the path under pytest)
+
+# A child's view: a digest of the ORB features of a textured image and (when present) two KITTI frames,
+# the CPU numba compiled for, and how many of the extractor's kernels it compiled or loaded from the cache.
+_CHILD = """
+import hashlib, json, sys
+from pathlib import Path
+import cv2
+import numpy as np
+from numba.core import config
+from zenslam.frontend import orb_orientation, orb_quadtree
+from zenslam.frontend.orb_extractor import OrbConfig, OrbExtractor
+rng = np.random.default_rng(5)
+images = [cv2.GaussianBlur(rng.integers(0, 256, (370, 1226), dtype=np.uint8), (0, 0), 1.5)]
+folder = Path(sys.argv[1]) / "kitti_odometry" / "sequences" / "06"
+images += [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in sorted(folder.glob("image_[01]/000010.png"))]
+extractor = OrbExtractor(OrbConfig(threads=2))
+digest = hashlib.sha256()
+for image in images:
+    features, _ = extractor.extract(image)
+    for name in ("px", "level", "angle_deg", "response", "descriptors"):
+        digest.update(getattr(features, name).tobytes())
+kernels = [orb_quadtree._morton_codes, orb_quadtree._distribute, orb_orientation._centroid_moments]
+print(json.dumps({
+    "digest": digest.hexdigest(),
+    "images": len(images),
+    "cpu": config.CPU_NAME or "host",
+    "misses": sum(sum(k.stats.cache_misses.values()) for k in kernels),
+    "hits": sum(sum(k.stats.cache_hits.values()) for k in kernels),
+}))
+"""
+
+
+def _child(**env: str) -> dict:
+    environment = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_")} | env
+    command = [sys.executable, "-c", _CHILD, str(shared_data_root())]
+    result = subprocess.run(command, env=environment, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-2000:]
+    return json.loads(result.stdout)
+
+
+@pytest.mark.slow(20)
+@pytest.mark.skipif(platform.machine().lower() not in ("x86_64", "amd64"), reason="the generic target named is x86-64's")
+def test_generic_x86_64_build_gives_the_same_features_as_the_machines_own(tmp_path: Path) -> None:
+    own = _child(NUMBA_CACHE_DIR=str(tmp_path))
+    generic = _child(NUMBA_CACHE_DIR=str(tmp_path), NUMBA_CPU_NAME="generic")
+    assert (own["cpu"], generic["cpu"]) == ("host", "generic")
+    assert generic["digest"] == own["digest"]
+
+
+@pytest.mark.slow(15)
+def test_a_second_start_loads_the_kernels_from_the_cache(tmp_path: Path) -> None:
+    first = _child(NUMBA_CACHE_DIR=str(tmp_path))
+    second = _child(NUMBA_CACHE_DIR=str(tmp_path))
+    assert first["misses"] > 0 and first["hits"] == 0  # an empty cache: compiled, then written
+    assert second["misses"] == 0 and second["hits"] == first["misses"]
+    assert second["digest"] == first["digest"]
