@@ -43,6 +43,7 @@ import numpy as np
 from zenslam.camera import PinholeCalibration, SensorKind
 from zenslam.errors import CalibrationError, ZenslamError
 from zenslam.frontend.config import FrontendConfig, entering_map
+from zenslam.frontend.kernel_warm_up import warm_up_kernels
 from zenslam.frontend.map_update_inbox import MapUpdateInbox
 from zenslam.runtime import bus
 from zenslam.runtime.stage import STOPPED, RunMode, StageStart, add_wait_for_argument, log_cpu_times, run_stage
@@ -383,6 +384,7 @@ def serve(
         # Live: keep the newest frames and drop the oldest, as a tracker must keep up with its camera.
         frames = bus.subscribe(session, keys.sensor_frame(session_name), codec.decode_sensor_frame, "live", bus_config.live_queue)
     outputs.send_status(codec.StageStatusMessage(STAGE, "starting"))
+    warm_up_kernels()  # before the stage is alive: no frame waits for numba's compile or cache load
     ended = False
     try:
         with bus.declare_alive(session, session_name, STAGE):

@@ -15,6 +15,7 @@ import numpy as np
 from zenslam.compiled import kernel
 
 _NO_LEVEL_BOUND = np.iinfo(np.int64).max  # a level offset that admits every level
+_NO_RIGHT_U = np.zeros(0)  # the right-image u arrays of a search without the stereo check (never read)
 _MIN_CELL_PX = 8.0  # level-0 pixels: the smallest side of the keypoint grid's cells
 
 
@@ -47,7 +48,7 @@ def search_in_windows(
     use_right = proj_right_u is not None and kp_right_u is not None
     candidates, distances, starts = _candidates(
         proj_px, radius, predicted_level, point_words, kp_px, kp_level, kp_words, free,
-        proj_right_u if use_right else proj_px[:, 0], kp_right_u if use_right else kp_px[:, 0], use_right,
+        proj_right_u if use_right else _NO_RIGHT_U, kp_right_u if use_right else _NO_RIGHT_U, use_right,
         _NO_LEVEL_BOUND if min_level_offset is None else -int(min_level_offset),
         _NO_LEVEL_BOUND if max_level_offset is None else int(max_level_offset),
         cell_px,
