@@ -68,3 +68,14 @@ def test_a_second_start_loads_the_kernels_from_the_cache(tmp_path: Path) -> None
     assert first["misses"] > 0 and first["hits"] == 0  # an empty cache: compiled, then written
     assert second["misses"] == 0 and second["hits"] == first["misses"]
     assert second["digest"] == first["digest"]
+
+
+def test_only_the_processes_that_extract_or_search_load_numba():
+    """numba costs a process ~60 MB: the supervising run, the backend, the recorder and a source
+    import the configs (OrbConfig among them) without it."""
+    modules = ["zenslam.service.commands.run", "zenslam.service.run_config", "zenslam.backend.node",
+               "zenslam.service.recorder", "zenslam.service.sources", "zenslam.frontend.config"]  # fmt: skip
+    code = f"import sys\nfor m in {modules!r}: __import__(m)\nprint('numba' in sys.modules)"
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "False"

@@ -11,7 +11,6 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from zenslam.frontend.projection_matching import search_in_windows
 
 
 def search_by_projection(
@@ -54,6 +53,10 @@ def search_by_projection(
     the projection with the smaller distance wins (then the lower index), and a loser searches
     again among the keypoints still free.
     """
+    # The kernels import numba (~60 MB and most of a second per process): only a process that
+    # searches loads it, not every one that imports the tracking configs.
+    from zenslam.frontend.projection_matching import search_in_windows
+
     proj_px = np.ascontiguousarray(proj_px, dtype=float).reshape(-1, 2)
     kp_px = np.ascontiguousarray(kp_px, dtype=float).reshape(-1, 2)
     m, n = len(proj_px), len(kp_px)

@@ -13,8 +13,6 @@ import cv2
 import numpy as np
 
 from zenslam.errors import ConfigError, ImageReadError
-from zenslam.frontend.orb_orientation import disc_half_widths, intensity_centroid_angles
-from zenslam.frontend.orb_quadtree import distribute_quadtree
 
 logger = logging.getLogger(__name__)
 
@@ -221,6 +219,32 @@ class OrbExtractor:
             if self._executor is None:
                 self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="orb-extract")
             return self._executor
+
+
+# The compiled kernels import numba (~60 MB and most of a second per process): they are imported
+# at the first extraction, so the processes that only read an OrbConfig (the supervising
+# `zenslam run`, the backend, the recorder) do not load it.
+
+
+def distribute_quadtree(xy: np.ndarray, response: np.ndarray, width: int, height: int, n_target: int) -> np.ndarray:
+    """``orb_quadtree.distribute_quadtree``: the indices of the corners ORB-SLAM's quadtree keeps."""
+    from zenslam.frontend import orb_quadtree
+
+    return orb_quadtree.distribute_quadtree(xy, response, width, height, n_target)
+
+
+def intensity_centroid_angles(image: np.ndarray, xy: np.ndarray, u_max: np.ndarray) -> np.ndarray:
+    """``orb_orientation.intensity_centroid_angles``: each keypoint's orientation in degrees."""
+    from zenslam.frontend import orb_orientation
+
+    return orb_orientation.intensity_centroid_angles(image, xy, u_max)
+
+
+def disc_half_widths() -> np.ndarray:
+    """``orb_orientation.disc_half_widths``: the orientation disc's half width per row offset."""
+    from zenslam.frontend import orb_orientation
+
+    return orb_orientation.disc_half_widths()
 
 
 def level_to_base_px(xy_level: np.ndarray, level_shape: tuple[int, ...], base_shape: tuple[int, ...]) -> np.ndarray:
