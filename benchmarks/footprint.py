@@ -4,9 +4,12 @@ Runs ``zenslam run [SOURCE] --lockstep`` (default: the built-in synthetic scene,
 into a temporary folder while sampling, every ``--interval`` seconds, ``VmHWM`` (the kernel's peak
 resident set) of every process in the run's tree: the ``zenslam run`` hub and its source, frontend,
 backend and recorder. A process's last sample is its peak up to that moment; the interval only
-matters for growth in a process's last moments. The sum of the per-process peaks is the most
-cautious figure (processes peak at different times, so the real simultaneous peak is lower). It
-also sums, at every sample, the processes' current RSS, and their PSS (proportional set size:
+matters for growth in a process's last moments. Beside it, each process's PSS (proportional set
+size, ``/proc/PID/smaps_rollup``: its private pages plus its share of the pages several processes
+map) at every sample, and its largest: a sampled peak, so a lower bound (the kernel keeps no peak
+of PSS). The sums of the per-process peaks are the most cautious figures (processes peak at
+different times, so the real simultaneous peak is lower); the sum of peak PSS counts the shared
+libraries once. It also sums, at every sample, the processes' current RSS, and their PSS (proportional set size:
 pages several processes map, such as the rerun, gtsam and OpenCV libraries every stage loads, are
 shared out among them instead of counted in full in each), and reports the largest of each sum;
 the PSS sum is the memory the run holds at its fullest moment. Then it sums the run folder per
@@ -31,6 +34,7 @@ import sys
 import tempfile
 import time
 from collections import defaultdict
+from dataclasses import dataclass
 from pathlib import Path
 
 import lz4.frame
@@ -93,12 +97,22 @@ def rss_bytes(pid: int) -> int | None:
         return None
 
 
-def run_sampled(
-    command: list[str], interval_s: float
-) -> tuple[dict[str, int], dict[str, int], float, subprocess.CompletedProcess]:
-    """Run ``command``, sampling the peak RSS of it and all its descendants; (peak bytes per stage, the
-    largest sums of the processes' RSS and of their PSS in any one sample, wall s, result)."""
+@dataclass(frozen=True)
+class SampledRun:
+    """What ``run_sampled`` saw of a command and its descendants, in bytes per stage (``process_name``)."""
+
+    peak_rss: dict[str, int]  # each process's VmHWM (the kernel's peak resident set), summed per stage
+    peak_pss: dict[str, int]  # each process's largest sampled PSS, summed per stage (a lower bound: PSS has no HWM)
+    together: dict[str, int]  # "rss", "pss": the largest sums over the processes in any one sample
+    wall_s: float
+    result: subprocess.CompletedProcess
+
+
+def run_sampled(command: list[str], interval_s: float) -> SampledRun:
+    """Run ``command``, sampling every ``interval_s`` seconds the peak RSS (VmHWM) and the PSS of it and
+    all its descendants."""
     peaks: dict[int, int] = {}
+    pss_peaks: dict[int, int] = {}
     names: dict[int, str] = {}
     together = {"rss": 0, "pss": 0}
     start = time.perf_counter()
@@ -110,13 +124,15 @@ def run_sampled(
                 tree = [root, *root.children(recursive=True)]
             except psutil.Error:
                 tree = []
+            pss_now = {proc.pid: pss_bytes(proc.pid) for proc in tree}
             together["rss"] = max(together["rss"], sum(rss_bytes(proc.pid) or 0 for proc in tree))
-            together["pss"] = max(together["pss"], sum(pss_bytes(proc.pid) or 0 for proc in tree))
+            together["pss"] = max(together["pss"], sum(pss or 0 for pss in pss_now.values()))
             for proc in tree:
                 hwm = vm_hwm_bytes(proc.pid)
                 if hwm is None:
                     continue
                 peaks[proc.pid] = max(peaks.get(proc.pid, 0), hwm)
+                pss_peaks[proc.pid] = max(pss_peaks.get(proc.pid, 0), pss_now[proc.pid] or 0)
                 # Named at every sample: a stage sampled between the supervisor's fork and its exec
                 # still shows the hub's command line.
                 names[proc.pid] = process_name(proc)
@@ -125,10 +141,15 @@ def run_sampled(
         out.seek(0)
         err.seek(0)
         result = subprocess.CompletedProcess(command, popen.returncode, out.read().decode(), err.read().decode())
+    return SampledRun(_per_stage(peaks, names), _per_stage(pss_peaks, names), together, wall_s, result)
+
+
+def _per_stage(per_pid: dict[int, int], names: dict[int, str]) -> dict[str, int]:
+    """Bytes per pid summed per stage name (a restarted stage's processes together)."""
     per_stage: dict[str, int] = {}
-    for pid, peak in peaks.items():
-        per_stage[names[pid]] = per_stage.get(names[pid], 0) + peak
-    return per_stage, together, wall_s, result
+    for pid, value in per_pid.items():
+        per_stage[names[pid]] = per_stage.get(names[pid], 0) + value
+    return per_stage
 
 
 def folder_sizes(run_dir: Path) -> dict[str, int]:
@@ -194,7 +215,8 @@ def main() -> None:
         if args.config is not None:
             command += ["--config", str(args.config)]
         load = os.getloadavg()[0]
-        peaks, together, wall_s, result = run_sampled(command, args.interval)
+        sampled = run_sampled(command, args.interval)
+        peaks, pss_peaks, together, wall_s, result = sampled.peak_rss, sampled.peak_pss, sampled.together, sampled.wall_s, sampled.result
         if result.returncode != 0:
             raise SystemExit(f"{' '.join(command)} failed:\n{result.stdout[-2000:]}\n{result.stderr[-3000:]}")
         run_dir = output / run_id
@@ -213,6 +235,8 @@ def main() -> None:
         },
         "peak_rss_mb": {name: round(peak / _MB, 1) for name, peak in sorted(peaks.items())},
         "peak_rss_sum_mb": round(sum(peaks.values()) / _MB, 1),
+        "peak_pss_mb": {name: round(peak / _MB, 1) for name, peak in sorted(pss_peaks.items())},
+        "peak_pss_sum_mb": round(sum(pss_peaks.values()) / _MB, 1),
         "peak_rss_together_mb": round(together["rss"] / _MB, 1),
         "peak_pss_together_mb": round(together["pss"] / _MB, 1),
     }
@@ -224,10 +248,10 @@ def main() -> None:
     print("run.mcap per topic (messages, message MB, estimated stored MB)")
     for topic, s in report["mcap_channels"].items():
         print(f"  {topic:<32} {s['messages']:6d} {s['mb']:9.2f} {s['stored_mb']:9.2f}")
-    print("peak RSS (VmHWM)")
+    print(f"  {'':<12} {'peak RSS':>10} {'peak PSS':>10} (RSS: VmHWM; PSS: the largest sample, shared pages shared out)")
     for name, mb in report["peak_rss_mb"].items():
-        print(f"  {name:<12} {mb:7.1f} MB")
-    print(f"  {'sum':<12} {report['peak_rss_sum_mb']:7.1f} MB (each process at its own peak)")
+        print(f"  {name:<12} {mb:7.1f} MB {report['peak_pss_mb'].get(name, 0):7.1f} MB")
+    print(f"  {'sum':<12} {report['peak_rss_sum_mb']:7.1f} MB {report['peak_pss_sum_mb']:7.1f} MB (each process at its own peak)")
     print(f"peak of the processes' RSS summed at one moment: {report['peak_rss_together_mb']:.1f} MB")
     print(f"peak of the processes' PSS summed at one moment: {report['peak_pss_together_mb']:.1f} MB (shared pages counted once)")
     args.results.parent.mkdir(parents=True, exist_ok=True)

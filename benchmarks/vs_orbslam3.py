@@ -7,9 +7,10 @@ both see similar machine load):
   (``ate_final``), the frontend's total per frame (``timing.total.median_ms``) and the backend's per
   keyframe (``backend_timing.total.median_ms``) from the run folder's metrics.json, and each
   process's peak RSS (VmHWM, sampled by benchmarks/footprint.py's ``run_sampled``): their sum and
-  the largest;
+  the largest; and each process's peak PSS (the largest sample; pages the stages share, such as
+  their libraries, shared out among them) and their sum, ``peak_pss_sum_mb``;
 - ORB-SLAM3 runs in a child process (a crash in the native library, a segfault included, ends only
-  the child; its peak RSS is its own VmHWM). It reads the frames through zenslam's sources (the same
+  the child; its peak RSS is its own VmHWM, its peak PSS ``peak_pss_mb`` the sampler's). It reads the frames through zenslam's sources (the same
   rectified images, the synthetic scenes rendered the same way), tracks them with ``track_stereo``,
   ``track_rgbd`` or ``track_monocular`` (the call timed per frame), and saves its trajectory. It is
   given zenslam's vocabulary in DBoW2 text and an ORB-SLAM2-style settings file written here from
@@ -260,14 +261,15 @@ def orbslam3_child(request_path: Path) -> None:
 # ---------------------------------------------------------------- the two halves
 
 
-def run_measured(command: list[str]) -> tuple[dict[str, int], float, float, subprocess.CompletedProcess]:
-    """Run ``command`` with benchmarks/footprint.py's sampler: (peak RSS bytes per process, wall s,
-    CPU s (user + system of it and every descendant it waited for), result)."""
+def run_measured(command: list[str]) -> tuple[dict[str, int], dict[str, int], float, float, subprocess.CompletedProcess]:
+    """Run ``command`` with benchmarks/footprint.py's sampler: (peak RSS bytes per process, peak PSS
+    bytes per process (the largest sample), wall s, CPU s (user + system of it and every descendant
+    it waited for), result)."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    peaks, _together, wall_s, result = run_sampled(command, interval_s=0.2)
+    sampled = run_sampled(command, interval_s=0.2)
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu_s = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-    return peaks, wall_s, cpu_s, result
+    return sampled.peak_rss, sampled.peak_pss, sampled.wall_s, cpu_s, sampled.result
 
 
 def describe_failure(result: subprocess.CompletedProcess) -> str:
@@ -308,7 +310,7 @@ def run_orbslam3(spec: str, source: Source, files: dict[str, Path], work: Path, 
     request.write_text(json.dumps({"spec": spec, "sensor": sensor, "rate": rate, "result": str(result_file),
                                    "vocabulary": str(files["vocabulary"]), "settings": str(files["settings"])}))  # fmt: skip
     command = [sys.executable, str(Path(__file__).resolve()), "--orbslam3-child", str(request)]
-    peaks, wall_s, cpu_s, result = run_measured(command)
+    peaks, pss_peaks, wall_s, cpu_s, result = run_measured(command)
     (work / f"{tag}.log").write_text(result.stdout + result.stderr)
     if result.returncode != 0:
         return {"error": describe_failure(result), "import_failed": result.returncode == _CHILD_FAILED_IMPORT}
@@ -331,6 +333,7 @@ def run_orbslam3(spec: str, source: Source, files: dict[str, Path], work: Path, 
         "stream_s": child["stream_s"],
         "start_s": child["load_s"],
         "peak_rss_mb": child["peak_rss_mb"] or max(peaks.values(), default=0) / _MB,
+        "peak_pss_mb": max(pss_peaks.values(), default=0) / _MB,  # the child's, sampled
         "rss_before_orbslam3_mb": child["rss_before_start_mb"],
         "evaluation": {"ate": ate, "ate_final": ate_final},
     }
@@ -344,7 +347,7 @@ def run_zenslam(spec: str, sensor: str | None, work: Path, mode: str, config: Pa
         command += ["--sensor", sensor]
     if config is not None:
         command += ["--config", str(config)]
-    peaks, wall_s, cpu_s, result = run_measured(command)
+    peaks, pss_peaks, wall_s, cpu_s, result = run_measured(command)
     (work / f"{tag}.log").write_text(result.stdout + result.stderr)
     if result.returncode != 0:
         return {"error": f"zenslam run failed (exit {result.returncode}): {result.stderr.strip().splitlines()[-1:]}"}
@@ -364,6 +367,9 @@ def run_zenslam(spec: str, sensor: str | None, work: Path, mode: str, config: Pa
         "peak_rss_sum_mb": sum(peaks.values()) / _MB,
         "peak_rss_max_process_mb": max(peaks.values(), default=0) / _MB,
         "peak_rss_per_process_mb": {name: round(peak / _MB, 1) for name, peak in sorted(peaks.items())},
+        # PSS shares the pages several processes map (the libraries every stage loads) out among them
+        "peak_pss_sum_mb": sum(pss_peaks.values()) / _MB,
+        "peak_pss_per_process_mb": {name: round(peak / _MB, 1) for name, peak in sorted(pss_peaks.items())},
     }
 
 
@@ -385,7 +391,8 @@ def prepare_orbslam3_inputs(
 
 _COLUMNS = (("ate_m", "ATE m", "{:.4f}"), ("ate_final_m", "final m", "{:.4f}"), ("tracked_ok", "ok", "{:.0f}"),
             ("tracking_median_ms", "track ms", "{:.1f}"), ("wall_s", "wall s", "{:.1f}"), ("cpu_s", "CPU s", "{:.1f}"),
-            ("peak_rss_mb", "peak RSS MB", "{:.0f}"), ("keyframes", "keyframes", "{:.0f}"))  # fmt: skip
+            ("peak_rss_mb", "peak RSS MB", "{:.0f}"), ("peak_pss_mb", "peak PSS MB", "{:.0f}"),
+            ("keyframes", "keyframes", "{:.0f}"))  # fmt: skip
 
 
 def summarise(clip: dict) -> None:
@@ -408,6 +415,7 @@ def summarise(clip: dict) -> None:
         "wall_s": ratio(z.get("wall_s"), o.get("wall_s")),
         "cpu_s": ratio(z.get("cpu_s"), o.get("cpu_s")),
         "peak_rss_mb": ratio(z_rss, o.get("peak_rss_mb")),  # zenslam's: the sum of its processes' peaks
+        "peak_pss_mb": ratio(z.get("peak_pss_sum_mb"), o.get("peak_pss_mb")),  # likewise
         "keyframes": ratio(z.get("keyframes"), o.get("keyframes")),
     }
 
@@ -419,7 +427,8 @@ def print_table(report: dict) -> None:
     for name, clip in report["clips"].items():
         for system in ("zenslam", "orbslam3"):
             median = clip[system].get("median", {})
-            values = {**median, "peak_rss_mb": median.get("peak_rss_mb", median.get("peak_rss_sum_mb"))}
+            values = {**median, "peak_rss_mb": median.get("peak_rss_mb", median.get("peak_rss_sum_mb")),
+                      "peak_pss_mb": median.get("peak_pss_mb", median.get("peak_pss_sum_mb"))}
             cells = "".join(f" {fmt.format(values[k]) if values.get(k) is not None else '-':>11}" for k, _, fmt in _COLUMNS)
             backend = median.get("backend_median_ms_per_keyframe")
             print(f"{name:<20} {system:<9}{cells} {'-' if backend is None else f'{backend:.0f}':>9}")
@@ -430,7 +439,7 @@ def print_table(report: dict) -> None:
         cells = [f"{k.split(' ')[0]} {v:.2f}" for k, v in ratios.items() if v is not None]
         if cells:
             print(f"{'':<20} {'z/o':<9} " + ", ".join(cells))
-    print("(medians over rounds; zenslam's peak RSS: the sum of its processes' peaks; BE: backend per keyframe;")
+    print("(medians over rounds; zenslam's peak RSS and PSS: the sums of its processes' peaks; BE: backend per keyframe;")
     print(f" ATE ratios only where both systems tracked at least {_MIN_TRACKED_SHARE:.0%} of the frames)")
 
 

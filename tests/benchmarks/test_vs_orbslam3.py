@@ -140,12 +140,12 @@ def summary_clip(orbslam3_tracked: int) -> dict:
     ok = {"tracked_ok": 51, "frames": 51}
     orb = {"tracked_ok": orbslam3_tracked, "frames": 51}
     return {
-        "zenslam": {"rounds": [{"ate_m": 0.03, "wall_s": 20.0, "peak_rss_sum_mb": 900.0, **ok},
-                               {"ate_m": 0.05, "wall_s": 30.0, "peak_rss_sum_mb": 1000.0, **ok},
-                               {"ate_m": 0.04, "wall_s": 25.0, "peak_rss_sum_mb": 950.0, **ok}]},
-        "orbslam3": {"rounds": [{"ate_m": 0.08, "wall_s": 5.0, "peak_rss_mb": 190.0, **orb},
+        "zenslam": {"rounds": [{"ate_m": 0.03, "wall_s": 20.0, "peak_rss_sum_mb": 900.0, "peak_pss_sum_mb": 600.0, **ok},
+                               {"ate_m": 0.05, "wall_s": 30.0, "peak_rss_sum_mb": 1000.0, "peak_pss_sum_mb": 700.0, **ok},
+                               {"ate_m": 0.04, "wall_s": 25.0, "peak_rss_sum_mb": 950.0, "peak_pss_sum_mb": 650.0, **ok}]},
+        "orbslam3": {"rounds": [{"ate_m": 0.08, "wall_s": 5.0, "peak_rss_mb": 190.0, "peak_pss_mb": 170.0, **orb},
                                 {"error": "ORB-SLAM3 crashed (SIGSEGV)"},
-                                {"ate_m": 0.06, "wall_s": 7.0, "peak_rss_mb": 180.0, **orb}]},
+                                {"ate_m": 0.06, "wall_s": 7.0, "peak_rss_mb": 180.0, "peak_pss_mb": 160.0, **orb}]},
     }  # fmt: skip
 
 
@@ -158,6 +158,7 @@ def test_summary_takes_medians_over_the_rounds_that_ran_and_their_ratios(bench):
     assert ratios["ate_m"] == pytest.approx(0.04 / 0.07)
     assert ratios["wall_s"] == pytest.approx(25.0 / 6.0)
     assert ratios["peak_rss_mb"] == pytest.approx(950.0 / 185.0)
+    assert ratios["peak_pss_mb"] == pytest.approx(650.0 / 165.0)
     assert ratios["tracking_median_ms"] is None  # neither measured it
 
 
@@ -171,3 +172,15 @@ def test_no_ate_ratio_where_a_system_tracked_few_of_the_frames(bench):
 
 def test_the_script_does_not_import_pyorbslam3(bench):
     assert "pyorbslam3" not in sys.modules
+
+
+def test_the_table_shows_peak_pss_beside_peak_rss(bench, capsys):
+    clip = summary_clip(orbslam3_tracked=51)
+    bench.summarise(clip)
+    bench.print_table({"clips": {"kitti06_stereo": clip}})
+    lines = capsys.readouterr().out.splitlines()
+    header = lines[0].split()
+    assert "PSS" in header and header.index("PSS") > header.index("RSS")
+    zenslam, orbslam3 = (next(line for line in lines if f" {system} " in line) for system in ("zenslam", "orbslam3"))
+    assert " 950 " in zenslam and " 650 " in zenslam
+    assert " 185 " in orbslam3 and " 165 " in orbslam3

@@ -483,13 +483,18 @@ def continuing_config(session: bus.Session, session_name: str, config: FrontendC
 
 
 def load_relocalisation_vocabulary(config: FrontendConfig) -> Any:
-    """The vocabulary of ``frontend.vocabulary`` (None: the shipped one), or None when relocalisation
-    is off; a missing or bad file is a VocabularyError naming it."""
+    """The vocabulary of ``frontend.vocabulary``, or None when relocalisation is off; a missing or bad
+    file is a VocabularyError naming it. The shipped one (an empty setting) is loaded at its first use
+    (``ShippedVocabularyOnDemand``): a run that never loses track never holds it."""
     if not config.tracking.relocalisation.enabled:
         return None
+    if not config.vocabulary:
+        from zenslam.vocabulary.on_demand import ShippedVocabularyOnDemand
+
+        return ShippedVocabularyOnDemand()
     from zenslam.vocabulary import load_vocabulary
 
-    return load_vocabulary(config.vocabulary or None)
+    return load_vocabulary(config.vocabulary)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from typing import Literal
 
-import cv2
 import numpy as np
 
 from zenslam.errors import MessageError
@@ -25,15 +24,18 @@ def png_bytes(image: np.ndarray, compression: int = 1) -> bytes:
     (benchmarks/footprint.md has the figures). An OpenCV without
     ``IMWRITE_PNG_FILTER`` chooses per row.
     """
+    # OpenCV is imported here, by the processes that code images: the codec also serves the hub and the
+    # backend, which never do.
+    import cv2
+
     params = [cv2.IMWRITE_PNG_COMPRESSION, compression, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_RLE]
-    params += _PNG_SUB_FILTER
+    if hasattr(cv2, "IMWRITE_PNG_FILTER"):
+        params += [cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_SUB]
     ok, data = cv2.imencode(".png", np.ascontiguousarray(image), params)
     if not ok:
         raise MessageError(f"OpenCV could not encode a {image.dtype} {image.shape} image as PNG")
     return data.tobytes()
 
-
-_PNG_SUB_FILTER = (cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_SUB) if hasattr(cv2, "IMWRITE_PNG_FILTER") else ()
 
 
 def encode_image(image: np.ndarray, encoding: ImageEncodingName, png_compression: int) -> bytes:
@@ -53,6 +55,8 @@ def decode_image(data: bytes, encoding: int, shape: tuple[int, int], name: str) 
         )
     if encoding != pb.IMAGE_ENCODING_PNG:
         raise MessageError(f"{name}: unknown image encoding {encoding}; the sender's zenslam is newer than this one")
+    import cv2  # see png_bytes
+
     image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     if image is None or image.dtype != np.uint8 or image.shape != shape:
         got = "undecodable bytes" if image is None else f"{image.dtype} {image.shape}"

@@ -12,8 +12,6 @@ from __future__ import annotations
 import functools
 from typing import Any
 
-from rosbags.typesys import Stores, get_typestore
-
 from zenslam.errors import MessageError
 
 IMAGE = "sensor_msgs/msg/Image"
@@ -31,6 +29,10 @@ _INT32_MAX = 2**31 - 1
 @functools.cache
 def typestore() -> Any:
     """rosbags' typestore of ROS 2 Jazzy's message definitions (built once per process)."""
+    # rosbags is imported here, by the processes that speak ROS 2: a run's hub imports this module
+    # for its --ros2-publish options whether or not it publishes.
+    from rosbags.typesys import Stores, get_typestore
+
     return get_typestore(Stores.ROS2_JAZZY)
 
 
