@@ -11,7 +11,6 @@ from pathlib import Path
 
 import pytest
 
-from conftest import shared_data_root  # noqa: E402  (tests/ is on the path under pytest)
 
 # A child's view: a digest of the ORB features of a textured image and (when present) two KITTI frames,
 # the CPU numba compiled for, and how many of the extractor's kernels it compiled or loaded from the cache.
@@ -44,9 +43,15 @@ print(json.dumps({
 """
 
 
+# The clips' root as tests/conftest.py names it (a plain import of that conftest is ambiguous:
+# pytest puts every tests folder with a conftest.py on the path). Without the clips the child
+# compares the textured image only.
+_DATA = Path(os.environ.get("ZENSLAM_DATA") or Path(__file__).resolve().parents[1].parent / "shared" / "data")
+
+
 def _child(**env: str) -> dict:
     environment = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_")} | env
-    command = [sys.executable, "-c", _CHILD, str(shared_data_root())]
+    command = [sys.executable, "-c", _CHILD, str(_DATA)]
     result = subprocess.run(command, env=environment, capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr[-2000:]
     return json.loads(result.stdout)
