@@ -4,8 +4,9 @@ the one-to-one assignment of projections to keypoints by descriptor distance.
 ``feature_matcher.search_by_projection`` states the rules; these kernels apply them in one pass
 over the candidates instead of numpy's sorted pair arrays. Keypoints are bucketed into a grid of
 square cells once; each projection scans the cells its window touches (one cell more on each side,
-so rounding never hides a keypoint) and keeps the keypoints strictly inside the window. Distances are Hamming distances of the 256-bit descriptors as four 64-bit
-words. Every choice is an integer comparison, so the result is the same on any CPU.
+so rounding never hides a keypoint) and keeps the keypoints strictly inside the window.
+Distances are Hamming distances of the 256-bit descriptors as four 64-bit words. Every choice is
+an exact comparison of the caller's numbers or of integers, so the result is the same on any CPU.
 """
 
 from __future__ import annotations
