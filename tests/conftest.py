@@ -135,3 +135,14 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         rest = [item for item in items if id(item) not in fillers]
         items[:] = rest[:workers] + quick[:workers] + rest[workers:]
     return result
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Compile (or load) the frontend's numba kernels once, in the controlling process, before any
+    worker starts: on a fresh clone the compile takes tens of seconds, and two workers' stage
+    processes compiling the same kernels at once would spend that time inside their start timeouts."""
+    if hasattr(config, "workerinput"):
+        return  # a pytest-xdist worker: the controller has filled the cache
+    from zenslam.frontend.kernel_warm_up import warm_up_kernels
+
+    warm_up_kernels()
