@@ -25,29 +25,7 @@ def search_by_projection(
     proj_right_u: np.ndarray | None = None,
     max_passes: int = 4,
 ) -> np.ndarray:
-    """Match projected map points to keypoints in a window around each projection.
-
-    proj_px: (M, 2) predicted level-0 pixels of the map points in the current image.
-    predicted_level: (M,) int predicted pyramid level of each map point.
-    point_desc: (M, 32) uint8 map-point descriptors; kp_px (N, 2), kp_level (N,), kp_desc (N, 32)
-    the current keypoints.
-    radius_px: half-width of the square search window in level-0 pixels, scalar or (M,); the
-    caller folds in ORB-SLAM's ``th`` and the scale factor of the predicted level.
-    max_distance: accept a best match at most this many bits away (ORB-SLAM TH_HIGH = 100).
-    ratio: reject when best > ratio * second best and both lie on the same level, as ORB-SLAM's
-    local-map search; ``None`` disables the test (ORB-SLAM's motion-model search).
-    already_matched: (N,) bool keypoints that are not candidates.
-    min_level_offset / max_level_offset: keypoint levels allowed relative to the predicted level,
-    inclusive; ``None`` leaves that side open (local map: -1, 0; motion model: -1, +1).
-    kp_right_u (N,) / proj_right_u (M,): right-image u in pixels; when both are given, a keypoint
-    with right_u >= 0 must also satisfy |proj_right_u - kp_right_u| < radius (stereo check).
-    max_passes: how many times projections that lost their keypoint to a better match search
-    again among the keypoints still free (1 = never).
-
-    Returns (M,) int32: the matched keypoint index, or -1. Each keypoint is matched at most once:
-    the projection with the smaller distance wins (then the lower index), and a loser searches
-    again among the keypoints still free.
-    """
+    """``zenslam.frontend.feature_matcher.search_by_projection`` as numpy pair arrays (its docstring states the rules)."""
     proj_px = np.asarray(proj_px, dtype=float).reshape(-1, 2)
     kp_px = np.asarray(kp_px, dtype=float).reshape(-1, 2)
     m, n = len(proj_px), len(kp_px)

@@ -12,7 +12,6 @@ import cv2
 import numpy as np
 
 
-
 def search_by_projection(
     proj_px: np.ndarray,
     predicted_level: np.ndarray,

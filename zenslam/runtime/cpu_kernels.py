@@ -32,8 +32,8 @@ benchmarks/stage_processes.md):
 Checked and left alone: numba's target CPU (NUMBA_CPU_NAME). zenslam's kernels compile without
 fastmath, so LLVM keeps every floating-point operation as written whatever instructions it picks,
 and tests/test_compiled.py checks that the generic x86-64 build gives the same features as the
-machine's own; pinning generic would only cost the wider vector code. OpenCV's Intel IPP paths (OPENCV_IPP=disabled or sse42 against its
-AVX-512 choice) gave the same bits on KITTI. Not pinnable from outside: GTSAM's Eigen blocks
+machine's own; pinning generic would only cost the wider vector code. OpenCV's Intel IPP paths
+(OPENCV_IPP=disabled or sse42 against its AVX-512 choice) gave the same bits on KITTI. Not pinnable from outside: GTSAM's Eigen blocks
 large matrix products by the CPU's L1 data cache size (read with cpuid), which changes the
 summation order of products whose inner dimension exceeds a few hundred, so machines with
 different L1 caches (48 KiB on recent Intel cores, 32 KiB on most others) may differ in such

@@ -37,7 +37,6 @@ def png_bytes(image: np.ndarray, compression: int = 1) -> bytes:
     return data.tobytes()
 
 
-
 def encode_image(image: np.ndarray, encoding: ImageEncodingName, png_compression: int) -> bytes:
     """The bytes of a uint8 grey image as a sensor frame carries it: raw rows, or PNG."""
     return png_bytes(image, png_compression) if encoding == "png" else image.tobytes()
