@@ -62,3 +62,24 @@ def test_a_run_config_section_given_as_a_list_names_the_section(tmp_path: Path):
     path.write_text("source:\n  - synthetic\n")
     with pytest.raises(ConfigError, match=r"'source' must be a mapping"):
         load_run_config(path)
+
+
+def test_a_resolved_run_config_reads_back_the_same_with_libyaml_as_with_pure_python(tmp_path: Path):
+    import yaml
+
+    from zenslam.config import load_yaml
+    from zenslam.service.run_config import RunConfig, run_config_to_yaml
+
+    text = run_config_to_yaml(RunConfig())
+    path = tmp_path / "config.yaml"
+    path.write_text(text)
+    assert load_yaml(path) == yaml.load(text, Loader=yaml.SafeLoader)
+
+
+def test_a_config_file_that_is_not_yaml_is_named(tmp_path: Path):
+    from zenslam.config import load_yaml
+
+    path = tmp_path / "config.yaml"
+    path.write_text("frontend: [unclosed\n")
+    with pytest.raises(ConfigError, match=r"config\.yaml is not valid YAML"):
+        load_yaml(path)

