@@ -20,7 +20,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 from numba.core import config
-from zenslam.frontend import orb_orientation, orb_quadtree
+from zenslam.frontend import orb_descriptor, orb_orientation, orb_quadtree
 from zenslam.frontend.orb_extractor import OrbConfig, OrbExtractor
 rng = np.random.default_rng(5)
 images = [cv2.GaussianBlur(rng.integers(0, 256, (370, 1226), dtype=np.uint8), (0, 0), 1.5)]
@@ -32,7 +32,8 @@ for image in images:
     features, _ = extractor.extract(image)
     for name in ("px", "level", "angle_deg", "response", "descriptors"):
         digest.update(getattr(features, name).tobytes())
-kernels = [orb_quadtree._morton_codes, orb_quadtree._distribute, orb_orientation._centroid_moments]
+kernels = [orb_quadtree._morton_codes, orb_quadtree._distribute, orb_orientation._centroid_moments,
+           orb_descriptor._descriptors, orb_descriptor._steered_sample]
 print(json.dumps({
     "digest": digest.hexdigest(),
     "images": len(images),

@@ -130,6 +130,7 @@ class OrbExtractor:
         self._inv_level_sigma2 = 1.0 / self._scale_factors**2
         self._per_level = features_per_level(c.n_features, c.scale_factor, c.n_levels)
         self._disc_half_widths = disc_half_widths()
+        self._rbrief_pattern = rbrief_pattern()
         self._executor: ThreadPoolExecutor | None = None
         self._executor_lock = threading.Lock()
 
@@ -173,20 +174,11 @@ class OrbExtractor:
         pyramid = self.build_pyramid(image)
         fast_ini = cv2.FastFeatureDetector_create(c.ini_fast_threshold, True, cv2.FAST_FEATURE_DETECTOR_TYPE_9_16)
         fast_min = cv2.FastFeatureDetector_create(c.min_fast_threshold, True, cv2.FAST_FEATURE_DETECTOR_TYPE_9_16)
-        orb = cv2.ORB_create(
-            nfeatures=max(int(self._per_level.max()) * 4, 1),
-            scaleFactor=c.scale_factor,
-            nlevels=1,
-            edgeThreshold=_EDGE_THRESHOLD,
-            firstLevel=0,
-            WTA_K=2,
-            patchSize=_PATCH_SIZE,
-        )
         parts = []
         for level, level_image in enumerate(pyramid):
             xy, response = _detect_distributed(level_image, int(self._per_level[level]), c, fast_ini, fast_min)
             angle = intensity_centroid_angles(level_image, xy, self._disc_half_widths)
-            descriptors = _describe(orb, level_image, xy, angle)
+            descriptors = describe(level_image, xy, angle, self._rbrief_pattern)
             level_ids = np.full(len(xy), level, np.int16)
             parts.append((level_to_base_px(xy, level_image.shape, image.shape), level_ids, angle, response, descriptors))
         features = Features(
@@ -245,6 +237,20 @@ def disc_half_widths() -> np.ndarray:
     from zenslam.frontend import orb_orientation
 
     return orb_orientation.disc_half_widths()
+
+
+def describe(image: np.ndarray, xy: np.ndarray, angle_deg: np.ndarray, pattern: np.ndarray) -> np.ndarray:
+    """``orb_descriptor.describe``: the (K, 32) rBRIEF descriptors of keypoints on one level image."""
+    from zenslam.frontend import orb_descriptor
+
+    return orb_descriptor.describe(image, xy, angle_deg, pattern)
+
+
+def rbrief_pattern() -> np.ndarray:
+    """``orb_descriptor.rbrief_pattern``: the (512, 2) points of OpenCV's ORB tests."""
+    from zenslam.frontend import orb_descriptor
+
+    return orb_descriptor.rbrief_pattern()
 
 
 def level_to_base_px(xy_level: np.ndarray, level_shape: tuple[int, ...], base_shape: tuple[int, ...]) -> np.ndarray:
@@ -398,21 +404,3 @@ def _keypoint_arrays(keypoints: list[cv2.KeyPoint]) -> tuple[np.ndarray, np.ndar
     xy = cv2.KeyPoint_convert(keypoints).astype(np.float32).reshape(-1, 2)
     response = np.fromiter(map(_RESPONSE, keypoints), np.float32, len(keypoints))
     return xy, response
-
-
-def _describe(orb: cv2.ORB, image: np.ndarray, xy: np.ndarray, angle_deg: np.ndarray) -> np.ndarray:
-    """rBRIEF descriptors (K, 32) uint8 of keypoints on one level image.
-
-    OpenCV's ORB.compute applies ORB-SLAM's 7x7, sigma 2, BORDER_REFLECT_101 Gaussian blur to the
-    (border-extended) level image and steers the pattern by the angle we give it; it does not
-    recompute orientation for provided keypoints.
-    """
-    if len(xy) == 0:
-        return np.zeros((0, 32), np.uint8)
-    xy32 = xy.astype(np.float32)
-    sizes = [float(_PATCH_SIZE)] * len(xy)
-    keypoints = list(map(cv2.KeyPoint, xy32[:, 0].tolist(), xy32[:, 1].tolist(), sizes, angle_deg.tolist()))
-    kept, descriptors = orb.compute(image, keypoints)
-    if descriptors is None or len(kept) != len(xy):
-        raise RuntimeError(f"ORB.compute dropped keypoints ({len(xy)} in, {len(kept)} out); border logic is wrong")
-    return descriptors
