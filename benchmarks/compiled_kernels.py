@@ -9,7 +9,11 @@ Three parts, each in fresh child processes where start-up is measured:
 - kernels: per KITTI 06 frame (both images, threads=1), the calling thread's CPU time of
   ``distribute_quadtree``, of the intensity-centroid angles and of the whole ``extract``, with the
   kernels and with the numpy formulation they replaced (tests/frontend/orb_numpy_reference.py),
-  alternating frame by frame in one process so that the machine's load hits both alike.
+  alternating frame by frame in one process so that the machine's load hits both alike;
+- descriptors: per KITTI 06 image (20 images, threads=1), the process CPU time of the rBRIEF
+  descriptors (``describe``: blur and kernel) and of the whole ``extract``, with the kernel and with
+  the OpenCV ORB.compute it replaced (tests/frontend/orb_opencv_reference.py), alternating image
+  by image in one process.
 Every process runs with the stage processes' pinned math kernels, like a stage.
 
 Run: ``.venv/bin/python benchmarks/compiled_kernels.py [--data ../shared/data] [--repeats 3]``
@@ -127,10 +131,48 @@ def kernel_times(data: Path, repeats: int) -> dict:
     return {variant: {name: summary(values) for name, values in parts.items()} for variant, parts in figures.items()}
 
 
+def descriptor_times(data: Path, repeats: int, n_images: int = 20) -> dict:
+    sys.path.insert(0, str(REPO / "tests" / "frontend"))
+    from orb_opencv_reference import reference_describe, reference_orb
+
+    from zenslam.frontend import orb_extractor
+    from zenslam.frontend.orb_extractor import OrbConfig, OrbExtractor
+    from zenslam.service.sources.kitti import KittiSource
+
+    orb = reference_orb()
+    variants = {"kernel": orb_extractor.describe, "orb_compute": lambda image, xy, angle, pattern: reference_describe(image, xy, angle, orb)}
+    spent = [0.0]
+
+    def timed(function):
+        def wrapper(*args):
+            c0 = time.process_time()
+            out = function(*args)
+            spent[0] += time.process_time() - c0
+            return out
+        return wrapper
+
+    images = [image for frame in KittiSource(data / "kitti_odometry" / "sequences" / "06") for image in (frame.left, frame.right)][:n_images]
+    extractor = OrbExtractor(OrbConfig(threads=1))
+    extractor.extract(images[0])
+    figures = {variant: {"describe": [], "extract": []} for variant in variants}
+    for _ in range(repeats):
+        for image in images:
+            for variant, function in variants.items():
+                orb_extractor.describe = timed(function)
+                spent[0] = 0.0
+                c0 = time.process_time()
+                extractor.extract(image)
+                figures[variant]["extract"].append(1e3 * (time.process_time() - c0))
+                figures[variant]["describe"].append(1e3 * spent[0])
+    orb_extractor.describe = variants["kernel"]
+    return {variant: {name: summary(values) for name, values in parts.items()} for variant, parts in figures.items()}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, default=REPO.parent / "shared" / "data", help="benchmark clips root")
     parser.add_argument("--repeats", type=int, default=3, help="child processes per import figure; passes over the clip")
+    parser.add_argument("--descriptors-only", action="store_true", help="only the descriptor figures (printed, not written)")
     args = parser.parse_args()
     from zenslam.runtime.cpu_kernels import kernel_pins, with_pinned_kernels
 
@@ -139,6 +181,10 @@ def main() -> None:
         os.execve(sys.executable, [sys.executable, *sys.argv], with_pinned_kernels(os.environ))
     import numba
 
+    if args.descriptors_only:
+        for variant, parts in descriptor_times(args.data, args.repeats).items():
+            print(variant + ": " + ", ".join(f"{name} {s['median']:.2f} ms (mean {s['mean']:.2f})" for name, s in parts.items()) + " per image")
+        return
     load_before = os.getloadavg()
     report = {
         "machine": platform.platform(),
@@ -148,6 +194,7 @@ def main() -> None:
         "import": import_cost(args.repeats),
         "start": [start_cost(None), start_cost("generic")],
         "per_frame_cpu_ms": kernel_times(args.data, args.repeats),
+        "per_image_descriptor_cpu_ms": descriptor_times(args.data, args.repeats),
         "load_average_1_5_15_after": os.getloadavg(),
     }
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
@@ -161,6 +208,8 @@ def main() -> None:
               f"{filled:.0f} ms from the cache; second extract {start['empty_cache']['second_extract_wall_ms']:.0f} ms wall")
     for variant, parts in report["per_frame_cpu_ms"].items():
         print(variant + ": " + ", ".join(f"{name} {s['median']:.2f} ms (mean {s['mean']:.2f})" for name, s in parts.items()) + " per frame (2 images)")
+    for variant, parts in report["per_image_descriptor_cpu_ms"].items():
+        print(variant + ": " + ", ".join(f"{name} {s['median']:.2f} ms (mean {s['mean']:.2f})" for name, s in parts.items()) + " per image")
     print(f"load average before {load_before}, after {report['load_average_1_5_15_after']}; wrote {RESULTS}")
 
 
