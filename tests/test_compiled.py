@@ -32,7 +32,6 @@ for image in images:
     features, _ = extractor.extract(image)
     for name in ("px", "level", "angle_deg", "response", "descriptors"):
         digest.update(getattr(features, name).tobytes())
-# (orb_descriptor._steered_sample is compiled into _descriptors, whose cache entry holds it)
 kernels = [orb_quadtree._morton_codes, orb_quadtree._distribute, orb_orientation._centroid_moments, orb_descriptor._descriptors]
 print(json.dumps({
     "digest": digest.hexdigest(),

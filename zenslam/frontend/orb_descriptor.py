@@ -40,7 +40,8 @@ def describe(image: np.ndarray, xy: np.ndarray, angle_deg: np.ndarray, pattern: 
         return np.zeros((0, DESCRIPTOR_BYTES), np.uint8)
     blurred = _blur(image)
     xy32 = np.ascontiguousarray(xy, np.float32)  # a cv2.KeyPoint holds float32: the centre is rounded from that
-    return _descriptors(blurred, xy32, np.ascontiguousarray(angle_deg, np.float32), pattern)
+    angle32 = np.ascontiguousarray(angle_deg, np.float32)
+    return _descriptors(blurred, xy32, angle32, np.ascontiguousarray(pattern[:, 0]), np.ascontiguousarray(pattern[:, 1]))
 
 
 def _blur(image: np.ndarray) -> np.ndarray:
@@ -56,10 +57,16 @@ def _blur(image: np.ndarray) -> np.ndarray:
 
 
 @kernel
-def _descriptors(blurred, xy, angle_deg, pattern):
-    """(K, 32) uint8: OpenCV's computeOrbDescriptors (WTA_K = 2) on the blurred image."""
+def _descriptors(blurred, xy, angle_deg, pattern_x, pattern_y):
+    """(K, 32) uint8: OpenCV's computeOrbDescriptors (WTA_K = 2) on the blurred image.
+
+    Each keypoint's 512 steered points are rounded to pixel offsets in one pass (which vectorises),
+    then its 256 tests read them.
+    """
     rows, cols = blurred.shape
+    pixels = blurred.ravel()  # C-contiguous: a view
     out = np.empty((len(xy), DESCRIPTOR_BYTES), np.uint8)
+    offsets = np.empty(len(pattern_x), np.int32)  # int32 arithmetic vectorises on any x86-64 target
     for k in range(len(xy)):
         cx = np.int64(np.rint(xy[k, 0]))
         cy = np.int64(np.rint(xy[k, 1]))
@@ -69,24 +76,20 @@ def _descriptors(blurred, xy, angle_deg, pattern):
         # OpenCV's (float)cos(angle) of the float angle: the double cosine rounded once to float32.
         a = np.float32(math.cos(np.float64(angle)))
         b = np.float32(math.sin(np.float64(angle)))
+        centre = np.int32(cy * cols + cx)
+        step = np.int32(cols)
+        for i in range(len(pattern_x)):
+            # float32 products and differences, none fused (fastmath is off): the roundings of OpenCV's C++
+            x = pattern_x[i] * a - pattern_y[i] * b
+            y = pattern_x[i] * b + pattern_y[i] * a
+            offsets[i] = centre + np.int32(np.rint(y)) * step + np.int32(np.rint(x))
         for byte in range(DESCRIPTOR_BYTES):
             value = 0
             for bit in range(8):
                 i = 16 * byte + 2 * bit
-                t0 = _steered_sample(blurred, cx, cy, pattern[i, 0], pattern[i, 1], a, b)
-                t1 = _steered_sample(blurred, cx, cy, pattern[i + 1, 0], pattern[i + 1, 1], a, b)
-                if t0 < t1:
-                    value |= 1 << bit
+                value |= np.int64(pixels[offsets[i]] < pixels[offsets[i + 1]]) << bit
             out[k, byte] = value
     return out
-
-
-@kernel
-def _steered_sample(blurred, cx, cy, px, py, a, b):
-    # float32 products and differences, none fused (fastmath is off): the roundings of OpenCV's C++
-    x = px * a - py * b
-    y = px * b + py * a
-    return blurred[cy + np.int64(np.rint(y)), cx + np.int64(np.rint(x))]
 
 
 def rbrief_pattern() -> np.ndarray:
@@ -126,7 +129,7 @@ def rbrief_pattern() -> np.ndarray:
 
 
 def _steered_columns(points: np.ndarray, angles: np.ndarray) -> np.ndarray:
-    """(angles, points) int64 column offsets of the points steered by each angle, as ``_steered_sample`` rounds them."""
+    """(angles, points) int64 column offsets of the points steered by each angle, as ``_descriptors`` rounds them."""
     radians = angles * _DEG_TO_RAD
     a = np.array([math.cos(float(r)) for r in radians], np.float32)[:, None]
     b = np.array([math.sin(float(r)) for r in radians], np.float32)[:, None]
