@@ -31,29 +31,93 @@ _GRID_PX = 15  # level pixels: pattern coordinates are searched in [-15, 15] (th
 def describe(image: np.ndarray, xy: np.ndarray, angle_deg: np.ndarray, pattern: np.ndarray) -> np.ndarray:
     """(K, 32) uint8 rBRIEF descriptors of (K, 2) level pixels ``xy`` with orientations ``angle_deg`` (degrees).
 
-    ``image`` is the grey uint8 level image, ``pattern`` the ``rbrief_pattern``. The bytes are those of
-    OpenCV's ORB.compute on the same keypoints: the same 7x7, sigma 2 Gaussian (``_blur``),
-    the pattern rotated in float32 and rounded half to even, a test's bit set when its first point is
-    darker than its second. Every rounded centre must lie BORDER_PX inside the image (IndexError).
+    ``image`` is the grey uint8 level image, ``pattern`` the ``rbrief_pattern``: ``describe_blurred``
+    on the image smoothed by ``blur``. Every rounded centre must lie BORDER_PX inside the image
+    (IndexError).
     """
     if len(xy) == 0:
         return np.zeros((0, DESCRIPTOR_BYTES), np.uint8)
-    blurred = _blur(image)
+    return describe_blurred(blur(image), xy, angle_deg, pattern)
+
+
+def blur(image: np.ndarray) -> np.ndarray:
+    """The image smoothed for the tests: ORB's 7x7, sigma 2 Gaussian (BORDER_REFLECT_101) as ORB.compute
+    applies it, compiled, with the bits of OpenCV's SSE baseline path on every CPU.
+
+    ORB.compute (and ORB-SLAM) blur a view into a border-extended copy of the image, where
+    GaussianBlur takes the separable filter with OpenCV's float32 Gaussian taps. Its AVX2 path fuses
+    multiplies and adds, so it rounds some pixels to another grey level than its baseline path
+    (CPUs without AVX2) and the descriptors, and lockstep runs, depended on the CPU: the stages
+    pinned OpenCV to its baseline, at a quarter of the extraction's CPU. ``_separable_blur`` is
+    that baseline filter in float32 operations none of which fuse (fastmath is off), so it gives
+    its bits on any target (tests/frontend/test_orb_descriptor.py compares them).
+    """
+    return _separable_blur(np.ascontiguousarray(image, np.uint8), _GAUSSIAN_TAPS)
+
+
+# OpenCV's getGaussianKernel(7, 2.0, CV_32F): 7 float32 taps summing to 1.
+_GAUSSIAN_TAPS = cv2.getGaussianKernel(7, 2.0, cv2.CV_32F).ravel().astype(np.float32)
+
+
+@kernel
+def _reflect_101(i, n):
+    """OpenCV's BORDER_REFLECT_101 index for ``i`` in an axis of ``n`` (>= 4) samples, 3 past either end at most."""
+    if i < 0:
+        return -i
+    if i >= n:
+        return 2 * n - 2 - i
+    return i
+
+
+@kernel
+def _separable_blur(image, taps):
+    """(H, W) uint8: the rows filtered with the 7 taps in order (float32 sums from the first tap), then
+    the columns as a symmetric filter (the centre tap, then each pair of rows summed before its tap),
+    rounded half to even and saturated: OpenCV's RowFilter and SymmColumnFilter on its baseline path.
+    Each pass runs over a padded row at a time, so its loop over columns has no branch and vectorises
+    (across pixels; each pixel's sum keeps its order)."""
+    rows, cols = image.shape
+    filtered = np.empty((rows + 6, cols), np.float32)  # rows -3 .. rows + 2, reflected
+    padded = np.empty(cols + 6, np.float32)
+    for y in range(rows):
+        for x in range(cols + 6):
+            padded[x] = np.float32(image[y, _reflect_101(x - 3, cols)])
+        row = filtered[y + 3]
+        for x in range(cols):
+            s = taps[0] * padded[x]
+            s = s + taps[1] * padded[x + 1]
+            s = s + taps[2] * padded[x + 2]
+            s = s + taps[3] * padded[x + 3]
+            s = s + taps[4] * padded[x + 4]
+            s = s + taps[5] * padded[x + 5]
+            s = s + taps[6] * padded[x + 6]
+            row[x] = s
+    for k in range(1, 4):
+        filtered[3 - k] = filtered[3 + k]
+        filtered[rows + 2 + k] = filtered[rows + 2 - k]
+    out = np.empty((rows, cols), np.uint8)
+    for y in range(rows):
+        c, u1, d1, u2, d2, u3, d3 = filtered[y + 3], filtered[y + 2], filtered[y + 4], filtered[y + 1], filtered[y + 5], filtered[y], filtered[y + 6]
+        target = out[y]
+        for x in range(cols):
+            s = taps[3] * c[x]
+            s = s + taps[4] * (u1[x] + d1[x])
+            s = s + taps[5] * (u2[x] + d2[x])
+            s = s + taps[6] * (u3[x] + d3[x])
+            target[x] = np.uint8(min(max(np.rint(s), np.float32(0.0)), np.float32(255.0)))
+    return out
+
+
+def describe_blurred(blurred: np.ndarray, xy: np.ndarray, angle_deg: np.ndarray, pattern: np.ndarray) -> np.ndarray:
+    """(K, 32) uint8 rBRIEF descriptors on an already smoothed level image: the bytes of OpenCV's
+    computeOrbDescriptors (WTA_K = 2), the pattern rotated in float32 and rounded half to even, a
+    test's bit set when its first point is darker than its second."""
+    if len(xy) == 0:
+        return np.zeros((0, DESCRIPTOR_BYTES), np.uint8)
     xy32 = np.ascontiguousarray(xy, np.float32)  # a cv2.KeyPoint holds float32: the centre is rounded from that
     angle32 = np.ascontiguousarray(angle_deg, np.float32)
+    blurred = np.ascontiguousarray(blurred)
     return _descriptors(blurred, xy32, angle32, np.ascontiguousarray(pattern[:, 0]), np.ascontiguousarray(pattern[:, 1]))
-
-
-def _blur(image: np.ndarray) -> np.ndarray:
-    """The 7x7, sigma 2 Gaussian (BORDER_REFLECT_101) ORB.compute applies, to the last bit.
-
-    ORB.compute blurs a view into its border-extended copy of the image. GaussianBlur on a view takes
-    the separable filter with float32 Gaussian taps, not the bit-exact fixed-point filter it uses on
-    a whole image (their results differ by one grey level at some pixels): sepFilter2D with those
-    taps is that filter.
-    """
-    taps = cv2.getGaussianKernel(7, 2.0, cv2.CV_32F)
-    return cv2.sepFilter2D(image, -1, taps, taps, borderType=cv2.BORDER_REFLECT_101)
 
 
 @kernel
@@ -144,7 +208,7 @@ def _step_columns(image: np.ndarray, angles: np.ndarray, columns: np.ndarray) ->
     ``flat_start``: on a rising step for the keypoint columns [flat_end + 1 - u1, flat_start - 1 - u0],
     on a falling one [flat_end + 1 - u0, flat_start - 1 - u1].
     """
-    profile = _blur(image)[_PROBE_SIZE[0] // 2].astype(np.int64)
+    profile = _orb_compute_blur(image)[_PROBE_SIZE[0] // 2].astype(np.int64)
     change = np.flatnonzero(np.diff(profile))
     flat_end, flat_start = int(change[0]), int(change[-1]) + 1
     if not np.all(np.diff(np.sign(np.diff(profile[flat_end : flat_start + 1]))) == 0):
@@ -158,6 +222,13 @@ def _step_columns(image: np.ndarray, angles: np.ndarray, columns: np.ndarray) ->
         raise ZenslamError("ORB pattern probe: a test fired on columns that are not one interval")
     from_first, from_last = flat_end + 1 - low, flat_start - 1 - high
     return (from_last, from_first, told) if profile[-1] > profile[0] else (from_first, from_last, told)
+
+
+def _orb_compute_blur(image: np.ndarray) -> np.ndarray:
+    """The blur ORB.compute applies inside: GaussianBlur on a view into a border-extended copy, which
+    takes the separable filter with float32 taps (not ``blur``'s fixed-point one)."""
+    taps = cv2.getGaussianKernel(7, 2.0, cv2.CV_32F)
+    return cv2.sepFilter2D(image, -1, taps, taps, borderType=cv2.BORDER_REFLECT_101)
 
 
 def _orb_tests(image: np.ndarray, columns: np.ndarray, angles: np.ndarray) -> np.ndarray:
@@ -189,12 +260,13 @@ def _matching_points(grid_columns: np.ndarray, columns: np.ndarray, told: np.nda
 
 
 def _check_pattern(pattern: np.ndarray) -> None:
-    """``describe`` with ``pattern`` must give ORB.compute's bytes on a textured image at many angles."""
+    """``describe_blurred`` with ``pattern`` must give ORB.compute's bytes on a textured image at many
+    angles, given the image as ORB.compute blurs it."""
     rng = np.random.default_rng(0)
     image = cv2.resize(rng.integers(0, 256, (12, 12), dtype=np.uint8), (96, 96), interpolation=cv2.INTER_CUBIC)
     n = 256
     xy = rng.integers(BORDER_PX, 96 - BORDER_PX, (n, 2)).astype(np.float32)
     angle = rng.uniform(0.0, 360.0, n).astype(np.float32)
     keypoints = [cv2.KeyPoint(float(x), float(y), _PATCH_SIZE, float(t)) for (x, y), t in zip(xy, angle)]
-    if not np.array_equal(describe(image, xy, angle, pattern), _orb_compute(image, keypoints)):
+    if not np.array_equal(describe_blurred(_orb_compute_blur(image), xy, angle, pattern), _orb_compute(image, keypoints)):
         raise ZenslamError("ORB pattern probe: the pattern read back does not reproduce ORB.compute")

@@ -20,8 +20,14 @@ benchmarks/stage_processes.md):
   sort, argsort and argpartition (x86-simd-sort, which orders equal keys differently); the KITTI
   poses differ between its AVX-512 and AVX2 choices.
 - OpenCV's own dispatch: OPENCV_CPU_DISABLE=<every feature the installed OpenCV dispatches to>,
-  leaving the SSE3 baseline its build requires. The ORB features of KITTI frames differ
-  between its AVX2 path and the paths CPUs without AVX2 take (its AVX-512 path agreed with AVX2).
+  leaving the SSE3 baseline its build requires. The ORB features of KITTI frames differed
+  between its AVX2 path and the paths CPUs without AVX2 take (its AVX-512 path agreed with AVX2):
+  ORB.compute's descriptors, for about 1 keypoint in 10,000. The frontend no longer calls it (its
+  rBRIEF kernel, ``frontend/orb_descriptor``), and every OpenCV function it does call (resize,
+  FAST, copyMakeBorder, batchDistance, solvePnP's EPnP, Rodrigues) gives the same bits on both
+  paths (tests/runtime/test_opencv_dispatch.py), so the frontend process, where OpenCV is hot,
+  runs OpenCV's own choice: the pin cost its extraction a quarter of its CPU
+  (benchmarks/frontend.md). The other stages keep the pin, where it costs next to nothing.
 - glibc's libm: GLIBC_TUNABLES glibc.cpu.hwcaps=-FMA,-FMA4. libm has FMA variants of exp, log, pow,
   atan2, acos, tan, ... that it uses on CPUs with FMA and AVX2; now and then a result differs in
   the last bit from the SSE2 variants that CPUs without FMA get. Python's
@@ -51,6 +57,8 @@ from collections.abc import Mapping
 logger = logging.getLogger(__name__)
 
 X86_64_MACHINES = frozenset({"x86_64", "amd64"})  # platform.machine() on Linux/macOS and Windows, lower-cased
+# Stage modules whose OpenCV calls give the same bits on every OpenCV dispatch path (see above).
+OPENCV_DISPATCH_FREE_STAGES = frozenset({"zenslam.frontend.node"})
 OPENBLAS_CORETYPE = "Nehalem"
 LIBM_HWCAPS_MASK = ("-FMA", "-FMA4")  # glibc.cpu.hwcaps entries: treat the CPU as lacking FMA and FMA4
 _HWCAPS = "glibc.cpu.hwcaps"
@@ -85,25 +93,29 @@ def with_hwcaps_mask(tunables: str, mask: tuple[str, ...]) -> str:
     return ":".join(entries + [f"{_HWCAPS}={','.join(mask)}"])
 
 
-def kernel_pins(env: Mapping[str, str]) -> dict[str, str]:
+def kernel_pins(env: Mapping[str, str], opencv: bool = True) -> dict[str, str]:
     """The environment variables (name -> value) that pin the math kernels, given the environment ``env``
-    they are added to (whose GLIBC_TUNABLES they extend)."""
-    return {
+    they are added to (whose GLIBC_TUNABLES they extend); without ``opencv``, OpenCV's dispatch is left alone."""
+    pins = {
         "OPENBLAS_CORETYPE": OPENBLAS_CORETYPE,
         "NPY_DISABLE_CPU_FEATURES": " ".join(numpy_dispatch_targets()),
         "OPENCV_CPU_DISABLE": ",".join(opencv_dispatch_targets()),
         "GLIBC_TUNABLES": with_hwcaps_mask(env.get("GLIBC_TUNABLES", ""), LIBM_HWCAPS_MASK),
     }
+    if not opencv:
+        del pins["OPENCV_CPU_DISABLE"]
+    return pins
 
 
-def with_pinned_kernels(env: Mapping[str, str], machine: str | None = None) -> dict[str, str]:
+def with_pinned_kernels(env: Mapping[str, str], machine: str | None = None, opencv: bool = True) -> dict[str, str]:
     """``env`` with the math kernels pinned (see the module docstring) when ``machine`` (default: this
     one's ``platform.machine()``) is x86-64; ``env`` unchanged otherwise. A value the caller set for a
-    pinned variable is replaced, with a warning: lockstep output must not depend on it."""
+    pinned variable is replaced, with a warning: lockstep output must not depend on it. Without
+    ``opencv``, OpenCV's dispatch is not pinned (a process whose OpenCV calls do not depend on it)."""
     pinned = dict(env)
     if (machine or platform.machine()).lower() not in X86_64_MACHINES:
         return pinned
-    for name, value in kernel_pins(env).items():
+    for name, value in kernel_pins(env, opencv).items():
         given = env.get(name)
         if given is not None and given != value and name != "GLIBC_TUNABLES":
             logger.warning("%s=%s replaced by %s for the stage processes: their results must not depend on the CPU", name, given, value)

@@ -75,10 +75,11 @@ class ProcessSpec:
 MALLOC_TUNABLES = "glibc.malloc.mmap_threshold=33554432:glibc.malloc.trim_threshold=16777216"
 
 
-def stage_environment(env: Mapping[str, str]) -> dict[str, str]:
-    """The environment a stage process starts with: ``env`` plus the settings below (variables ``env``
-    already sets keep their values, except the pinned math kernels). They must be in place before
-    numpy loads, hence the environment, and hold for a stage started by hand (``zenslam stage``) too."""
+def stage_environment(env: Mapping[str, str], module: str | None = None) -> dict[str, str]:
+    """The environment the stage process running ``module`` starts with: ``env`` plus the settings below
+    (variables ``env`` already sets keep their values, except the pinned math kernels). They must be
+    in place before numpy loads, hence the environment, and hold for a stage started by hand
+    (``zenslam stage``) too."""
     stage_env = dict(env)
     # Stages run their own threads where it pays (ORB on left/right); library thread pools stall
     # small BLAS products on a loaded machine with few cores (benchmarks/stage_processes.md), and
@@ -90,7 +91,8 @@ def stage_environment(env: Mapping[str, str]) -> dict[str, str]:
     # the heap saves that system CPU (benchmarks/stage_processes.md), for at most trim_threshold
     # of memory held per process.
     stage_env.setdefault("GLIBC_TUNABLES", MALLOC_TUNABLES)
-    return cpu_kernels.with_pinned_kernels(stage_env)  # same bits on any x86-64 CPU: see cpu_kernels
+    # same bits on any x86-64 CPU: see cpu_kernels
+    return cpu_kernels.with_pinned_kernels(stage_env, opencv=module not in cpu_kernels.OPENCV_DISPATCH_FREE_STAGES)
 
 
 def stage_command(module: str, args: Iterable[str]) -> list[str]:
@@ -132,7 +134,7 @@ class Supervisor:
         self.session_name = session_name
         self.config_path = Path(config_path)
         self.hub_endpoint = hub_endpoint
-        self.env = stage_environment(os.environ if env is None else env)
+        self.env = dict(os.environ if env is None else env)  # each stage's own: stage_environment
         self._children: dict[str, _Child] = {}
         self._hung: dict[str, float] = {}  # stages killed as hung: seconds they made no progress
         self._restarted_at: dict[str, list[float]] = {}  # stage -> monotonic times of its recent restarts
@@ -165,7 +167,7 @@ class Supervisor:
                 log.flush()
             try:
                 popen = subprocess.Popen(
-                    command, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=self.env, process_group=0
+                    command, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=stage_environment(self.env, spec.module), process_group=0
                 )
             except OSError as exc:
                 raise ProcessError(f"cannot start {spec.name} ({' '.join(command)}): {exc}") from exc

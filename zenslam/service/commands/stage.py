@@ -99,7 +99,7 @@ def _with_resolved_config(given: list[str], path: Path | None, config: RunConfig
 def run(args: argparse.Namespace) -> int:
     """Replace this process with the stage's (never returns unless the exec fails)."""
     options = _given_options(args.stage_args)
-    env = stage_environment(os.environ)
+    env = stage_environment(os.environ, STAGE_MODULES[args.role])
     if options.help:
         argv = list(args.stage_args)
     else:
