@@ -18,7 +18,7 @@ import logging
 from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass, field
-from itertools import chain
+from itertools import chain, compress
 from operator import attrgetter
 
 import numpy as np
@@ -36,7 +36,7 @@ from zenslam.errors import ZenslamError
 from zenslam.schemas.map_update import BACKEND_POINT_ID_BASE
 
 logger = logging.getLogger(__name__)
-_ROW = attrgetter("row")
+_ROW, _OBSERVATIONS = attrgetter("row"), attrgetter("observations")
 
 __all__ = [
     "BackendKeyframe", "BackendMap", "FrustumProjection", "IdAllocator", "MapChanges", "MapCheckpoint", "MapError", "MapPoint",
@@ -404,15 +404,22 @@ class BackendMap:
     def refresh_points(self) -> int:
         """Recompute stale representative descriptors, viewing directions and scale-invariance ranges
         (ORB-SLAM's ComputeDistinctiveDescriptors and UpdateNormalAndDepth). Returns points refreshed."""
-        points = self.points
-        desc_ids = sorted(p for p in self._stale_descriptor if points[p].observations)
-        geo_ids = sorted(p for p in self._stale_geometry if points[p].observations)
-        refresh_points(self.keyframes, points, self.point_store, desc_ids, geo_ids)
+        desc_ids = self._observed(self._stale_descriptor)
+        same = self._stale_geometry == self._stale_descriptor  # mostly: observations change both
+        geo_ids = desc_ids if same else self._observed(self._stale_geometry)
+        refresh_points(self.keyframes, self.points, self.point_store, desc_ids, geo_ids)
         self.changes.points.update(desc_ids)
-        self.changes.points.update(geo_ids)
+        if not same:
+            self.changes.points.update(geo_ids)
         self._stale_descriptor.clear()
         self._stale_geometry.clear()
-        return len(set(desc_ids) | set(geo_ids))
+        return len(desc_ids) if same else len(set(desc_ids) | set(geo_ids))
+
+    def _observed(self, point_ids: set[int]) -> list[int]:
+        """The sorted ids among ``point_ids`` (live points) that some keyframe observes."""
+        ordered = sorted(point_ids)
+        # map() over C-level callables: no Python frame per point (thousands a keyframe)
+        return list(compress(ordered, map(len, map(_OBSERVATIONS, map(self.points.__getitem__, ordered)))))
 
     # ---- checkpoints ---------------------------------------------------------------------------------
     def checkpoint(self, point_ids: Iterable[int], keyframe_ids: Iterable[int] = ()) -> MapCheckpoint:

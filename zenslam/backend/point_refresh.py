@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from itertools import chain
+from operator import attrgetter
 
 import numpy as np
 
@@ -16,6 +17,8 @@ from zenslam.backend.keyframe import BackendKeyframe
 from zenslam.backend.map_point import MapPoint
 from zenslam.backend.point_store import PointStore
 from zenslam.map_point_rules import mean_viewing_directions, representative_descriptors, scale_invariance_range
+
+_OBSERVATIONS, _ROW, _FIRST_KEYFRAME = attrgetter("observations"), attrgetter("row"), attrgetter("first_keyframe_id")
 
 
 @dataclass(frozen=True)
@@ -31,11 +34,12 @@ class ObservationTable:
     @classmethod
     def of(cls, points: list[MapPoint], keyframe_order: np.ndarray) -> ObservationTable:
         """Observations of ``points``; ``keyframe_order`` (K,) int64 lists the map's keyframe ids in insertion order."""
-        observations = [pt.observations for pt in points]
+        # map() over C-level callables: no Python frame per point or observation (thousands a keyframe).
+        observations = list(map(_OBSERVATIONS, points))
         counts = np.fromiter(map(len, observations), dtype=np.int64, count=len(observations))
         total = int(counts.sum())
         kf_ids = np.fromiter(chain.from_iterable(observations), dtype=np.int64, count=total)
-        keypoints = np.fromiter(chain.from_iterable(o.values() for o in observations), dtype=np.int64, count=total)
+        keypoints = np.fromiter(chain.from_iterable(map(dict.values, observations)), dtype=np.int64, count=total)
         starts = np.cumsum(counts) - counts
         # Observations are mostly made in keyframe order: sort only when some point's are not.
         step_down = np.flatnonzero(np.diff(kf_ids) <= 0) + 1  # where the id does not increase
@@ -146,14 +150,17 @@ def refresh_points(
 ) -> None:
     """Recompute the representative descriptors of ``descriptor_ids`` and the viewing directions and
     distance ranges of ``geometry_ids`` (sorted ids of observed points, whose rows are in ``store``)."""
-    ids = sorted(set(descriptor_ids) | set(geometry_ids)) if descriptor_ids and geometry_ids else descriptor_ids or geometry_ids
+    if descriptor_ids is geometry_ids or not (descriptor_ids and geometry_ids):
+        ids = descriptor_ids or geometry_ids
+    else:
+        ids = sorted(set(descriptor_ids) | set(geometry_ids))
     if not ids:
         return
-    pts = [points[p] for p in ids]
+    pts = list(map(points.__getitem__, ids))
     kf_list = list(keyframes.values())
     table = ObservationTable.of(pts, np.fromiter(keyframes, dtype=np.int64, count=len(keyframes)))
-    rows = np.fromiter((pt.row for pt in pts), dtype=np.int64, count=len(pts))
-    first = np.fromiter((pt.first_keyframe_id for pt in pts), dtype=np.int64, count=len(pts))
+    rows = np.fromiter(map(_ROW, pts), dtype=np.int64, count=len(pts))
+    first = np.fromiter(map(_FIRST_KEYFRAME, pts), dtype=np.int64, count=len(pts))
     ids_arr = np.asarray(ids, dtype=np.int64)
     refresh_descriptors(kf_list, store, rows, table, _members(ids_arr, descriptor_ids))
     refresh_geometry(kf_list, store, rows, first, table, _members(ids_arr, geometry_ids))
@@ -161,6 +168,8 @@ def refresh_points(
 
 def _members(ids: np.ndarray, subset: list[int]) -> np.ndarray:
     """(len(ids),) bool: ``ids`` (sorted) that are in ``subset`` (sorted, a subset of ``ids``)."""
+    if len(subset) == len(ids):
+        return np.ones(len(ids), dtype=bool)
     mask = np.zeros(len(ids), dtype=bool)
     mask[np.searchsorted(ids, np.asarray(subset, dtype=np.int64))] = True
     return mask
