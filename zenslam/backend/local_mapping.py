@@ -16,7 +16,6 @@ from collections import Counter
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from itertools import chain
 from typing import Protocol
 
 import numpy as np
@@ -373,12 +372,11 @@ def local_ba_window(
     """
     local = [kf_id] + bmap.covisibility.connected(kf_id)[: max(config.max_local_keyframes - 1, 0)]
     local_set = set(local)
-    point_ids = sorted({int(p) for k in local for p in bmap.keyframe_point_ids(k).tolist()})
-    if not point_ids:
+    ids, rows = (np.concatenate(parts) for parts in zip(*(bmap.keyframe_points(k) for k in local)))
+    if len(ids) == 0:
         return None
-    seen_by = Counter(chain.from_iterable(bmap.points[p].observations for p in point_ids))
-    for k in local_set:
-        seen_by.pop(k, None)
+    point_ids = np.unique(ids).tolist()
+    seen_by = _local_points_seen(bmap, rows, local_set)
     fixed = sorted(seen_by, key=lambda k: (-seen_by[k], k))[: config.max_fixed_keyframes]
     first = bmap.first_keyframe_id
     if first is not None and first in seen_by and first not in fixed:
@@ -388,6 +386,17 @@ def local_ba_window(
     if not is_fixed.any():
         is_fixed[int(np.argmin([bmap.keyframes[k].serial for k in kf_ids]))] = True
     return ba_problem(bmap, kf_ids, point_ids, is_fixed, bmap.keyframes[kf_id].calibration, config)
+
+
+def _local_points_seen(bmap: BackendMap, local_rows: np.ndarray, local: set[int]) -> dict[int, int]:
+    """Keyframe id -> how many of the points at ``local_rows`` (store rows) it observes, for every
+    keyframe outside ``local`` observing one. Those keyframes share a point with a local keyframe, so
+    they are among its covisible ones; each counts its associations, which mirror the observations."""
+    is_local = np.zeros(bmap.point_store.n_rows + 1, dtype=bool)  # the last entry: row -1, no point
+    is_local[local_rows] = True
+    others = sorted(set().union(*(bmap.covisibility.weights(k) for k in local)) - local)
+    counts = {k: int(np.count_nonzero(is_local[bmap.keyframes[k].map_point_rows])) for k in others}
+    return {k: n for k, n in counts.items() if n}
 
 
 def ba_problem(
@@ -458,8 +467,10 @@ def _observation_arrays(bmap: BackendMap, kf_ids: list[int], obs_kf: np.ndarray,
     disparity_sigma = np.zeros(len(obs_kf))
     right_u = np.full(len(obs_kf), np.nan)
     inv_sigma2 = np.zeros(len(obs_kf))
+    by_keyframe = np.argsort(obs_kf, kind="stable")  # each keyframe's observations, in order
+    bounds = np.searchsorted(obs_kf[by_keyframe], np.arange(len(kf_ids) + 1))
     for row, k in enumerate(kf_ids):
-        sel = np.flatnonzero(obs_kf == row)
+        sel = by_keyframe[bounds[row] : bounds[row + 1]]
         kf, kps = bmap.keyframes[k], obs_kp[sel]
         px[sel] = kf.keypoints_px[kps]
         stereo = kf.right_u[kps] >= 0
