@@ -519,8 +519,8 @@ def map_update_from_changes(
 ) -> MapUpdate:
     """The replacement-semantics update of ``changes``, of ``kind``; backend points born and removed in
     the same step never reach the frontend, so they are not listed as removed."""
-    kf_ids = sorted(k for k in changes.keyframes if k in bmap.keyframes)
-    point_ids = sorted(p for p in changes.points if p in bmap.points)
+    kf_ids = sorted(changes.keyframes & bmap.keyframes.keys())
+    point_ids = sorted(changes.points & bmap.points.keys())
     rows, store = bmap.point_rows(point_ids), bmap.point_store
     return MapUpdate(
         keyframe_id=kf_id,

@@ -36,7 +36,7 @@ from zenslam.errors import ZenslamError
 from zenslam.schemas.map_update import BACKEND_POINT_ID_BASE
 
 logger = logging.getLogger(__name__)
-_ROW, _OBSERVATIONS = attrgetter("row"), attrgetter("observations")
+_ID, _ROW, _OBSERVATIONS = attrgetter("id"), attrgetter("row"), attrgetter("observations")
 
 __all__ = [
     "BackendKeyframe", "BackendMap", "FrustumProjection", "IdAllocator", "MapChanges", "MapCheckpoint", "MapError", "MapPoint",
@@ -227,10 +227,13 @@ class BackendMap:
         (M, 3)), each observed by it at ``keypoints[m]``: ``add_point`` then ``add_observation`` for each."""
         kf = self.keyframe(kf_id)
         p_world = np.asarray(p_world, dtype=float).reshape(len(point_ids), 3)
-        for point_id, p, keypoint in zip(point_ids, p_world, keypoints):
-            if kf.map_point_ids[keypoint] >= 0:
-                raise MapError(f"keypoint {keypoint} of keyframe {kf_id} already observes point {kf.map_point_ids[keypoint]}")
-            self._observe(self.add_point(point_id, p, kf_id), kf, int(keypoint))
+        at = np.asarray(keypoints, dtype=np.int64)
+        taken = at[kf.map_point_ids[at] >= 0]
+        if len(taken) or len(np.unique(at)) != len(at):
+            keypoint = int(taken[0]) if len(taken) else int(at[0])
+            raise MapError(f"keypoint {keypoint} of keyframe {kf_id} already observes a point, or gets two new ones")
+        points = [self.add_point(point_id, p, kf_id) for point_id, p in zip(point_ids, p_world)]
+        self._observe_all(points, kf, at)
 
     def _compact_point_store(self) -> None:
         """Move the live points into a new store without the rows of removed ones."""
@@ -270,6 +273,22 @@ class BackendMap:
         kf.map_point_rows[keypoint] = pt.row
         self._touch(pt.id, kf.id)
 
+    def _observe_all(self, points: list[MapPoint], kf: BackendKeyframe, keypoints: np.ndarray) -> None:
+        """``_observe`` of each of ``points`` (distinct, none observed by ``kf``) at ``keypoints`` (distinct,
+        free): the keyframe's arrays and the change log written once for all."""
+        kf_id = kf.id
+        for pt, keypoint, stereo in zip(points, keypoints.tolist(), (kf.right_u[keypoints] >= 0).tolist()):
+            pt.observations[kf_id] = keypoint
+            pt.weighted_observations += 2 if stereo else 1
+        ids = list(map(_ID, points))
+        kf.map_point_ids[keypoints] = ids
+        kf.map_point_rows[keypoints] = list(map(_ROW, points))
+        self._stale_descriptor.update(ids)
+        self._stale_geometry.update(ids)
+        self.changes.points.update(ids)
+        if ids:
+            self.changes.keyframes.add(kf_id)
+
     def remove_observation(self, point_id: int, kf_id: int) -> None:
         """Keyframe ``kf_id`` no longer observes point ``point_id`` (the point stays)."""
         pt, kf = self.point(point_id), self.keyframe(kf_id)
@@ -297,8 +316,14 @@ class BackendMap:
         pt = self.point(point_id)
         observers = sorted(pt.observations)
         self.covisibility.remove_shared(observers)
-        for kf_id in observers:
-            self._unobserve(pt, self.keyframes[kf_id])
+        keyframes, changed = self.keyframes, self.changes.keyframes
+        for kf_id in observers:  # ``_unobserve`` without marking the point, which goes
+            kf = keyframes[kf_id]
+            keypoint = pt.observations.pop(kf_id)
+            pt.weighted_observations -= 2 if kf.right_u[keypoint] >= 0 else 1
+            kf.map_point_ids[keypoint] = -1
+            kf.map_point_rows[keypoint] = -1
+            changed.add(kf_id)
         del self.points[point_id]
         self._stale_descriptor.discard(point_id)
         self._stale_geometry.discard(point_id)
@@ -362,12 +387,11 @@ class BackendMap:
         self._next_serial += 1
         self.keyframes[kf.id] = kf
         self.covisibility.add_keyframe(kf.id)
-        observed = [points[p] for p in known.tolist()]
+        observed = list(map(points.__getitem__, known.tolist()))
         # Each point is observed once, so the new keyframe shares with every other keyframe as many
         # points as it sees of that keyframe's (counted in first-seen order).
-        self.covisibility.add_shared(kf.id, Counter(chain.from_iterable(pt.observations for pt in observed)))
-        for pt, keypoint in zip(observed, keypoints.tolist()):
-            self._observe(pt, kf, keypoint)
+        self.covisibility.add_shared(kf.id, Counter(chain.from_iterable(map(_OBSERVATIONS, observed))))
+        self._observe_all(observed, kf, keypoints)
         self.spanning_tree.add(kf.id, choose_parent(kf.id, self.covisibility, older))
         if self.first_keyframe_id is None:
             self.first_keyframe_id = kf.id
