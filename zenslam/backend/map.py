@@ -255,6 +255,26 @@ class BackendMap:
         self.changes.created_points.add(pt.id)
         return pt
 
+    def new_points_between(
+        self, p_world: np.ndarray, kf_id: int, keypoints: np.ndarray, other_id: int, other_keypoints: np.ndarray
+    ) -> list[int]:
+        """Points created by the backend at keyframe ``kf_id`` (``new_point`` of each row of ``p_world``
+        (M, 3), metres, world frame), observed by it at ``keypoints`` (M,) and by ``other_id`` at
+        ``other_keypoints`` (M,), as ``add_observation`` would record them; returns their ids."""
+        kf, other = self.keyframe(kf_id), self.keyframe(other_id)
+        keypoints, other_keypoints = np.asarray(keypoints, dtype=np.int64), np.asarray(other_keypoints, dtype=np.int64)
+        if kf_id == other_id:
+            raise MapError(f"new points between keyframe {kf_id} and itself")
+        for k, at in ((kf, keypoints), (other, other_keypoints)):
+            if np.any(k.map_point_ids[at] >= 0) or len(np.unique(at)) != len(at):
+                raise MapError(f"keypoints of keyframe {k.id} already observe points or are listed twice")
+        points = [self.new_point(p, kf_id) for p in np.asarray(p_world, dtype=float).reshape(-1, 3)]
+        self._observe_all(points, kf, keypoints)
+        if points:
+            self.covisibility.add_shared(other_id, {kf_id: len(points)})  # each new point: +1 for the pair
+        self._observe_all(points, other, other_keypoints)
+        return list(map(_ID, points))
+
     def add_observation(self, point_id: int, kf_id: int, keypoint: int) -> None:
         """Keypoint ``keypoint`` of keyframe ``kf_id`` observes point ``point_id``."""
         pt, kf = self.point(point_id), self.keyframe(kf_id)

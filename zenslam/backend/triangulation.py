@@ -373,11 +373,7 @@ def create_new_points(bmap: BackendMap, kf_id: int, config: TriangulationConfig,
         mine = np.flatnonzero((which == j) & ~taken[i1])
         matches = mine[_one_to_one(i1[mine], i2[mine], dist[mine], config)]
         good = matches[result.ok[matches]]
-        for k in good.tolist():
-            pt = bmap.new_point(result.p_world[k], kf_id)
-            bmap.add_observation(pt.id, kf_id, int(i1[k]))
-            bmap.add_observation(pt.id, kf2.id, int(i2[k]))
-            created.append(pt.id)
+        created.extend(bmap.new_points_between(result.p_world[good], kf_id, i1[good], kf2.id, i2[good]))
         taken[i1[good]] = True
         logger.debug("keyframe %d x %d: %d matches, %d new points", kf_id, kf2.id, len(matches), len(good))
     return created
