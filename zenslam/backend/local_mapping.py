@@ -261,17 +261,21 @@ class LocalMapper:
         keypoint_of_new: dict[int, int] = {}
         seen: set[int] = set()
         dropped = 0
-        for keypoint in np.flatnonzero(requested >= 0).tolist():
-            point_id = int(requested[keypoint])
+        associated = np.flatnonzero(requested >= 0)
+        kept, live_ids = [], []
+        resolve = self.map.resolve
+        for keypoint, point_id in zip(associated.tolist(), requested[associated].tolist()):
             if point_id in new_ids:
                 keypoint_of_new.setdefault(point_id, keypoint)
                 continue
-            live = self.map.resolve(point_id)
+            live = resolve(point_id)
             if live < 0 or live in seen:
                 dropped += 1
                 continue
             seen.add(live)
-            kf.map_point_ids[keypoint] = live
+            kept.append(keypoint)
+            live_ids.append(live)
+        kf.map_point_ids[kept] = live_ids
         new_world = np.asarray(msg.new_points_world, dtype=float).reshape(-1, 3)
         correction = placement(self.map, kf, self.config.placement) if place else None
         if correction is not None:

@@ -86,12 +86,14 @@ def _descriptors_at(keyframes: list[BackendKeyframe], rows: np.ndarray, keypoint
     return out
 
 
+Groups = list[tuple[np.ndarray, np.ndarray, np.ndarray]]  # ``ObservationTable.groups`` of the points refreshed
+
+
 def refresh_descriptors(
-    keyframes: list[BackendKeyframe], store: PointStore, rows: np.ndarray, table: ObservationTable, selected: np.ndarray
+    keyframes: list[BackendKeyframe], store: PointStore, rows: np.ndarray, table: ObservationTable, groups: Groups
 ) -> None:
-    """Give each ``selected`` point (bool (P,) over the table's points, whose rows in ``store`` are
-    ``rows``) the representative descriptor of its observations."""
-    groups = table.groups(selected)
+    """Give each point of ``groups`` (``table.groups`` of those selected; the table's points are at
+    ``rows`` in ``store``) the representative descriptor of its observations."""
     if not groups:
         return
     needed = np.concatenate([idx.ravel() for _, _, idx in groups])
@@ -108,9 +110,11 @@ def refresh_geometry(
     first_keyframe_ids: np.ndarray,
     table: ObservationTable,
     selected: np.ndarray,
+    groups: Groups,
 ) -> None:
-    """Give each ``selected`` point its mean viewing direction and scale-invariance distance range
-    (from its distance to its reference keyframe and the keypoint's level there)."""
+    """Give each ``selected`` point (``groups``: ``table.groups(selected)``) its mean viewing direction
+    and scale-invariance distance range (from its distance to its reference keyframe and the
+    keypoint's level there)."""
     chosen = np.flatnonzero(selected)
     if len(chosen) == 0:
         return
@@ -131,7 +135,7 @@ def refresh_geometry(
         lo, hi = scale_invariance_range(distance[sel], level[sel], scale_factor, n_levels)
         store.min_distance_m[rows[chosen[sel]]] = lo
         store.max_distance_m[rows[chosen[sel]]] = hi
-    for members, counts, idx in table.groups(selected):
+    for members, counts, idx in groups:
         store.normal[rows[members]] = mean_viewing_directions(p_world[members], centres[table.keyframe_rows[idx]], counts)
 
 
@@ -169,8 +173,12 @@ def refresh_points(
     rows = np.fromiter(map(_ROW, pts), dtype=np.int64, count=len(pts))
     first = np.fromiter(map(_FIRST_KEYFRAME, pts), dtype=np.int64, count=len(pts))
     ids_arr = np.asarray(ids, dtype=np.int64)
-    refresh_descriptors(kf_list, store, rows, table, _members(ids_arr, descriptor_ids))
-    refresh_geometry(kf_list, store, rows, first, table, _members(ids_arr, geometry_ids))
+    by_descriptor = _members(ids_arr, descriptor_ids)
+    by_geometry = by_descriptor if geometry_ids is descriptor_ids else _members(ids_arr, geometry_ids)
+    descriptor_groups = table.groups(by_descriptor)
+    geometry_groups = descriptor_groups if by_geometry is by_descriptor else table.groups(by_geometry)
+    refresh_descriptors(kf_list, store, rows, table, descriptor_groups)
+    refresh_geometry(kf_list, store, rows, first, table, by_geometry, geometry_groups)
 
 
 def _members(ids: np.ndarray, subset: list[int]) -> np.ndarray:
