@@ -462,29 +462,28 @@ def _window_observations(bmap: BackendMap, kf_ids: list[int], point_ids: np.ndar
 
 
 def _observation_arrays(bmap: BackendMap, kf_ids: list[int], obs_kf: np.ndarray, obs_kp: np.ndarray, config: BAWindowConfig):
-    """Pixels (O, 2), right u (O,) (NaN mono), 1/sigma^2 (O,) of observations, gathered per keyframe;
-    which stereo-camera ones are deeper than ``stereo_max_depth_baselines`` (O,) bool (none when 0);
-    the disparity sigma (O,) px of RGB-D ones (0 elsewhere, or everywhere when ``rgbd_depth_sigma_at_1m`` is 0)."""
+    """Pixels (O, 2), right u (O,) (NaN mono), 1/sigma^2 (O,) of observations, gathered from the
+    window's keypoints stacked; which stereo-camera ones are deeper than ``stereo_max_depth_baselines``
+    (O,) bool (none when 0); the disparity sigma (O,) px of RGB-D ones (0 elsewhere, or everywhere
+    when ``rgbd_depth_sigma_at_1m`` is 0)."""
+    kfs = [bmap.keyframes[k] for k in kf_ids]
+    at = np.cumsum([0, *(kf.n_keypoints for kf in kfs)])[:-1][obs_kf] + obs_kp  # into the stacked keypoints
+    px = np.concatenate([kf.keypoints_px for kf in kfs])[at]
+    right = np.concatenate([kf.right_u for kf in kfs])[at]
+    stereo = right >= 0
+    inv_sigma2 = 1.0 / np.concatenate([kf.level_sigma2[kf.levels] for kf in kfs])[at]
+    # Per keyframe: RGB-D's disparity sigma (sigma_z = c z^2 is a constant sigma of bf / z: bf * c
+    # px), else a stereo camera's depth beyond which observations are far.
+    rgbd = [kf.sensor == "rgbd" and config.rgbd_depth_sigma_at_1m > 0 for kf in kfs]
+    disparity = np.array([kf.calibration.bf * config.rgbd_depth_sigma_at_1m if r else 0.0 for kf, r in zip(kfs, rgbd)])
     max_baselines = config.stereo_max_depth_baselines
-    px = np.zeros((len(obs_kf), 2))
-    far = np.zeros(len(obs_kf), dtype=bool)
-    disparity_sigma = np.zeros(len(obs_kf))
-    right_u = np.full(len(obs_kf), np.nan)
-    inv_sigma2 = np.zeros(len(obs_kf))
-    by_keyframe = np.argsort(obs_kf, kind="stable")  # each keyframe's observations, in order
-    bounds = np.searchsorted(obs_kf[by_keyframe], np.arange(len(kf_ids) + 1))
-    for row, k in enumerate(kf_ids):
-        sel = by_keyframe[bounds[row] : bounds[row + 1]]
-        kf, kps = bmap.keyframes[k], obs_kp[sel]
-        px[sel] = kf.keypoints_px[kps]
-        stereo = kf.right_u[kps] >= 0
-        if kf.sensor == "rgbd" and config.rgbd_depth_sigma_at_1m > 0:
-            # sigma_z = c z^2 is a constant sigma of bf / z: bf * c px.
-            disparity_sigma[sel] = np.where(stereo, kf.calibration.bf * config.rgbd_depth_sigma_at_1m, 0.0)
-        elif max_baselines > 0 and kf.calibration.baseline_m:
-            far[sel] = stereo & (kf.depth_m[kps] > max_baselines * kf.calibration.baseline_m)
-        right_u[sel] = np.where(stereo, kf.right_u[kps], np.nan)
-        inv_sigma2[sel] = 1.0 / kf.level_sigma2[kf.levels[kps]]
+    far_depth = np.array([
+        max_baselines * kf.calibration.baseline_m if not r and max_baselines > 0 and kf.calibration.baseline_m else np.inf
+        for kf, r in zip(kfs, rgbd)
+    ])  # fmt: skip
+    disparity_sigma = np.where(stereo & np.array(rgbd)[obs_kf], disparity[obs_kf], 0.0)
+    far = stereo & (np.concatenate([kf.depth_m for kf in kfs])[at] > far_depth[obs_kf])
+    right_u = np.where(stereo, right, np.nan)
     return px, right_u, inv_sigma2, far, disparity_sigma
 
 
