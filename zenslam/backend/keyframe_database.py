@@ -70,8 +70,13 @@ class KeyframeDatabase:
         if kf_id in self._bows:
             raise KeyframeDatabaseError(f"keyframe {kf_id} is already in the keyframe database")
         self._bows[kf_id] = bow
+        index = self._index
         for word in np.asarray(bow.word_ids, dtype=np.int64).tolist():
-            self._index.setdefault(word, []).append(kf_id)
+            holders = index.get(word)
+            if holders is None:
+                index[word] = [kf_id]
+            else:
+                holders.append(kf_id)
 
     def add_all(self, kf_ids: list[int], bows: list[BagOfWords]) -> None:
         """``add`` each keyframe in order, the index built at once (a saved map's thousands of keyframes)."""

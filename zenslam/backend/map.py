@@ -356,10 +356,17 @@ class BackendMap:
         if old_id == new_id:
             return
         old, new = self.point(old_id), self.point(new_id)
-        for kf_id, keypoint in sorted(old.observations.items()):
-            self.remove_observation(old_id, kf_id)
+        items = sorted(old.observations.items())
+        # What ``remove_observation`` then ``add_observation`` per observer of old add up to: its
+        # observers stop sharing old (-1 for each pair of them), and each not observing new yet
+        # starts sharing new with new's observers.
+        self.covisibility.remove_shared([kf_id for kf_id, _ in items])
+        for kf_id, keypoint in items:
+            kf = self.keyframes[kf_id]
+            self._unobserve(old, kf)
             if kf_id not in new.observations:
-                self.add_observation(new_id, kf_id, keypoint)
+                self.covisibility.add_observation(kf_id, new.observations.keys())
+                self._observe(new, kf, keypoint)
         new.n_visible += old.n_visible
         new.n_found += old.n_found
         self.remove_point(old_id)

@@ -80,8 +80,9 @@ def _descriptors_at(keyframes: list[BackendKeyframe], rows: np.ndarray, keypoint
     """Descriptors (M, 32) uint8 of (keyframe row in insertion order, keypoint) pairs, in order."""
     out = np.empty((len(rows), 32), dtype=np.uint8)
     order = np.argsort(rows, kind="stable")
-    bounds = np.flatnonzero(np.diff(rows[order])) + 1
-    for sel in np.split(order, bounds) if len(order) else []:
+    bounds = [0, *(np.flatnonzero(np.diff(rows[order])) + 1).tolist(), len(order)] if len(order) else [0]
+    for a, b in zip(bounds[:-1], bounds[1:]):  # slices of one keyframe's pairs (cheaper than np.split)
+        sel = order[a:b]
         out[sel] = np.take(keyframes[int(rows[sel[0]])].descriptors, keypoints[sel], axis=0)
     return out
 
@@ -123,15 +124,17 @@ def refresh_geometry(
     ref = _reference_observations(table, chosen, first_keyframe_ids[chosen])
     distance = np.linalg.norm(p_world[chosen] - centres[table.keyframe_rows[ref]], axis=1)
     ref_rows, ref_keypoints = table.keyframe_rows[ref], table.keypoints[ref]
-    level = np.zeros(len(chosen), dtype=np.int64)
-    pyramid: dict[tuple[float, int], list[np.ndarray]] = {}
-    order = np.argsort(ref_rows, kind="stable")
-    for sel in np.split(order, np.flatnonzero(np.diff(ref_rows[order])) + 1):
-        kf = keyframes[int(ref_rows[sel[0]])]
-        level[sel] = kf.levels[ref_keypoints[sel]]
-        pyramid.setdefault((kf.scale_factor, kf.n_levels), []).append(sel)
-    for (scale_factor, n_levels), parts in sorted(pyramid.items()):
-        sel = np.sort(np.concatenate(parts))
+    # The reference keyframes' levels stacked, one gather for all points rather than one per keyframe.
+    used, which = np.unique(ref_rows, return_inverse=True)
+    refs = [keyframes[r] for r in used.tolist()]
+    starts = np.cumsum([0, *(kf.n_keypoints for kf in refs)])[:-1]
+    level = np.concatenate([kf.levels for kf in refs])[starts[which] + ref_keypoints]
+    pyramids = [(kf.scale_factor, kf.n_levels) for kf in refs]
+    for scale_factor, n_levels in sorted(set(pyramids)):
+        if len(set(pyramids)) == 1:
+            sel = np.arange(len(chosen))
+        else:
+            sel = np.flatnonzero(np.array([p == (scale_factor, n_levels) for p in pyramids])[which])
         lo, hi = scale_invariance_range(distance[sel], level[sel], scale_factor, n_levels)
         store.min_distance_m[rows[chosen[sel]]] = lo
         store.max_distance_m[rows[chosen[sel]]] = hi
