@@ -108,11 +108,12 @@ def fuse_into_keyframe(bmap: BackendMap, kf_id: int, point_ids: list[int], confi
     return _fuse_into(bmap, kf_id, ids, bmap.point_rows(ids), config)
 
 
-def _observed_by(kf: BackendKeyframe, point_ids: np.ndarray) -> np.ndarray:
-    """(M,) bool: ``kf`` observes point ``point_ids[m]`` (its associations mirror the observations)."""
-    associated = np.sort(kf.map_point_ids)
-    at = np.minimum(np.searchsorted(associated, point_ids), len(associated) - 1)
-    return associated[at] == point_ids if len(associated) else np.zeros(len(point_ids), dtype=bool)
+def _observed_by(kf: BackendKeyframe, rows: np.ndarray, n_rows: int) -> np.ndarray:
+    """(M,) bool: ``kf`` observes the point at store row ``rows[m]`` (of ``n_rows`` handed out): its
+    associations' rows mirror the observations, marked on the store's rows (no sort)."""
+    marked = np.zeros(n_rows + 1, dtype=bool)  # the last entry takes the -1 of keypoints without a point
+    marked[kf.map_point_rows] = True
+    return marked[rows]
 
 
 def _fuse_into(bmap: BackendMap, kf_id: int, point_ids: np.ndarray, rows: np.ndarray, config: FusionConfig) -> int:
@@ -121,7 +122,7 @@ def _fuse_into(bmap: BackendMap, kf_id: int, point_ids: np.ndarray, rows: np.nda
     The points' columns are read as the last refresh left them: nothing writes them before the next."""
     kf = bmap.keyframe(kf_id)
     live = bmap.points
-    new = ~_observed_by(kf, point_ids)
+    new = ~_observed_by(kf, rows, bmap.point_store.n_rows)
     candidates, rows = point_ids[new], rows[new]
     store = bmap.point_store
     matched, keypoints = match_projected(kf, PointGeometry.at(store, rows), np.take(store.descriptor, rows, axis=0), config)
