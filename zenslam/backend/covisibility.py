@@ -50,26 +50,51 @@ class CovisibilityGraph:
         """Add ``delta`` shared points to the pair (a, b); a weight reaching 0 removes the pair."""
         if a == b or delta == 0:
             return
-        new = self._weights[a].get(b, 0) + delta
+        links = self._weights[a]
+        new = links.get(b, 0) + delta
         if new < 0:
             raise ValueError(f"covisibility weight of keyframes {a} and {b} would become {new}")
         if new == 0:
-            self._weights[a].pop(b, None)
+            links.pop(b, None)
             self._weights[b].pop(a, None)
         else:
-            self._weights[a][b] = new
+            links[b] = new
             self._weights[b][a] = new
         self._cache.clear()
 
     def add_observation(self, kf_id: int, other_observers: Iterable[int]) -> None:
         """``kf_id`` now sees a point the ``other_observers`` already see: +1 with each of them."""
-        for other in other_observers:
-            self.change_weight(kf_id, other, 1)
+        weights = self._weights
+        links = weights[kf_id]
+        for other in other_observers:  # ``change_weight(kf_id, other, 1)``, inlined: thousands a keyframe
+            if other != kf_id:
+                new = links.get(other, 0) + 1
+                links[other] = new
+                weights[other][kf_id] = new
+        self._cache.clear()
 
     def remove_observation(self, kf_id: int, other_observers: Iterable[int]) -> None:
         """``kf_id`` no longer sees a point the ``other_observers`` still see: -1 with each of them."""
-        for other in other_observers:
-            self.change_weight(kf_id, other, -1)
+        self._decrement(kf_id, other_observers)
+        self._cache.clear()
+
+    def _decrement(self, kf_id: int, others: Iterable[int]) -> None:
+        """``change_weight(kf_id, other, -1)`` for each of ``others``, inlined (thousands a keyframe);
+        the caller clears the cache."""
+        weights = self._weights
+        links = weights[kf_id]
+        for other in others:
+            if other == kf_id:
+                continue
+            new = links.get(other, 0) - 1
+            if new < 0:
+                raise ValueError(f"covisibility weight of keyframes {kf_id} and {other} would become {new}")
+            if new == 0:
+                links.pop(other, None)
+                weights[other].pop(kf_id, None)
+            else:
+                links[other] = new
+                weights[other][kf_id] = new
 
     def add_shared(self, kf_id: int, counts: Mapping[int, int]) -> None:
         """``kf_id`` now shares ``counts[other]`` more points with each other keyframe (applied in
@@ -88,8 +113,7 @@ class CovisibilityGraph:
     def remove_shared(self, observers: list[int]) -> None:
         """The keyframes ``observers`` (distinct) stop sharing one point: -1 for every pair of them."""
         for i, a in enumerate(observers):
-            for b in observers[i + 1 :]:
-                self.change_weight(a, b, -1)
+            self._decrement(a, observers[i + 1 :])
         self._cache.clear()
 
     def weight(self, a: int, b: int) -> int:

@@ -14,7 +14,7 @@ from __future__ import annotations
 from collections import Counter
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from itertools import chain
+from itertools import chain, repeat
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
@@ -70,8 +70,13 @@ class KeyframeDatabase:
         if kf_id in self._bows:
             raise KeyframeDatabaseError(f"keyframe {kf_id} is already in the keyframe database")
         self._bows[kf_id] = bow
+        index = self._index
         for word in np.asarray(bow.word_ids, dtype=np.int64).tolist():
-            self._index.setdefault(word, []).append(kf_id)
+            holders = index.get(word)
+            if holders is None:
+                index[word] = [kf_id]
+            else:
+                holders.append(kf_id)
 
     def add_all(self, kf_ids: list[int], bows: list[BagOfWords]) -> None:
         """``add`` each keyframe in order, the index built at once (a saved map's thousands of keyframes)."""
@@ -113,7 +118,7 @@ class KeyframeDatabase:
         """Keyframe id -> number of words it shares with ``bow``, for every keyframe sharing one
         and not in ``exclude``."""
         words = np.asarray(bow.word_ids, dtype=np.int64).tolist()
-        counts = Counter(chain.from_iterable(self._index.get(w, ()) for w in words))
+        counts = Counter(chain.from_iterable(map(self._index.get, words, repeat(()))))  # C-level: ~1,000 words
         for kf_id in exclude:
             counts.pop(kf_id, None)
         return counts

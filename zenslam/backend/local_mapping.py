@@ -16,7 +16,6 @@ from collections import Counter
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from itertools import chain
 from typing import Protocol
 
 import numpy as np
@@ -262,17 +261,21 @@ class LocalMapper:
         keypoint_of_new: dict[int, int] = {}
         seen: set[int] = set()
         dropped = 0
-        for keypoint in np.flatnonzero(requested >= 0).tolist():
-            point_id = int(requested[keypoint])
+        associated = np.flatnonzero(requested >= 0)
+        kept, live_ids = [], []
+        resolve = self.map.resolve
+        for keypoint, point_id in zip(associated.tolist(), requested[associated].tolist()):
             if point_id in new_ids:
                 keypoint_of_new.setdefault(point_id, keypoint)
                 continue
-            live = self.map.resolve(point_id)
+            live = resolve(point_id)
             if live < 0 or live in seen:
                 dropped += 1
                 continue
             seen.add(live)
-            kf.map_point_ids[keypoint] = live
+            kept.append(keypoint)
+            live_ids.append(live)
+        kf.map_point_ids[kept] = live_ids
         new_world = np.asarray(msg.new_points_world, dtype=float).reshape(-1, 3)
         correction = placement(self.map, kf, self.config.placement) if place else None
         if correction is not None:
@@ -373,12 +376,11 @@ def local_ba_window(
     """
     local = [kf_id] + bmap.covisibility.connected(kf_id)[: max(config.max_local_keyframes - 1, 0)]
     local_set = set(local)
-    point_ids = sorted({int(p) for k in local for p in bmap.keyframe_point_ids(k).tolist()})
-    if not point_ids:
+    ids, rows = (np.concatenate(parts) for parts in zip(*(bmap.keyframe_points(k) for k in local)))
+    if len(ids) == 0:
         return None
-    seen_by = Counter(chain.from_iterable(bmap.points[p].observations for p in point_ids))
-    for k in local_set:
-        seen_by.pop(k, None)
+    point_ids = np.unique(ids).tolist()
+    seen_by = _local_points_seen(bmap, rows, local_set)
     fixed = sorted(seen_by, key=lambda k: (-seen_by[k], k))[: config.max_fixed_keyframes]
     first = bmap.first_keyframe_id
     if first is not None and first in seen_by and first not in fixed:
@@ -388,6 +390,17 @@ def local_ba_window(
     if not is_fixed.any():
         is_fixed[int(np.argmin([bmap.keyframes[k].serial for k in kf_ids]))] = True
     return ba_problem(bmap, kf_ids, point_ids, is_fixed, bmap.keyframes[kf_id].calibration, config)
+
+
+def _local_points_seen(bmap: BackendMap, local_rows: np.ndarray, local: set[int]) -> dict[int, int]:
+    """Keyframe id -> how many of the points at ``local_rows`` (store rows) it observes, for every
+    keyframe outside ``local`` observing one. Those keyframes share a point with a local keyframe, so
+    they are among its covisible ones; each counts its associations, which mirror the observations."""
+    is_local = np.zeros(bmap.point_store.n_rows + 1, dtype=bool)  # the last entry: row -1, no point
+    is_local[local_rows] = True
+    others = sorted(set().union(*(bmap.covisibility.weights(k) for k in local)) - local)
+    counts = {k: int(np.count_nonzero(is_local[bmap.keyframes[k].map_point_rows])) for k in others}
+    return {k: n for k, n in counts.items() if n}
 
 
 def ba_problem(
@@ -449,27 +462,28 @@ def _window_observations(bmap: BackendMap, kf_ids: list[int], point_ids: np.ndar
 
 
 def _observation_arrays(bmap: BackendMap, kf_ids: list[int], obs_kf: np.ndarray, obs_kp: np.ndarray, config: BAWindowConfig):
-    """Pixels (O, 2), right u (O,) (NaN mono), 1/sigma^2 (O,) of observations, gathered per keyframe;
-    which stereo-camera ones are deeper than ``stereo_max_depth_baselines`` (O,) bool (none when 0);
-    the disparity sigma (O,) px of RGB-D ones (0 elsewhere, or everywhere when ``rgbd_depth_sigma_at_1m`` is 0)."""
+    """Pixels (O, 2), right u (O,) (NaN mono), 1/sigma^2 (O,) of observations, gathered from the
+    window's keypoints stacked; which stereo-camera ones are deeper than ``stereo_max_depth_baselines``
+    (O,) bool (none when 0); the disparity sigma (O,) px of RGB-D ones (0 elsewhere, or everywhere
+    when ``rgbd_depth_sigma_at_1m`` is 0)."""
+    kfs = [bmap.keyframes[k] for k in kf_ids]
+    at = np.cumsum([0, *(kf.n_keypoints for kf in kfs)])[:-1][obs_kf] + obs_kp  # into the stacked keypoints
+    px = np.concatenate([kf.keypoints_px for kf in kfs])[at]
+    right = np.concatenate([kf.right_u for kf in kfs])[at]
+    stereo = right >= 0
+    inv_sigma2 = 1.0 / np.concatenate([kf.level_sigma2[kf.levels] for kf in kfs])[at]
+    # Per keyframe: RGB-D's disparity sigma (sigma_z = c z^2 is a constant sigma of bf / z: bf * c
+    # px), else a stereo camera's depth beyond which observations are far.
+    rgbd = [kf.sensor == "rgbd" and config.rgbd_depth_sigma_at_1m > 0 for kf in kfs]
+    disparity = np.array([kf.calibration.bf * config.rgbd_depth_sigma_at_1m if r else 0.0 for kf, r in zip(kfs, rgbd)])
     max_baselines = config.stereo_max_depth_baselines
-    px = np.zeros((len(obs_kf), 2))
-    far = np.zeros(len(obs_kf), dtype=bool)
-    disparity_sigma = np.zeros(len(obs_kf))
-    right_u = np.full(len(obs_kf), np.nan)
-    inv_sigma2 = np.zeros(len(obs_kf))
-    for row, k in enumerate(kf_ids):
-        sel = np.flatnonzero(obs_kf == row)
-        kf, kps = bmap.keyframes[k], obs_kp[sel]
-        px[sel] = kf.keypoints_px[kps]
-        stereo = kf.right_u[kps] >= 0
-        if kf.sensor == "rgbd" and config.rgbd_depth_sigma_at_1m > 0:
-            # sigma_z = c z^2 is a constant sigma of bf / z: bf * c px.
-            disparity_sigma[sel] = np.where(stereo, kf.calibration.bf * config.rgbd_depth_sigma_at_1m, 0.0)
-        elif max_baselines > 0 and kf.calibration.baseline_m:
-            far[sel] = stereo & (kf.depth_m[kps] > max_baselines * kf.calibration.baseline_m)
-        right_u[sel] = np.where(stereo, kf.right_u[kps], np.nan)
-        inv_sigma2[sel] = 1.0 / kf.level_sigma2[kf.levels[kps]]
+    far_depth = np.array([
+        max_baselines * kf.calibration.baseline_m if not r and max_baselines > 0 and kf.calibration.baseline_m else np.inf
+        for kf, r in zip(kfs, rgbd)
+    ])  # fmt: skip
+    disparity_sigma = np.where(stereo & np.array(rgbd)[obs_kf], disparity[obs_kf], 0.0)
+    far = stereo & (np.concatenate([kf.depth_m for kf in kfs])[at] > far_depth[obs_kf])
+    right_u = np.where(stereo, right, np.nan)
     return px, right_u, inv_sigma2, far, disparity_sigma
 
 
@@ -508,8 +522,8 @@ def map_update_from_changes(
 ) -> MapUpdate:
     """The replacement-semantics update of ``changes``, of ``kind``; backend points born and removed in
     the same step never reach the frontend, so they are not listed as removed."""
-    kf_ids = sorted(k for k in changes.keyframes if k in bmap.keyframes)
-    point_ids = sorted(p for p in changes.points if p in bmap.points)
+    kf_ids = sorted(changes.keyframes & bmap.keyframes.keys())
+    point_ids = sorted(changes.points & bmap.points.keys())
     rows, store = bmap.point_rows(point_ids), bmap.point_store
     return MapUpdate(
         keyframe_id=kf_id,

@@ -18,7 +18,7 @@ import logging
 from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass, field
-from itertools import chain
+from itertools import chain, compress
 from operator import attrgetter
 
 import numpy as np
@@ -36,7 +36,7 @@ from zenslam.errors import ZenslamError
 from zenslam.schemas.map_update import BACKEND_POINT_ID_BASE
 
 logger = logging.getLogger(__name__)
-_ROW = attrgetter("row")
+_ID, _ROW, _OBSERVATIONS = attrgetter("id"), attrgetter("row"), attrgetter("observations")
 
 __all__ = [
     "BackendKeyframe", "BackendMap", "FrustumProjection", "IdAllocator", "MapChanges", "MapCheckpoint", "MapError", "MapPoint",
@@ -227,10 +227,13 @@ class BackendMap:
         (M, 3)), each observed by it at ``keypoints[m]``: ``add_point`` then ``add_observation`` for each."""
         kf = self.keyframe(kf_id)
         p_world = np.asarray(p_world, dtype=float).reshape(len(point_ids), 3)
-        for point_id, p, keypoint in zip(point_ids, p_world, keypoints):
-            if kf.map_point_ids[keypoint] >= 0:
-                raise MapError(f"keypoint {keypoint} of keyframe {kf_id} already observes point {kf.map_point_ids[keypoint]}")
-            self._observe(self.add_point(point_id, p, kf_id), kf, int(keypoint))
+        at = np.asarray(keypoints, dtype=np.int64)
+        taken = at[kf.map_point_ids[at] >= 0]
+        if len(taken) or len(np.unique(at)) != len(at):
+            keypoint = int(taken[0]) if len(taken) else int(at[0])
+            raise MapError(f"keypoint {keypoint} of keyframe {kf_id} already observes a point, or gets two new ones")
+        points = [self.add_point(point_id, p, kf_id) for point_id, p in zip(point_ids, p_world)]
+        self._observe_all(points, kf, at)
 
     def _compact_point_store(self) -> None:
         """Move the live points into a new store without the rows of removed ones."""
@@ -252,6 +255,26 @@ class BackendMap:
         self.changes.created_points.add(pt.id)
         return pt
 
+    def new_points_between(
+        self, p_world: np.ndarray, kf_id: int, keypoints: np.ndarray, other_id: int, other_keypoints: np.ndarray
+    ) -> list[int]:
+        """Points created by the backend at keyframe ``kf_id`` (``new_point`` of each row of ``p_world``
+        (M, 3), metres, world frame), observed by it at ``keypoints`` (M,) and by ``other_id`` at
+        ``other_keypoints`` (M,), as ``add_observation`` would record them; returns their ids."""
+        kf, other = self.keyframe(kf_id), self.keyframe(other_id)
+        keypoints, other_keypoints = np.asarray(keypoints, dtype=np.int64), np.asarray(other_keypoints, dtype=np.int64)
+        if kf_id == other_id:
+            raise MapError(f"new points between keyframe {kf_id} and itself")
+        for k, at in ((kf, keypoints), (other, other_keypoints)):
+            if np.any(k.map_point_ids[at] >= 0) or len(np.unique(at)) != len(at):
+                raise MapError(f"keypoints of keyframe {k.id} already observe points or are listed twice")
+        points = [self.new_point(p, kf_id) for p in np.asarray(p_world, dtype=float).reshape(-1, 3)]
+        self._observe_all(points, kf, keypoints)
+        if points:
+            self.covisibility.add_shared(other_id, {kf_id: len(points)})  # each new point: +1 for the pair
+        self._observe_all(points, other, other_keypoints)
+        return list(map(_ID, points))
+
     def add_observation(self, point_id: int, kf_id: int, keypoint: int) -> None:
         """Keypoint ``keypoint`` of keyframe ``kf_id`` observes point ``point_id``."""
         pt, kf = self.point(point_id), self.keyframe(kf_id)
@@ -269,6 +292,22 @@ class BackendMap:
         kf.map_point_ids[keypoint] = pt.id
         kf.map_point_rows[keypoint] = pt.row
         self._touch(pt.id, kf.id)
+
+    def _observe_all(self, points: list[MapPoint], kf: BackendKeyframe, keypoints: np.ndarray) -> None:
+        """``_observe`` of each of ``points`` (distinct, none observed by ``kf``) at ``keypoints`` (distinct,
+        free): the keyframe's arrays and the change log written once for all."""
+        kf_id = kf.id
+        for pt, keypoint, stereo in zip(points, keypoints.tolist(), (kf.right_u[keypoints] >= 0).tolist()):
+            pt.observations[kf_id] = keypoint
+            pt.weighted_observations += 2 if stereo else 1
+        ids = list(map(_ID, points))
+        kf.map_point_ids[keypoints] = ids
+        kf.map_point_rows[keypoints] = list(map(_ROW, points))
+        self._stale_descriptor.update(ids)
+        self._stale_geometry.update(ids)
+        self.changes.points.update(ids)
+        if ids:
+            self.changes.keyframes.add(kf_id)
 
     def remove_observation(self, point_id: int, kf_id: int) -> None:
         """Keyframe ``kf_id`` no longer observes point ``point_id`` (the point stays)."""
@@ -297,8 +336,14 @@ class BackendMap:
         pt = self.point(point_id)
         observers = sorted(pt.observations)
         self.covisibility.remove_shared(observers)
-        for kf_id in observers:
-            self._unobserve(pt, self.keyframes[kf_id])
+        keyframes, changed = self.keyframes, self.changes.keyframes
+        for kf_id in observers:  # ``_unobserve`` without marking the point, which goes
+            kf = keyframes[kf_id]
+            keypoint = pt.observations.pop(kf_id)
+            pt.weighted_observations -= 2 if kf.right_u[keypoint] >= 0 else 1
+            kf.map_point_ids[keypoint] = -1
+            kf.map_point_rows[keypoint] = -1
+            changed.add(kf_id)
         del self.points[point_id]
         self._stale_descriptor.discard(point_id)
         self._stale_geometry.discard(point_id)
@@ -311,10 +356,17 @@ class BackendMap:
         if old_id == new_id:
             return
         old, new = self.point(old_id), self.point(new_id)
-        for kf_id, keypoint in sorted(old.observations.items()):
-            self.remove_observation(old_id, kf_id)
+        items = sorted(old.observations.items())
+        # What ``remove_observation`` then ``add_observation`` per observer of old add up to: its
+        # observers stop sharing old (-1 for each pair of them), and each not observing new yet
+        # starts sharing new with new's observers.
+        self.covisibility.remove_shared([kf_id for kf_id, _ in items])
+        for kf_id, keypoint in items:
+            kf = self.keyframes[kf_id]
+            self._unobserve(old, kf)
             if kf_id not in new.observations:
-                self.add_observation(new_id, kf_id, keypoint)
+                self.covisibility.add_observation(kf_id, new.observations.keys())
+                self._observe(new, kf, keypoint)
         new.n_visible += old.n_visible
         new.n_found += old.n_found
         self.remove_point(old_id)
@@ -362,12 +414,11 @@ class BackendMap:
         self._next_serial += 1
         self.keyframes[kf.id] = kf
         self.covisibility.add_keyframe(kf.id)
-        observed = [points[p] for p in known.tolist()]
+        observed = list(map(points.__getitem__, known.tolist()))
         # Each point is observed once, so the new keyframe shares with every other keyframe as many
         # points as it sees of that keyframe's (counted in first-seen order).
-        self.covisibility.add_shared(kf.id, Counter(chain.from_iterable(pt.observations for pt in observed)))
-        for pt, keypoint in zip(observed, keypoints.tolist()):
-            self._observe(pt, kf, keypoint)
+        self.covisibility.add_shared(kf.id, Counter(chain.from_iterable(map(_OBSERVATIONS, observed))))
+        self._observe_all(observed, kf, keypoints)
         self.spanning_tree.add(kf.id, choose_parent(kf.id, self.covisibility, older))
         if self.first_keyframe_id is None:
             self.first_keyframe_id = kf.id
@@ -404,15 +455,22 @@ class BackendMap:
     def refresh_points(self) -> int:
         """Recompute stale representative descriptors, viewing directions and scale-invariance ranges
         (ORB-SLAM's ComputeDistinctiveDescriptors and UpdateNormalAndDepth). Returns points refreshed."""
-        points = self.points
-        desc_ids = sorted(p for p in self._stale_descriptor if points[p].observations)
-        geo_ids = sorted(p for p in self._stale_geometry if points[p].observations)
-        refresh_points(self.keyframes, points, self.point_store, desc_ids, geo_ids)
+        desc_ids = self._observed(self._stale_descriptor)
+        same = self._stale_geometry == self._stale_descriptor  # mostly: observations change both
+        geo_ids = desc_ids if same else self._observed(self._stale_geometry)
+        refresh_points(self.keyframes, self.points, self.point_store, desc_ids, geo_ids)
         self.changes.points.update(desc_ids)
-        self.changes.points.update(geo_ids)
+        if not same:
+            self.changes.points.update(geo_ids)
         self._stale_descriptor.clear()
         self._stale_geometry.clear()
-        return len(set(desc_ids) | set(geo_ids))
+        return len(desc_ids) if same else len(set(desc_ids) | set(geo_ids))
+
+    def _observed(self, point_ids: set[int]) -> list[int]:
+        """The sorted ids among ``point_ids`` (live points) that some keyframe observes."""
+        ordered = sorted(point_ids)
+        # map() over C-level callables: no Python frame per point (thousands a keyframe)
+        return list(compress(ordered, map(len, map(_OBSERVATIONS, map(self.points.__getitem__, ordered)))))
 
     # ---- checkpoints ---------------------------------------------------------------------------------
     def checkpoint(self, point_ids: Iterable[int], keyframe_ids: Iterable[int] = ()) -> MapCheckpoint:

@@ -34,10 +34,12 @@ def count_visibility(bmap: BackendMap, kf_id: int, point_ids: list[int], config:
     passes or that it observes (visible +1), and a find when it observes it (found +1).
     Returns how many points were counted visible."""
     kf = bmap.keyframe(kf_id)
-    points = [bmap.points[p] for p in point_ids if p in bmap.points]
-    if not points:
+    live = bmap.points
+    ids = [p for p in point_ids if p in live]
+    if not ids:
         return 0
-    projection = frustum_projection(kf, points, config.min_view_cos)
+    points = list(map(live.__getitem__, ids))
+    projection = frustum_projection(kf, bmap.point_geometry(ids), config.min_view_cos)
     n_visible = 0
     for pt, in_view in zip(points, projection.visible.tolist()):
         observed = kf_id in pt.observations
@@ -64,7 +66,7 @@ def cull_recent_points(
         if pt is None:
             continue
         age = current_serial - pt.created_serial
-        if pt.found_ratio() < config.min_found_ratio:
+        if pt.n_found / max(pt.n_visible, 1) < config.min_found_ratio:  # ``found_ratio``, inlined
             culled.append(point_id)
         elif age >= config.check_after_keyframes and pt.weighted_observations <= max_weak:
             culled.append(point_id)

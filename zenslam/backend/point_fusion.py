@@ -66,36 +66,39 @@ def match_projected(
         return empty, empty
     proj = frustum_projection(kf, geometry, config.min_view_cos)
     rows = np.flatnonzero(proj.visible)
-    radius = config.search_radius_px * kf.scale_factors[proj.level[rows]]
+    predicted = proj.level[rows]
+    radius = config.search_radius_px * kf.scale_factors[predicted]
+    # Per pair, 1-D gathers (np.take) of each column: cheaper than indexing rows of the 2-D arrays.
+    kp_u, kp_v = kf.keypoints_px[:, 0], kf.keypoints_px[:, 1]
     order = kf.u_order()
-    sorted_u = kf.keypoints_px[order, 0]
-    u = proj.px[rows, 0]
+    sorted_u = np.take(kp_u, order)
+    u, v = np.take(proj.px[:, 0], rows), np.take(proj.px[:, 1], rows)
     lo = np.searchsorted(sorted_u, u - radius, side="right")
     hi = np.searchsorted(sorted_u, u + radius, side="left")
     counts = np.maximum(hi - lo, 0)
-    pair_row = np.repeat(np.arange(len(rows)), counts)
+    pair = np.repeat(np.arange(len(rows)), counts)  # index into rows
     offsets = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-    kp = order[np.repeat(lo, counts) + offsets]
-    p = rows[pair_row]
+    kp = np.take(order, np.repeat(lo, counts) + offsets)
     # The window's v side and the level first: most pairs of the u window fail them.
-    dv = kf.keypoints_px[kp, 1] - proj.px[p, 1]
-    level = kf.levels[kp]
-    keep = (np.abs(dv) < radius[pair_row]) & (level >= proj.level[p] - 1) & (level <= proj.level[p])
-    p, kp, level, dv = p[keep], kp[keep], level[keep], dv[keep]
-    du = kf.keypoints_px[kp, 0] - proj.px[p, 0]
-    right_u = kf.right_u[kp]
+    dv = np.take(kp_v, kp) - np.take(v, pair)
+    level = np.take(kf.levels, kp)
+    pair_level = np.take(predicted, pair)
+    keep = (np.abs(dv) < np.take(radius, pair)) & (level >= pair_level - 1) & (level <= pair_level)
+    pair, kp, level, dv = pair[keep], kp[keep], level[keep], dv[keep]
+    du = np.take(kp_u, kp) - np.take(u, pair)
+    right_u = np.take(kf.right_u, kp)
     stereo = right_u >= 0
-    err2 = (du**2 + dv**2) + np.where(stereo, (np.nan_to_num(proj.right_u[p]) - right_u) ** 2, 0.0)
-    inv_sigma2 = 1.0 / kf.level_sigma2[level]
+    err2 = (du**2 + dv**2) + np.where(stereo, (np.nan_to_num(np.take(proj.right_u[rows], pair)) - right_u) ** 2, 0.0)
+    inv_sigma2 = 1.0 / np.take(kf.level_sigma2, level)
     keep = np.where(stereo, err2 * inv_sigma2 <= config.chi2_stereo, err2 * inv_sigma2 <= config.chi2_mono)
-    p, kp = p[keep], kp[keep]
+    p, kp = np.take(rows, pair[keep]), kp[keep]
     if len(p) == 0:
         return empty, empty
     dist = hamming_distance_rows(descriptors, p, kf.descriptors, kp)
     order = np.lexsort((kp, dist, p))
     p, kp, dist = p[order], kp[order], dist[order]
-    first = np.r_[True, p[1:] != p[:-1]]
-    good = first & (dist <= config.max_descriptor_distance)
+    good = dist <= config.max_descriptor_distance
+    good[1:] &= p[1:] != p[:-1]  # each point's best keypoint only
     return p[good].astype(np.int64), kp[good].astype(np.int64)
 
 
@@ -105,11 +108,12 @@ def fuse_into_keyframe(bmap: BackendMap, kf_id: int, point_ids: list[int], confi
     return _fuse_into(bmap, kf_id, ids, bmap.point_rows(ids), config)
 
 
-def _observed_by(kf: BackendKeyframe, point_ids: np.ndarray) -> np.ndarray:
-    """(M,) bool: ``kf`` observes point ``point_ids[m]`` (its associations mirror the observations)."""
-    associated = np.sort(kf.map_point_ids)
-    at = np.minimum(np.searchsorted(associated, point_ids), len(associated) - 1)
-    return associated[at] == point_ids if len(associated) else np.zeros(len(point_ids), dtype=bool)
+def _observed_by(kf: BackendKeyframe, rows: np.ndarray, n_rows: int) -> np.ndarray:
+    """(M,) bool: ``kf`` observes the point at store row ``rows[m]`` (of ``n_rows`` handed out): its
+    associations' rows mirror the observations, marked on the store's rows (no sort)."""
+    marked = np.zeros(n_rows + 1, dtype=bool)  # the last entry takes the -1 of keypoints without a point
+    marked[kf.map_point_rows] = True
+    return marked[rows]
 
 
 def _fuse_into(bmap: BackendMap, kf_id: int, point_ids: np.ndarray, rows: np.ndarray, config: FusionConfig) -> int:
@@ -118,7 +122,7 @@ def _fuse_into(bmap: BackendMap, kf_id: int, point_ids: np.ndarray, rows: np.nda
     The points' columns are read as the last refresh left them: nothing writes them before the next."""
     kf = bmap.keyframe(kf_id)
     live = bmap.points
-    new = ~_observed_by(kf, point_ids)
+    new = ~_observed_by(kf, rows, bmap.point_store.n_rows)
     candidates, rows = point_ids[new], rows[new]
     store = bmap.point_store
     matched, keypoints = match_projected(kf, PointGeometry.at(store, rows), np.take(store.descriptor, rows, axis=0), config)

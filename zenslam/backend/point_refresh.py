@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from itertools import chain
+from operator import attrgetter
 
 import numpy as np
 
@@ -16,6 +17,8 @@ from zenslam.backend.keyframe import BackendKeyframe
 from zenslam.backend.map_point import MapPoint
 from zenslam.backend.point_store import PointStore
 from zenslam.map_point_rules import mean_viewing_directions, representative_descriptors, scale_invariance_range
+
+_OBSERVATIONS, _ROW, _FIRST_KEYFRAME = attrgetter("observations"), attrgetter("row"), attrgetter("first_keyframe_id")
 
 
 @dataclass(frozen=True)
@@ -31,16 +34,24 @@ class ObservationTable:
     @classmethod
     def of(cls, points: list[MapPoint], keyframe_order: np.ndarray) -> ObservationTable:
         """Observations of ``points``; ``keyframe_order`` (K,) int64 lists the map's keyframe ids in insertion order."""
-        observations = [pt.observations for pt in points]
+        # map() over C-level callables: no Python frame per point or observation (thousands a keyframe).
+        observations = list(map(_OBSERVATIONS, points))
         counts = np.fromiter(map(len, observations), dtype=np.int64, count=len(observations))
         total = int(counts.sum())
         kf_ids = np.fromiter(chain.from_iterable(observations), dtype=np.int64, count=total)
-        keypoints = np.fromiter(chain.from_iterable(o.values() for o in observations), dtype=np.int64, count=total)
+        keypoints = np.fromiter(chain.from_iterable(map(dict.values, observations)), dtype=np.int64, count=total)
         starts = np.cumsum(counts) - counts
         # Observations are mostly made in keyframe order: sort only when some point's are not.
         step_down = np.flatnonzero(np.diff(kf_ids) <= 0) + 1  # where the id does not increase
         if np.any(np.isin(step_down, starts, invert=True)):  # ... other than at a point's first observation
-            order = np.lexsort((kf_ids, np.repeat(np.arange(len(points), dtype=np.int64), counts)))
+            # By (point, keyframe id) as one int64 key: a stable sort of nearly sorted keys is
+            # cheaper than a lexsort of the two, for the same order (the pairs are distinct).
+            owner = np.repeat(np.arange(len(points), dtype=np.int64), counts)
+            span = int(kf_ids.max()) - int(kf_ids.min()) + 1
+            if len(points) * span < 2**62:
+                order = np.argsort(owner * span + (kf_ids - kf_ids.min()), kind="stable")
+            else:
+                order = np.lexsort((kf_ids, owner))
             kf_ids, keypoints = kf_ids[order], keypoints[order]
         sorter = np.argsort(keyframe_order, kind="stable")
         rows = sorter[np.searchsorted(keyframe_order, kf_ids, sorter=sorter)]
@@ -69,18 +80,21 @@ def _descriptors_at(keyframes: list[BackendKeyframe], rows: np.ndarray, keypoint
     """Descriptors (M, 32) uint8 of (keyframe row in insertion order, keypoint) pairs, in order."""
     out = np.empty((len(rows), 32), dtype=np.uint8)
     order = np.argsort(rows, kind="stable")
-    bounds = np.flatnonzero(np.diff(rows[order])) + 1
-    for sel in np.split(order, bounds) if len(order) else []:
+    bounds = [0, *(np.flatnonzero(np.diff(rows[order])) + 1).tolist(), len(order)] if len(order) else [0]
+    for a, b in zip(bounds[:-1], bounds[1:]):  # slices of one keyframe's pairs (cheaper than np.split)
+        sel = order[a:b]
         out[sel] = np.take(keyframes[int(rows[sel[0]])].descriptors, keypoints[sel], axis=0)
     return out
 
 
+Groups = list[tuple[np.ndarray, np.ndarray, np.ndarray]]  # ``ObservationTable.groups`` of the points refreshed
+
+
 def refresh_descriptors(
-    keyframes: list[BackendKeyframe], store: PointStore, rows: np.ndarray, table: ObservationTable, selected: np.ndarray
+    keyframes: list[BackendKeyframe], store: PointStore, rows: np.ndarray, table: ObservationTable, groups: Groups
 ) -> None:
-    """Give each ``selected`` point (bool (P,) over the table's points, whose rows in ``store`` are
-    ``rows``) the representative descriptor of its observations."""
-    groups = table.groups(selected)
+    """Give each point of ``groups`` (``table.groups`` of those selected; the table's points are at
+    ``rows`` in ``store``) the representative descriptor of its observations."""
     if not groups:
         return
     needed = np.concatenate([idx.ravel() for _, _, idx in groups])
@@ -97,9 +111,11 @@ def refresh_geometry(
     first_keyframe_ids: np.ndarray,
     table: ObservationTable,
     selected: np.ndarray,
+    groups: Groups,
 ) -> None:
-    """Give each ``selected`` point its mean viewing direction and scale-invariance distance range
-    (from its distance to its reference keyframe and the keypoint's level there)."""
+    """Give each ``selected`` point (``groups``: ``table.groups(selected)``) its mean viewing direction
+    and scale-invariance distance range (from its distance to its reference keyframe and the
+    keypoint's level there)."""
     chosen = np.flatnonzero(selected)
     if len(chosen) == 0:
         return
@@ -108,19 +124,21 @@ def refresh_geometry(
     ref = _reference_observations(table, chosen, first_keyframe_ids[chosen])
     distance = np.linalg.norm(p_world[chosen] - centres[table.keyframe_rows[ref]], axis=1)
     ref_rows, ref_keypoints = table.keyframe_rows[ref], table.keypoints[ref]
-    level = np.zeros(len(chosen), dtype=np.int64)
-    pyramid: dict[tuple[float, int], list[np.ndarray]] = {}
-    order = np.argsort(ref_rows, kind="stable")
-    for sel in np.split(order, np.flatnonzero(np.diff(ref_rows[order])) + 1):
-        kf = keyframes[int(ref_rows[sel[0]])]
-        level[sel] = kf.levels[ref_keypoints[sel]]
-        pyramid.setdefault((kf.scale_factor, kf.n_levels), []).append(sel)
-    for (scale_factor, n_levels), parts in sorted(pyramid.items()):
-        sel = np.sort(np.concatenate(parts))
+    # The reference keyframes' levels stacked, one gather for all points rather than one per keyframe.
+    used, which = np.unique(ref_rows, return_inverse=True)
+    refs = [keyframes[r] for r in used.tolist()]
+    starts = np.cumsum([0, *(kf.n_keypoints for kf in refs)])[:-1]
+    level = np.concatenate([kf.levels for kf in refs])[starts[which] + ref_keypoints]
+    pyramids = [(kf.scale_factor, kf.n_levels) for kf in refs]
+    for scale_factor, n_levels in sorted(set(pyramids)):
+        if len(set(pyramids)) == 1:
+            sel = np.arange(len(chosen))
+        else:
+            sel = np.flatnonzero(np.array([p == (scale_factor, n_levels) for p in pyramids])[which])
         lo, hi = scale_invariance_range(distance[sel], level[sel], scale_factor, n_levels)
         store.min_distance_m[rows[chosen[sel]]] = lo
         store.max_distance_m[rows[chosen[sel]]] = hi
-    for members, counts, idx in table.groups(selected):
+    for members, counts, idx in groups:
         store.normal[rows[members]] = mean_viewing_directions(p_world[members], centres[table.keyframe_rows[idx]], counts)
 
 
@@ -146,21 +164,30 @@ def refresh_points(
 ) -> None:
     """Recompute the representative descriptors of ``descriptor_ids`` and the viewing directions and
     distance ranges of ``geometry_ids`` (sorted ids of observed points, whose rows are in ``store``)."""
-    ids = sorted(set(descriptor_ids) | set(geometry_ids)) if descriptor_ids and geometry_ids else descriptor_ids or geometry_ids
+    if descriptor_ids is geometry_ids or not (descriptor_ids and geometry_ids):
+        ids = descriptor_ids or geometry_ids
+    else:
+        ids = sorted(set(descriptor_ids) | set(geometry_ids))
     if not ids:
         return
-    pts = [points[p] for p in ids]
+    pts = list(map(points.__getitem__, ids))
     kf_list = list(keyframes.values())
     table = ObservationTable.of(pts, np.fromiter(keyframes, dtype=np.int64, count=len(keyframes)))
-    rows = np.fromiter((pt.row for pt in pts), dtype=np.int64, count=len(pts))
-    first = np.fromiter((pt.first_keyframe_id for pt in pts), dtype=np.int64, count=len(pts))
+    rows = np.fromiter(map(_ROW, pts), dtype=np.int64, count=len(pts))
+    first = np.fromiter(map(_FIRST_KEYFRAME, pts), dtype=np.int64, count=len(pts))
     ids_arr = np.asarray(ids, dtype=np.int64)
-    refresh_descriptors(kf_list, store, rows, table, _members(ids_arr, descriptor_ids))
-    refresh_geometry(kf_list, store, rows, first, table, _members(ids_arr, geometry_ids))
+    by_descriptor = _members(ids_arr, descriptor_ids)
+    by_geometry = by_descriptor if geometry_ids is descriptor_ids else _members(ids_arr, geometry_ids)
+    descriptor_groups = table.groups(by_descriptor)
+    geometry_groups = descriptor_groups if by_geometry is by_descriptor else table.groups(by_geometry)
+    refresh_descriptors(kf_list, store, rows, table, descriptor_groups)
+    refresh_geometry(kf_list, store, rows, first, table, by_geometry, geometry_groups)
 
 
 def _members(ids: np.ndarray, subset: list[int]) -> np.ndarray:
     """(len(ids),) bool: ``ids`` (sorted) that are in ``subset`` (sorted, a subset of ``ids``)."""
+    if len(subset) == len(ids):
+        return np.ones(len(ids), dtype=bool)
     mask = np.zeros(len(ids), dtype=bool)
     mask[np.searchsorted(ids, np.asarray(subset, dtype=np.int64))] = True
     return mask

@@ -113,9 +113,13 @@ def _epipolar_pairs_in_nodes(kf1, idx1, kf2, idx2, F12, config, nodes1, nodes2) 
         return r[same], c[same]
     r, c = pairs
     lines = np.column_stack([kf1.keypoints_px[idx1], np.ones(len(idx1))]) @ F12  # (N1, 3): a x + b y + c = 0 in kf2
-    gate2 = (config.epipolar_chi2 * kf2.level_sigma2[kf2.levels[idx2]])[c] * (lines[:, 0] ** 2 + lines[:, 1] ** 2)[r]
-    x2, line = kf2.keypoints_px[idx2][c], lines[r]
-    signed = line[:, 0] * x2[:, 0] + line[:, 1] * x2[:, 1] + line[:, 2]
+    # Per pair, 1-D gathers of each coefficient and coordinate: cheaper than gathering rows of
+    # (N, 3) and (N, 2) arrays and reading their strided columns, for the same products.
+    a, b, offset = (np.take(coefficient, r) for coefficient in lines.T)
+    uv2 = kf2.keypoints_px[idx2]
+    u2, v2 = np.take(uv2[:, 0], c), np.take(uv2[:, 1], c)
+    gate2 = np.take(config.epipolar_chi2 * kf2.level_sigma2[kf2.levels[idx2]], c) * np.take(lines[:, 0] ** 2 + lines[:, 1] ** 2, r)
+    signed = a * u2 + b * v2 + offset
     near = signed * signed < gate2  # squared distance to the line < chi2 * sigma^2
     return r[near], c[near]
 
@@ -369,11 +373,7 @@ def create_new_points(bmap: BackendMap, kf_id: int, config: TriangulationConfig,
         mine = np.flatnonzero((which == j) & ~taken[i1])
         matches = mine[_one_to_one(i1[mine], i2[mine], dist[mine], config)]
         good = matches[result.ok[matches]]
-        for k in good.tolist():
-            pt = bmap.new_point(result.p_world[k], kf_id)
-            bmap.add_observation(pt.id, kf_id, int(i1[k]))
-            bmap.add_observation(pt.id, kf2.id, int(i2[k]))
-            created.append(pt.id)
+        created.extend(bmap.new_points_between(result.p_world[good], kf_id, i1[good], kf2.id, i2[good]))
         taken[i1[good]] = True
         logger.debug("keyframe %d x %d: %d matches, %d new points", kf_id, kf2.id, len(matches), len(good))
     return created
