@@ -48,7 +48,7 @@ def blur(image: np.ndarray) -> np.ndarray:
     GaussianBlur takes the separable filter with OpenCV's float32 Gaussian taps. Its AVX2 path fuses
     multiplies and adds, so it rounds some pixels to another grey level than its baseline path
     (CPUs without AVX2) and the descriptors, and lockstep runs, depended on the CPU: the stages
-    pinned OpenCV to its baseline, at a quarter of the extraction's CPU. ``_separable_blur`` is
+    pinned OpenCV to its baseline, which slowed the whole extraction (benchmarks/frontend.md). ``_separable_blur`` is
     that baseline filter in float32 operations none of which fuse (fastmath is off), so it gives
     its bits on any target (tests/frontend/test_orb_descriptor.py compares them).
     """
@@ -227,8 +227,7 @@ def _step_columns(image: np.ndarray, angles: np.ndarray, columns: np.ndarray) ->
 def _orb_compute_blur(image: np.ndarray) -> np.ndarray:
     """The blur ORB.compute applies inside: GaussianBlur on a view into a border-extended copy, which
     takes the separable filter with float32 taps (not ``blur``'s fixed-point one)."""
-    taps = cv2.getGaussianKernel(7, 2.0, cv2.CV_32F)
-    return cv2.sepFilter2D(image, -1, taps, taps, borderType=cv2.BORDER_REFLECT_101)
+    return cv2.sepFilter2D(image, -1, _GAUSSIAN_TAPS, _GAUSSIAN_TAPS, borderType=cv2.BORDER_REFLECT_101)
 
 
 def _orb_tests(image: np.ndarray, columns: np.ndarray, angles: np.ndarray) -> np.ndarray:

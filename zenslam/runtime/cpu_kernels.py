@@ -26,8 +26,8 @@ benchmarks/stage_processes.md):
   rBRIEF kernel, ``frontend/orb_descriptor``), and every OpenCV function it does call (resize,
   FAST, copyMakeBorder, batchDistance, solvePnP's EPnP, Rodrigues) gives the same bits on both
   paths (tests/runtime/test_opencv_dispatch.py), so the frontend process, where OpenCV is hot,
-  runs OpenCV's own choice: the pin cost its extraction a quarter of its CPU
-  (benchmarks/frontend.md). The other stages keep the pin, where it costs next to nothing.
+  runs OpenCV's own choice: the pin slowed its extraction markedly (benchmarks/frontend.md).
+  The other stages keep the pin, where it costs next to nothing.
 - glibc's libm: GLIBC_TUNABLES glibc.cpu.hwcaps=-FMA,-FMA4. libm has FMA variants of exp, log, pow,
   atan2, acos, tan, ... that it uses on CPUs with FMA and AVX2; now and then a result differs in
   the last bit from the SSE2 variants that CPUs without FMA get. Python's

@@ -166,8 +166,9 @@ class Supervisor:
                 log.write(f"---- restart {restart} of {spec.name} ----\n".encode())
                 log.flush()
             try:
+                env = stage_environment(self.env, spec.module)
                 popen = subprocess.Popen(
-                    command, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=stage_environment(self.env, spec.module), process_group=0
+                    command, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=env, process_group=0
                 )
             except OSError as exc:
                 raise ProcessError(f"cannot start {spec.name} ({' '.join(command)}): {exc}") from exc
