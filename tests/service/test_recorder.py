@@ -50,15 +50,17 @@ def _keyframe(kf_id: int, stamp_ns: int, point_ids: list[int], points: np.ndarra
     )
 
 
-def _update(kf_id: int, point_ids: list[int], points: np.ndarray, removed: list[int]) -> MapUpdate:
+def _update(
+    kf_id: int, point_ids: list[int], points: np.ndarray, removed: list[int], stamp_ns: int = 0, removed_keyframes: tuple[int, ...] = ()
+) -> MapUpdate:
     p = len(point_ids)
     T = np.eye(4)
     T[1, 3] = 5.0
     return MapUpdate(
-        keyframe_id=kf_id, stamp_ns=0, keyframes=(KeyframeCorrection(kf_id, T, np.full(2, -1, np.int64)),),
+        keyframe_id=kf_id, stamp_ns=stamp_ns, keyframes=(KeyframeCorrection(kf_id, T, np.full(2, -1, np.int64)),),
         point_ids=np.array(point_ids, np.int64), p_world=np.asarray(points, float).reshape(-1, 3),
         descriptors=np.zeros((p, 32), np.uint8), normals=np.zeros((p, 3)), min_distance_m=np.zeros(p), max_distance_m=np.zeros(p),
-        removed_point_ids=np.array(removed, np.int64),
+        removed_point_ids=np.array(removed, np.int64), removed_keyframe_ids=np.array(removed_keyframes, np.int64),
     )
 
 
@@ -209,6 +211,25 @@ def test_poses_get_a_frame_transform_and_unstamped_messages_the_last_stamp(tmp_p
     assert topics["/frontend/status"][0].log_time_ns == 7_000
 
 
+def test_unstamped_messages_take_their_own_stages_latest_stamp_and_a_zero_stamp_is_a_stamp(tmp_path):
+    # Stages publish independently: the log time of a status must not depend on what another stage
+    # sent just before it arrived. A clip may start at stamp 0 (KITTI does): its answer is logged at 0.
+    path, _ = _record_all(tmp_path, [
+        (keys.sensor_frame(SESSION), codec.SENSOR_FRAME, _frame(8)),  # stamp 9_000_000
+        (keys.backend_map_update(SESSION), codec.MAP_UPDATE, codec.encode_map_update(_update(0, [], [], removed=[], stamp_ns=0))),
+        (keys.frontend_pose(SESSION), codec.POSE_IN_FRAME, codec.encode_pose_in_frame(codec.StampedPose(7_000, np.eye(4)))),
+        (keys.sensor_frame(SESSION), codec.SENSOR_FRAME, _frame(9)),  # stamp 10_000_000
+        (keys.status(SESSION, "frontend"), codec.STAGE_STATUS, codec.encode_stage_status(codec.StageStatusMessage("frontend", "running", 1))),
+        (keys.status(SESSION, "source"), codec.STAGE_STATUS, codec.encode_stage_status(codec.StageStatusMessage("source", "running", 2))),
+        (keys.status(SESSION, "backend"), codec.STAGE_STATUS, codec.encode_stage_status(codec.StageStatusMessage("backend", "running", 1))),
+    ])
+    topics = _by_topic(path)
+    assert [m.log_time_ns for m in topics["/backend/map_update"]] == [0]
+    assert topics["/frontend/status"][0].log_time_ns == 7_000
+    assert topics["/source/status"][0].log_time_ns == 10_000_000
+    assert topics["/backend/status"][0].log_time_ns == 0
+
+
 def test_map_accumulator_applies_replacements_and_removals():
     acc = MapAccumulator()
     acc.add_keyframe(_keyframe(0, 100, [1, 2, 3], np.arange(9.0)))
@@ -220,9 +241,26 @@ def test_map_accumulator_applies_replacements_and_removals():
     assert stamps.tolist() == [100] and poses[0, 1, 3] == 5.0
 
 
+def test_the_map_does_not_depend_on_whether_an_update_arrives_before_its_keyframe():
+    # The backend's updates about keyframe 1 (which moves point 5, removes point 6 and culls keyframe
+    # 0) can reach a recorder before the frontend's message of keyframe 1 itself.
+    keyframes = [_keyframe(0, 100, [1, 2], np.arange(6.0)), _keyframe(1, 200, [5, 6, 7], np.arange(9.0))]
+    update = _update(1, [5], [[0, 0, 9.0]], removed=[6, 1], stamp_ns=200, removed_keyframes=(0,))
+    in_order, update_first = MapAccumulator(), MapAccumulator()
+    for acc, messages in ((in_order, [*keyframes, update]), (update_first, [keyframes[0], update, keyframes[1]])):
+        for message in messages:
+            acc.apply(message) if isinstance(message, MapUpdate) else acc.add_keyframe(message)
+    for acc in (in_order, update_first):
+        ids, p_world = acc.point_array()
+        assert ids.tolist() == [2, 5, 7]
+        np.testing.assert_array_equal(p_world, [[3, 4, 5], [0, 0, 9], [6, 7, 8]])
+        stamps, poses = acc.keyframe_trajectory()
+        assert stamps.tolist() == [200] and poses[0, 1, 3] == 5.0
+
+
 def test_keyframes_and_map_updates_give_point_clouds(tmp_path):
     kf = codec.encode_keyframe(_keyframe(0, 500, [1, 2], [[0, 0, 1.0], [0, 0, 2.0]]))
-    update = codec.encode_map_update(_update(0, [3], [[0, 0, 3.0]], removed=[1]))
+    update = codec.encode_map_update(_update(0, [3], [[0, 0, 3.0]], removed=[1], stamp_ns=500))
     path, _ = _record_all(tmp_path, [
         (keys.frontend_keyframe(SESSION), codec.KEYFRAME, kf),
         (keys.backend_map_update(SESSION), codec.MAP_UPDATE, update),
@@ -232,7 +270,7 @@ def test_keyframes_and_map_updates_give_point_clouds(tmp_path):
     last = PointCloud.FromString(clouds[-1].data)
     assert [f.name for f in last.fields] == ["x", "y", "z"] and last.point_stride == 12
     np.testing.assert_array_equal(np.frombuffer(last.data, "<f4").reshape(-1, 3), [[0, 0, 2], [0, 0, 3]])
-    assert clouds[-1].log_time_ns == 500  # the update has no stamp of its own: the keyframe's
+    assert clouds[-1].log_time_ns == 500  # the update carries its keyframe's stamp
 
 
 def test_point_clouds_come_at_most_once_per_period_and_the_final_map_last(tmp_path):

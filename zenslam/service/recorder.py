@@ -9,9 +9,12 @@ message follows them without its images (``mcap_io.iter_messages`` puts them bac
 Foxglove and rerun: ``/camera/*`` as separate PNG or JPEG copies when ``image_format`` says so,
 ``/tf`` (foxglove.FrameTransform world -> camera for every pose) and ``/map/points``
 (foxglove.PointCloud of the map as rebuilt from keyframes and map updates, at most one per
-``recorder.map_points_period_s`` of sensor time, and the final map). Log and publish
+``recorder.map_points_period_s`` of sensor time, and the final map; the final map does not depend
+on the order the stages' messages arrive in, a cloud before it shows the map as it stood when it
+was written, which may lack a keyframe whose message was still on its way). Log and publish
 times are the messages' own ``stamp_ns`` (messages without one, such as statuses, take the
-latest stamp seen), so a lockstep run's timeline does not depend on the wall clock.
+latest stamp of their stage's messages), so a lockstep run's timeline depends neither on the wall
+clock nor on the order different stages' messages arrive in.
 
 The subscription is lossless: its callback only enqueues into a bounded queue (blocking zenoh,
 hence the publishers, when full) and one worker thread encodes and writes. The process ends on
@@ -61,19 +64,29 @@ class MapAccumulator:
 
     Map updates replace what they list and delete what they remove (their replacement
     semantics), so the last state equals the backend's map as far as its updates said.
+
+    Keyframes come from the frontend and updates from the backend, so an update about a keyframe
+    or its points can arrive before the keyframe's own message. What an update says is always
+    newer (the backend wrote it after it had the keyframe), so a keyframe's message adds only the
+    poses and points no update has named yet, removed ones included: the map then does not depend
+    on the order the two stages' messages arrive in.
     """
 
     def __init__(self) -> None:
         self.keyframe_stamps_ns: dict[int, int] = {}
         self.keyframe_poses: dict[int, np.ndarray] = {}  # id -> T_world_cam (4, 4)
         self.points: dict[int, np.ndarray] = {}  # id -> p_world (3,) metres
+        self._removed_keyframes: set[int] = set()
+        self._removed_points: set[int] = set()
 
     def add_keyframe(self, keyframe: codec.KeyframeMessage) -> None:
-        """A new keyframe's pose and the map points it created."""
+        """A new keyframe's pose and the map points it created, where no map update has named them."""
         self.keyframe_stamps_ns[keyframe.id] = keyframe.stamp_ns
-        self.keyframe_poses[keyframe.id] = np.array(keyframe.T_world_cam, dtype=float)
+        if keyframe.id not in self.keyframe_poses and keyframe.id not in self._removed_keyframes:
+            self.keyframe_poses[keyframe.id] = np.array(keyframe.T_world_cam, dtype=float)
         for point_id, p_world in zip(keyframe.new_point_ids.tolist(), np.asarray(keyframe.new_points_world, dtype=float)):
-            self.points[point_id] = p_world
+            if point_id not in self.points and point_id not in self._removed_points:
+                self.points[point_id] = p_world
 
     def apply(self, update: MapUpdate) -> None:
         """Replace the listed keyframe poses and points, delete the removed ones."""
@@ -81,10 +94,14 @@ class MapAccumulator:
             self.keyframe_poses[correction.id] = np.array(correction.T_world_cam, dtype=float)
         for point_id, p_world in zip(update.point_ids.tolist(), np.asarray(update.p_world, dtype=float)):
             self.points[point_id] = p_world
-        for point_id in update.removed_point_ids.tolist():
+        removed_points = update.removed_point_ids.tolist()
+        for point_id in removed_points:
             self.points.pop(point_id, None)
-        for keyframe_id in update.removed_keyframe_ids.tolist():
+        self._removed_points.update(removed_points)
+        removed_keyframes = update.removed_keyframe_ids.tolist()
+        for keyframe_id in removed_keyframes:
             self.keyframe_poses.pop(keyframe_id, None)
+        self._removed_keyframes.update(removed_keyframes)
 
     def point_array(self) -> tuple[np.ndarray, np.ndarray]:
         """(ids (P,) int64, p_world (P, 3) metres), ordered by id."""
@@ -146,6 +163,23 @@ def point_cloud(p_world: np.ndarray, stamp_ns: int) -> bytes:
     return msg.SerializeToString()
 
 
+def _stamp_of(decoded: object) -> int | None:
+    """A decoded message's stamp (0 is one: a clip may start at 0), None for a message without one."""
+    if isinstance(decoded, codec.FrameMessage):
+        return int(decoded.frame.stamp_ns)
+    stamp_ns = getattr(decoded, "stamp_ns", None)
+    return None if stamp_ns is None else int(stamp_ns)
+
+
+# A topic's first segment names the stage that publishes it, but for the source's sensor data.
+_STAGE_OF_TOPIC_ROOT = {"sensor": "source"}
+
+
+def _stage_of(topic: str) -> str:
+    root = topic.split("/", 2)[1] if topic.startswith("/") else topic
+    return _STAGE_OF_TOPIC_ROOT.get(root, root)
+
+
 # Schemas whose messages carry what a recording derives (the map, the ends of the stages' streams).
 _CARRIED_STATE = {codec.KEYFRAME, codec.MAP_UPDATE, codec.SENSOR_FRAME, codec.TRACKING_STATE}
 
@@ -158,7 +192,9 @@ class Recorder:
         self.config = config
         self.session = session
         self.map = MapAccumulator()
-        self.last_stamp_ns = 0  # the latest stamp seen: the log time of messages without one
+        # Per stage (a topic's first segment), its latest stamp: the log time of its messages without
+        # one. A stage's messages arrive in the order it sent them, those of different stages in any.
+        self.stage_stamps_ns: dict[str, int] = {}
         self.undecodable = 0  # messages recorded raw whose derived channels could not be made
         self._map_written_ns: int | None = None  # log time of the last /map/points cloud
         self._map_changed_ns: int | None = None  # log time of a map change no cloud shows yet
@@ -174,9 +210,7 @@ class Recorder:
         except codec.MessageError as exc:
             self.undecodable += 1
             logger.warning("%s: %s; recorded as is, nothing derived from it", topic, exc)
-        stamp_ns = int(getattr(decoded, "stamp_ns", 0) or getattr(getattr(decoded, "frame", None), "stamp_ns", 0))
-        self.last_stamp_ns = max(self.last_stamp_ns, stamp_ns)
-        log_time = stamp_ns or self.last_stamp_ns
+        log_time = self._log_time(topic, _stamp_of(decoded))
         stored = data
         if isinstance(decoded, codec.FrameMessage) and self.config.image_format == "frame":
             # Each image once: the viewers' camera messages first, then the frame that refers to them.
@@ -217,7 +251,7 @@ class Recorder:
             schema_name = schema.name if schema is not None else None
             self.writer.write(channel.topic, schema_name, message.data, message.log_time, message.publish_time)
             report.messages[channel.topic] = report.messages.get(channel.topic, 0) + 1
-            self.last_stamp_ns = max(self.last_stamp_ns, int(message.log_time))
+            self._log_time(channel.topic, int(message.log_time))
             if schema_name not in _CARRIED_STATE:
                 continue
             try:
@@ -232,6 +266,13 @@ class Recorder:
                 self.map.apply(decoded)
         report.complete, report.stop_reason = end.complete, end.reason
         return report
+
+    def _log_time(self, topic: str, stamp_ns: int | None) -> int:
+        stage = _stage_of(topic)
+        if stamp_ns is None:
+            return self.stage_stamps_ns.get(stage, 0)
+        self.stage_stamps_ns[stage] = max(self.stage_stamps_ns.get(stage, 0), stamp_ns)
+        return stamp_ns
 
     def finish(self) -> None:
         """Write what is still due: the latest map, if its last change came too soon after the previous cloud."""
