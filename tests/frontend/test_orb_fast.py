@@ -10,7 +10,7 @@ import pytest
 
 from zenslam.frontend import orb_extractor
 from zenslam.frontend.orb_extractor import OrbConfig, OrbExtractor
-from zenslam.frontend.orb_fast import fast_in_windows
+from zenslam.frontend.orb_fast import fast_in_windows, strength_map
 
 from orb_fast_reference import opencv_fast, window_detect_cells  # noqa: E402  (tests/frontend is on the path under pytest)
 from test_orb_extractor import textured_image  # noqa: E402
@@ -77,6 +77,15 @@ def test_windows_equal_one_opencv_call_per_window() -> None:
     np.testing.assert_array_equal(score, np.concatenate(expected_score))
 
 
+def test_strengths_do_not_depend_on_the_box_for_pixels_3_px_inside_it() -> None:
+    image = textured_image(6)
+    whole = strength_map(image, (0, 0, 640, 480))
+    crop = strength_map(image, (100, 50, 300, 170))
+    np.testing.assert_array_equal(crop[3:-3, 3:-3], whole[53:167, 103:297])
+    assert not crop[:3].any() and not crop[-3:].any() and not crop[:, :3].any() and not crop[:, -3:].any()
+    assert np.count_nonzero(crop) > 1000
+
+
 def test_windows_outside_the_image_are_refused() -> None:
     with pytest.raises(ValueError, match="inside the image"):
         fast_in_windows(np.zeros((20, 20), np.uint8), np.array([[0, 0, 21, 20]]), 7)
@@ -134,3 +143,15 @@ def test_extract_equals_opencv_per_window_on_kitti_and_euroc(kitti_root: Path, e
     for path in paths:
         image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
         _assert_same_features(OrbExtractor(OrbConfig(threads=1)).extract(image)[0], _extract_with(image, window_detect_cells))
+
+
+def test_the_warm_up_compiles_the_fast_kernels_for_the_types_extraction_uses() -> None:
+    from zenslam.frontend import orb_fast
+    from zenslam.frontend.kernel_warm_up import warm_up_kernels
+
+    warm_up_kernels()
+    kernels = (orb_fast._strengths, orb_fast._suppressed)
+    compiled = [len(k.signatures) for k in kernels]
+    assert all(compiled)
+    OrbExtractor(OrbConfig(threads=1)).extract(textured_image(0, 370, 1226))
+    assert [len(k.signatures) for k in kernels] == compiled  # nothing left to compile at the first frame

@@ -214,11 +214,18 @@ class OrbExtractor:
 # `zenslam run`, the backend, the recorder) do not load it.
 
 
-def fast_in_windows(image: np.ndarray, windows: np.ndarray, threshold: int) -> tuple[np.ndarray, np.ndarray]:
-    """``orb_fast.fast_in_windows``: FAST corners and scores in each window, as one OpenCV call per window."""
+def strength_map(image: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarray:
+    """``orb_fast.strength_map``: the FAST strength (score + 1 of a corner at any threshold) of each pixel of a box."""
     from zenslam.frontend import orb_fast
 
-    return orb_fast.fast_in_windows(image, windows, threshold)
+    return orb_fast.strength_map(image, box)
+
+
+def corners_in_windows(strength: np.ndarray, windows: np.ndarray, threshold: int) -> tuple[np.ndarray, np.ndarray]:
+    """``orb_fast.corners_in_windows``: FAST corners and scores in each window, as one OpenCV call per window."""
+    from zenslam.frontend import orb_fast
+
+    return orb_fast.corners_in_windows(strength, windows, threshold)
 
 
 def distribute_quadtree(xy: np.ndarray, response: np.ndarray, width: int, height: int, n_target: int) -> np.ndarray:
@@ -303,9 +310,10 @@ def _detect_cells(image: np.ndarray, config: OrbConfig) -> tuple[np.ndarray, np.
     FAST(ini) with non-maximum suppression equals FAST(min) keeping scores >= ini, so one
     FAST(ini) pass over the whole region decides which cells are empty; each empty cell's window
     then gets its own FAST(min), corners and suppression limited to the window as ORB-SLAM's
-    call on that window gives. Returns keypoints (K, 2) float32, responses (K,) float32 (the
-    region's corners, then the empty cells' in row-major cell order), and the region's width
-    and height (level pixels).
+    call on that window gives. Both read one map of FAST strengths: a pixel's score depends
+    neither on the threshold nor on the window once it is 3 px inside. Returns keypoints (K, 2)
+    float32, responses (K,) float32 (the region's corners, then the empty cells' in row-major
+    cell order), and the region's width and height (level pixels).
     """
     rows, cols = image.shape
     border = _EDGE_THRESHOLD - _FAST_RADIUS
@@ -316,21 +324,18 @@ def _detect_cells(image: np.ndarray, config: OrbConfig) -> tuple[np.ndarray, np.
     n_rows = max(1, int(height / config.cell_size_px))
     w_cell = int(math.ceil(width / n_cols))
     h_cell = int(math.ceil(height / n_rows))
-    region = np.array([[border, border, border + width, border + height]])
-    xy, score = fast_in_windows(image, region, config.ini_fast_threshold)
+    strength = strength_map(image, (border, border, border + width, border + height))
+    xy, score = corners_in_windows(strength, np.array([[0, 0, width, height]]), config.ini_fast_threshold)
     # Cell (i, j) detects in [3 + j*w_cell, 3 + (j+1)*w_cell): its FAST window is 6 px wider than the cell.
-    col = np.minimum((xy[:, 0] - border - _FAST_RADIUS) // w_cell, n_cols - 1)
-    row = np.minimum((xy[:, 1] - border - _FAST_RADIUS) // h_cell, n_rows - 1)
+    col = np.minimum((xy[:, 0] - _FAST_RADIUS) // w_cell, n_cols - 1)
+    row = np.minimum((xy[:, 1] - _FAST_RADIUS) // h_cell, n_rows - 1)
     counts = np.bincount(row * n_cols + col, minlength=n_rows * n_cols)
     empty_row, empty_col = np.divmod(np.flatnonzero(counts == 0), n_cols)
     if len(empty_row):
-        x0 = border + empty_col * w_cell
-        y0 = border + empty_row * h_cell
-        windows = np.stack(
-            [x0, y0, np.minimum(x0 + w_cell + 2 * _FAST_RADIUS, border + width), np.minimum(y0 + h_cell + 2 * _FAST_RADIUS, border + height)],
-            axis=1,
-        )
-        cell_xy, cell_score = fast_in_windows(image, windows, config.min_fast_threshold)
+        x0, y0 = empty_col * w_cell, empty_row * h_cell
+        x1 = np.minimum(x0 + w_cell + 2 * _FAST_RADIUS, width)
+        y1 = np.minimum(y0 + h_cell + 2 * _FAST_RADIUS, height)
+        cell_xy, cell_score = corners_in_windows(strength, np.stack([x0, y0, x1, y1], axis=1), config.min_fast_threshold)
         xy = np.concatenate([xy, cell_xy])
         score = np.concatenate([score, cell_score])
-    return (xy - border).astype(np.float32), score.astype(np.float32), width, height
+    return xy.astype(np.float32), score.astype(np.float32), width, height

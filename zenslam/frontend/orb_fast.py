@@ -8,8 +8,7 @@ from zenslam.compiled import kernel
 
 _RADIUS = 3  # pixels: the circle's radius; no corner closer than this to its window's edge
 
-# OpenCV's circle of 16 pixels (fast_score.cpp, offsets16) as (dx, dy), in its order: the score
-# reads arcs of this sequence, so the order is part of the result.
+# OpenCV's circle of 16 pixels (fast_score.cpp, offsets16) as (dx, dy), in its order.
 _CIRCLE = np.array(
     [(0, 3), (1, 3), (2, 2), (3, 1), (3, 0), (3, -1), (2, -2), (1, -3),
      (0, -3), (-1, -3), (-2, -2), (-3, -1), (-3, 0), (-3, 1), (-2, 2), (-1, 3)],
@@ -30,58 +29,99 @@ def fast_in_windows(image: np.ndarray, windows: np.ndarray, threshold: int) -> t
     this window, score 0). Integer arithmetic only. Returns (K, 2) int32 corners (x, y) in image
     pixels, window after window, each in raster order, and their (K,) int32 scores.
     """
+    windows = _checked_windows(windows, image.shape)
+    if len(windows) == 0:
+        return np.zeros((0, 2), np.int32), np.zeros(0, np.int32)
+    x0, y0 = int(windows[:, 0].min()), int(windows[:, 1].min())
+    x1, y1 = int(windows[:, 2].max()), int(windows[:, 3].max())
+    strength = strength_map(image, (x0, y0, x1, y1))
+    xy, score = corners_in_windows(strength, windows - [x0, y0, x0, y0], threshold)
+    return xy + np.array([x0, y0], np.int32), score
+
+
+def strength_map(image: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarray:
+    """(y1 - y0, x1 - x0) uint8 FAST strengths of the pixels of ``image[y0:y1, x0:x1]``, ``box`` = (x0, y0, x1, y1).
+
+    A pixel's strength s is the FAST score it has as a corner plus one: it is a corner at
+    threshold t exactly when s > t, with OpenCV's score s - 1, whatever t. Pixels closer than
+    3 px to the box's edge are 0 (no corner), as in an OpenCV call on that crop; a pixel farther
+    in depends only on the pixels within 3 px of it, so every window of the box that holds it
+    3 px inside sees the same strength.
+    """
     image = np.ascontiguousarray(image, np.uint8)
+    (x0, y0, x1, y1) = (int(v) for v in _checked_windows(np.array([box]), image.shape)[0])
+    offsets = _CIRCLE[:, 0] + _CIRCLE[:, 1] * image.shape[1]
+    return _strengths(image.ravel(), image.shape[1], x0, y0, x1, y1, offsets)
+
+
+def corners_in_windows(strength: np.ndarray, windows: np.ndarray, threshold: int) -> tuple[np.ndarray, np.ndarray]:
+    """FAST corners at ``threshold`` in each window of a ``strength_map``, as ``fast_in_windows`` returns them.
+
+    ``windows`` (M, 4) rows ``(x0, y0, x1, y1)`` are in the map's pixels. A corner of a window is
+    a pixel at least 3 px inside it with strength s > threshold; it is kept when every neighbour
+    that is a corner of the same window scores less, i.e. has a smaller strength (a neighbour that
+    is no corner scores 0, and a kept corner must score above 0: s >= 2).
+    """
+    windows = _checked_windows(windows, strength.shape)
+    threshold = min(max(int(threshold), 0), 255)  # OpenCV clamps it likewise
+    return _suppressed(np.ascontiguousarray(strength, np.uint8), windows, threshold)
+
+
+def _checked_windows(windows: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     windows = np.ascontiguousarray(windows, np.int64).reshape(-1, 4)
     if len(windows) and (
         windows[:, 0].min() < 0
         or windows[:, 1].min() < 0
-        or windows[:, 2].max() > image.shape[1]
-        or windows[:, 3].max() > image.shape[0]
+        or windows[:, 2].max() > shape[1]
+        or windows[:, 3].max() > shape[0]
     ):
-        raise ValueError(f"FAST windows must lie inside the image of shape {image.shape}")
-    threshold = min(max(int(threshold), 0), 255)  # OpenCV clamps it likewise
-    offsets = _CIRCLE[:, 0] + _CIRCLE[:, 1] * image.shape[1]
-    return _fast_windows(image.ravel(), image.shape[1], windows, threshold, offsets)
+        raise ValueError(f"FAST windows must lie inside the image of shape {shape}; got boxes {windows.tolist()[:4]}...")
+    return windows
 
 
 @kernel
-def _fast_windows(flat, cols, windows, threshold, offsets):
+def _strengths(flat, cols, x0, y0, x1, y1, offsets):
+    strength = np.zeros((max(y1 - y0, 0), max(x1 - x0, 0)), np.uint8)
+    for y in range(_RADIUS, y1 - y0 - _RADIUS):
+        _row_strengths(flat, (y0 + y) * cols + x0, _RADIUS, x1 - x0 - _RADIUS, offsets, strength[y])
+    return strength
+
+
+@kernel
+def _suppressed(strength, windows, threshold):
     capacity = 1024
     xy = np.empty((capacity, 2), np.int32)
     score = np.empty(capacity, np.int32)
     n = 0
-    max_h = 0
-    max_w = 0
-    for w in range(len(windows)):
-        max_w = max(max_w, windows[w, 2] - windows[w, 0])
-        max_h = max(max_h, windows[w, 3] - windows[w, 1])
-    scores = np.zeros((max_h, max_w), np.uint8)  # the window's scores; 0 off its candidates
     for w in range(len(windows)):
         x0, y0, x1, y1 = windows[w, 0], windows[w, 1], windows[w, 2], windows[w, 3]
-        h, wd = y1 - y0, x1 - x0
-        if h < 2 * _RADIUS + 1 or wd < 2 * _RADIUS + 1:
-            continue
-        scores[:h, :wd] = 0
-        for y in range(_RADIUS, h - _RADIUS):
-            _row_scores(flat, (y0 + y) * cols + x0, _RADIUS, wd - _RADIUS, threshold, offsets, scores[y])
-        for y in range(_RADIUS, h - _RADIUS):
-            for x in range(_RADIUS, wd - _RADIUS):
-                s = scores[y, x]
-                if s == 0:
+        # the window's candidates: [cx0, cx1) x [cy0, cy1); their neighbours outside it score 0
+        cx0, cy0, cx1, cy1 = x0 + _RADIUS, y0 + _RADIUS, x1 - _RADIUS, y1 - _RADIUS
+        floor = max(threshold, 1)  # kept corners have s > threshold and a score s - 1 > 0
+        for y in range(cy0, cy1):
+            row, up, down = strength[y], strength[y - 1], strength[y + 1]
+            has_up, has_down = y > cy0, y < cy1 - 1
+            # unsigned column indices: no wraparound test in the scan over every pixel
+            for ux in range(np.uint64(max(cx0, 0)), np.uint64(max(cx1, 0))):
+                s = row[ux]
+                if s <= floor:
                     continue
-                if not (
-                    s > scores[y, x - 1] and s > scores[y, x + 1]
-                    and s > scores[y - 1, x - 1] and s > scores[y - 1, x] and s > scores[y - 1, x + 1]
-                    and s > scores[y + 1, x - 1] and s > scores[y + 1, x] and s > scores[y + 1, x + 1]
-                ):  # fmt: skip
+                x = np.int64(ux)
+                has_left, has_right = x > cx0, x < cx1 - 1
+                if (
+                    (has_left and (row[x - 1] >= s or (has_up and up[x - 1] >= s) or (has_down and down[x - 1] >= s)))
+                    or (has_right and (row[x + 1] >= s or (has_up and up[x + 1] >= s) or (has_down and down[x + 1] >= s)))
+                    or (has_up and up[x] >= s)
+                    or (has_down and down[x] >= s)
+                ):
                     continue
                 if n == capacity:
                     capacity *= 2
                     xy = _grown(xy, capacity)
                     score = _grown(score, capacity)
-                xy[n, 0] = x0 + x
-                xy[n, 1] = y0 + y
-                score[n] = s
+                xy[n, 0] = x
+                xy[n, 1] = y
+                score[n] = s - 1
                 n += 1
     return xy[:n].copy(), score[:n].copy()
 
@@ -94,21 +134,19 @@ def _grown(array, capacity):
 
 
 @kernel
-def _row_scores(flat, base, x_start, x_stop, threshold, offsets, out):
-    """out[x] = OpenCV's FAST score of the pixel flat[base + x] if it is a corner, else 0, for x in [x_start, x_stop).
+def _row_strengths(flat, base, x_start, x_stop, offsets, out):
+    """out[x] = the FAST strength of the pixel flat[base + x] for x in [x_start, x_stop): see ``strength_map``.
 
-    A pixel is a corner when some arc of 9 contiguous circle pixels is all darker than it by more
-    than the threshold (the arc's brightest pixel is) or all brighter (its darkest is).
-    cornerScore<16>'s a0/b0 loops compute max(threshold, A, B) - 1, where A is the largest over
-    the 16 arcs of the arc's smallest centre-minus-pixel difference and B the same for
-    pixel-minus-centre: the corner's score is max(A, B) - 1, and A = centre - (the smallest over
-    the arcs of the arc's largest pixel), B = (the largest arc minimum) - centre. Arc extremes
-    come from pairs, then fours, eights and nines of neighbours. Unsigned bytes throughout (numba
-    widens integer arithmetic to 64 bits; min, max and comparisons of bytes stay bytes) and
-    unsigned indices (numba's negative-index wraparound would keep LLVM from vectorising):
-    LLVM runs it 32 pixels at a time.
+    A pixel is a corner at threshold t when some arc of 9 contiguous circle pixels is all darker
+    than it by more than t (the arc's brightest pixel is) or all brighter (its darkest is). So it
+    is a corner exactly when max(A, B) > t, where A = centre - (the smallest over the 16 arcs of
+    the arc's largest pixel) and B = (the largest arc minimum) - centre; and cornerScore<16>'s
+    a0/b0 loops compute max(t, A, B) - 1, max(A, B) - 1 for a corner. Arc extremes come from
+    pairs, then fours, eights and nines of neighbours. Unsigned bytes throughout (numba widens
+    integer arithmetic to 64 bits; min, max and comparisons of bytes stay bytes) and unsigned
+    indices (numba's negative-index wraparound would keep LLVM from vectorising): LLVM runs it
+    32 pixels at a time.
     """
-    t = np.uint8(threshold)
     c = np.uint64(base)
     s0, s1, s2, s3 = np.uint64(base + offsets[0]), np.uint64(base + offsets[1]), np.uint64(base + offsets[2]), np.uint64(base + offsets[3])
     s4, s5, s6, s7 = np.uint64(base + offsets[4]), np.uint64(base + offsets[5]), np.uint64(base + offsets[6]), np.uint64(base + offsets[7])
@@ -149,8 +187,7 @@ def _row_scores(flat, base, x_start, x_stop, threshold, offsets, out):
             max(min(b8, b12, p0), min(b9, b13, p1), min(b10, b14, p2), min(b11, b15, p3)),
             max(min(b12, b0, p4), min(b13, b1, p5), min(b14, b2, p6), min(b15, b3, p7)),
         )
-        dark = v - min(v, darkest_arc)
+        dark = v - min(v, darkest_arc)  # A, or 0 when negative: no corner at any threshold then
         bright = brightest_arc - min(brightest_arc, v)
-        s = max(dark, bright)
-        out[x] = (s - np.uint8(1)) if s > t else np.uint8(0)  # a score-0 corner never survives NMS
+        out[x] = max(dark, bright)
 
