@@ -89,48 +89,40 @@ def _strengths(flat, cols, x0, y0, x1, y1, offsets):
 
 @kernel
 def _suppressed(strength, windows, threshold):
-    capacity = 1024
+    capacity = 0  # at most one corner per candidate pixel (np.empty only reserves the pages)
+    for w in range(len(windows)):
+        capacity += max(windows[w, 2] - windows[w, 0] - 2 * _RADIUS, 0) * max(windows[w, 3] - windows[w, 1] - 2 * _RADIUS, 0)
     xy = np.empty((capacity, 2), np.int32)
     score = np.empty(capacity, np.int32)
     n = 0
     for w in range(len(windows)):
-        x0, y0, x1, y1 = windows[w, 0], windows[w, 1], windows[w, 2], windows[w, 3]
         # the window's candidates: [cx0, cx1) x [cy0, cy1); their neighbours outside it score 0
-        cx0, cy0, cx1, cy1 = x0 + _RADIUS, y0 + _RADIUS, x1 - _RADIUS, y1 - _RADIUS
+        cx0, cy0 = windows[w, 0] + _RADIUS, windows[w, 1] + _RADIUS
+        cx1, cy1 = windows[w, 2] - _RADIUS, windows[w, 3] - _RADIUS
         floor = max(threshold, 1)  # kept corners have s > threshold and a score s - 1 > 0
         for y in range(cy0, cy1):
             row, up, down = strength[y], strength[y - 1], strength[y + 1]
-            has_up, has_down = y > cy0, y < cy1 - 1
             # unsigned column indices: no wraparound test in the scan over every pixel
             for ux in range(np.uint64(max(cx0, 0)), np.uint64(max(cx1, 0))):
                 s = row[ux]
                 if s <= floor:
                     continue
                 x = np.int64(ux)
-                has_left, has_right = x > cx0, x < cx1 - 1
-                if (
-                    (has_left and (row[x - 1] >= s or (has_up and up[x - 1] >= s) or (has_down and down[x - 1] >= s)))
-                    or (has_right and (row[x + 1] >= s or (has_up and up[x + 1] >= s) or (has_down and down[x + 1] >= s)))
-                    or (has_up and up[x] >= s)
-                    or (has_down and down[x] >= s)
-                ):
+                # neighbours clamped into the window: a repeated pixel does not change a maximum,
+                # but the pixel itself (s) must stay out of its own row's
+                x_lo, x_hi = max(x - 1, cx0), min(x + 1, cx1 - 1)
+                left = row[x - 1] if x > cx0 else np.uint8(0)
+                right = row[x + 1] if x < cx1 - 1 else np.uint8(0)
+                above = max(up[x_lo], up[x], up[x_hi]) if y > cy0 else np.uint8(0)
+                below = max(down[x_lo], down[x], down[x_hi]) if y < cy1 - 1 else np.uint8(0)
+                neighbours = max(left, right, above, below)  # the largest strength of the window's 8 neighbours
+                if neighbours >= s:
                     continue
-                if n == capacity:
-                    capacity *= 2
-                    xy = _grown(xy, capacity)
-                    score = _grown(score, capacity)
                 xy[n, 0] = x
                 xy[n, 1] = y
                 score[n] = s - 1
                 n += 1
     return xy[:n].copy(), score[:n].copy()
-
-
-@kernel
-def _grown(array, capacity):
-    out = np.empty((capacity,) + array.shape[1:], array.dtype)
-    out[: len(array)] = array
-    return out
 
 
 @kernel
