@@ -12,7 +12,8 @@ from pathlib import Path
 import pytest
 
 
-# A child's view: a digest of the ORB features of a textured image and (when present) two KITTI frames,
+# A child's view: a digest of the ORB features of a textured image and (when present) two KITTI frames
+# (FAST corners, quadtree, orientation, descriptors: every kernel of the extractor),
 # the CPU numba compiled for, and how many of the extractor's kernels it compiled or loaded from the cache.
 _CHILD = """
 import hashlib, json, sys
@@ -20,7 +21,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 from numba.core import config
-from zenslam.frontend import orb_descriptor, orb_orientation, orb_quadtree
+from zenslam.frontend import orb_descriptor, orb_fast, orb_orientation, orb_quadtree
 from zenslam.frontend.orb_extractor import OrbConfig, OrbExtractor
 rng = np.random.default_rng(5)
 images = [cv2.GaussianBlur(rng.integers(0, 256, (370, 1226), dtype=np.uint8), (0, 0), 1.5)]
@@ -32,7 +33,8 @@ for image in images:
     features, _ = extractor.extract(image)
     for name in ("px", "level", "angle_deg", "response", "descriptors"):
         digest.update(getattr(features, name).tobytes())
-kernels = [orb_quadtree._morton_codes, orb_quadtree._distribute, orb_orientation._centroid_moments, orb_descriptor._descriptors]
+kernels = [orb_quadtree._morton_codes, orb_quadtree._distribute, orb_orientation._centroid_moments, orb_descriptor._descriptors,
+           orb_fast._strengths, orb_fast._suppressed]
 print(json.dumps({
     "digest": digest.hexdigest(),
     "images": len(images),

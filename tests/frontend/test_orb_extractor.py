@@ -13,7 +13,6 @@ from zenslam.frontend.orb_extractor import (
     Features,
     OrbConfig,
     OrbExtractor,
-    _fast_in_cells,
     base_to_level_px,
     features_per_level,
     level_to_base_px,
@@ -115,32 +114,6 @@ def test_low_contrast_cells_fall_back_to_the_min_threshold() -> None:
     features, _ = OrbExtractor(OrbConfig(n_features=300)).extract(image)
     assert len(features) > 100
     assert features.response.max() < 20  # every keypoint came from the min-threshold fallback
-
-
-def test_fast_fallback_mosaic_equals_one_call_per_window(image: np.ndarray) -> None:
-    # _fast_in_cells tiles the windows (cell + 3 px margin) into a mosaic; away from the margins,
-    # where non-maximum suppression cannot see a neighbouring tile, it must find exactly the corners
-    # (and scores) of one FAST call per window. 40 cells: more than one mosaic row, blank padding.
-    # (At the margins the mosaic may differ: 15 of 97 corners on this image.)
-    detector = cv2.FastFeatureDetector_create(7, True, cv2.FAST_FEATURE_DETECTOR_TYPE_9_16)
-    region = image[16:-16, 16:-16]
-    w_cell, h_cell = 30, 29
-    cell_row, cell_col = np.divmod(np.arange(0, 80, 2), 20)  # every other cell of 4 rows x 20 columns
-    xy, response = _fast_in_cells(detector, region, cell_row, cell_col, w_cell, h_cell)
-    expected = set()
-    for row, col in zip(cell_row.tolist(), cell_col.tolist()):
-        y0, x0 = row * h_cell, col * w_cell
-        window = np.ascontiguousarray(region[y0 : y0 + h_cell + 6, x0 : x0 + w_cell + 6])
-        for k in detector.detect(window):
-            u, v = int(k.pt[0]), int(k.pt[1])
-            expected.add((x0 + u, y0 + v, k.response))
-    assert len(expected) > 50
-
-    def inner(x: int, y: int) -> bool:  # >= 4 px inside its window: NMS saw only its own window's pixels
-        return 1 <= (x - 3) % w_cell < w_cell - 1 and 1 <= (y - 3) % h_cell < h_cell - 1
-
-    found = {(int(x), int(y), float(r)) for (x, y), r in zip(xy.tolist(), response.tolist())}
-    assert {k for k in found if inner(k[0], k[1])} == {k for k in expected if inner(k[0], k[1])}
 
 
 def test_quadtree_keeps_the_best_keypoint_per_cluster() -> None:
