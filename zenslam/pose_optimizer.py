@@ -332,6 +332,13 @@ def _linearize(T: np.ndarray, problem: _Problem, robust: bool, min_depth_m: floa
 _NO_INFORMATION = np.zeros((0, 3, 3))  # ``normal_equations``: weigh by inv_sigma2 alone
 
 
+def load_compiled_kernel() -> None:
+    """Load the normal equations' compiled kernel from numba's cache (compile it, on a machine's first
+    start): for a process to call at its start when a later first pose optimisation must not wait
+    for it (numba's start and the load take most of a second)."""
+    _linearize(np.eye(4), _Problem(*(np.ones((1, 3)),) * 3, np.ones(1), np.ones(1), 1.0, 1.0, 0.0, 0.0, 0.0), True, 1e-3)
+
+
 def _solve_round(T, problem, robust, config) -> tuple[np.ndarray, int]:
     """Levenberg-Marquardt with IRLS Huber weights on SE(3) (left perturbation); returns (T, iterations)."""
     cost, H, g = _linearize(T, problem, robust, config.min_depth_m)
