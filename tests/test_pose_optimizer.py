@@ -1,5 +1,7 @@
 """Pose-only optimisation recovers known poses from synthetic observations with gross outliers."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -138,24 +140,34 @@ def test_mismatched_shapes_name_the_argument():
         optimize_pose(T_init, p_world, obs_px[:10], obs_right_u, inv_sigma2, STEREO, PoseOptimizerConfig())
 
 
-def test_analytic_jacobian_matches_finite_differences():
+@pytest.mark.parametrize("weighted", [False, True])
+def test_normal_equations_match_finite_difference_jacobians(weighted):
+    # H = J^T W J and g = J^T W r of the compiled pass, against J from central differences of the
+    # residuals under the left perturbation T <- exp(xi) T; W per observation or inv_sigma2 I.
     rng = np.random.default_rng(12)
     p_world = rng.normal(size=(6, 3)) + [0.0, 0.0, 6.0]
     usable = np.ones(6, dtype=bool)
     problem = pose_optimizer._make_problem(
-        p_world, rng.normal(size=(6, 2)), np.ones(6), np.ones(6), usable, STEREO, PoseOptimizerConfig()
+        p_world, rng.normal(size=(6, 2)), np.array([1.0, -1, 1, 1, -1, 1]), rng.uniform(0.3, 1.0, 6), usable, STEREO, PoseOptimizerConfig()
     )
+    if weighted:
+        A = rng.normal(size=(6, 3, 3))
+        present = problem.row_mask[:, :, None] * problem.row_mask[:, None, :]
+        problem = dataclasses.replace(problem, information=(A @ A.transpose(0, 2, 1) + np.eye(3)) * present)
     T = make_T(so3_exp([0.1, -0.2, 0.05]), [0.3, -0.1, 0.2])
-    p_cam, _ = pose_optimizer._project(T, problem)
-    analytic = pose_optimizer._jacobian(p_cam, problem)
-    numeric = np.zeros_like(analytic)
+    _, residual = pose_optimizer._project(T, problem)
+    J = np.zeros((6, 3, 6))
     for k in range(6):
         step = np.zeros(6)
         step[k] = 1e-6
         _, plus = pose_optimizer._project(se3_exp(step) @ T, problem)
         _, minus = pose_optimizer._project(se3_exp(-step) @ T, problem)
-        numeric[:, :, k] = (plus - minus) / 2e-6
-    np.testing.assert_allclose(analytic, numeric, rtol=1e-5, atol=1e-4)
+        J[:, :, k] = (plus - minus) / 2e-6
+    W = problem.information if weighted else problem.inv_sigma2[:, None, None] * np.eye(3) * problem.row_mask[:, :, None]
+    cost, H, g = pose_optimizer._linearize(T, problem, robust=False, min_depth_m=1e-3)
+    np.testing.assert_allclose(H, np.einsum("nki,nkl,nlj->ij", J, W, J), rtol=1e-5, atol=1e-3)
+    np.testing.assert_allclose(g, np.einsum("nki,nkl,nl->i", J, W, residual), rtol=1e-5, atol=1e-3)
+    assert cost == pytest.approx(float(np.einsum("nk,nkl,nl->", residual, W, residual)), rel=1e-12)
 
 
 def test_config_builds_from_a_mapping():

@@ -6,10 +6,11 @@ and the backend (placing a keyframe whose local BA waits: ``backend.keyframe_pla
 The camera pose ``T_cam_world`` maps world points into the camera frame (x right, y down,
 z forward). Observations are level-0 pixels ``(u, v)`` and, for stereo / RGB-D keypoints, the
 right-image coordinate ``u_right = u - bf / z``. This is ORB-SLAM2's ``Optimizer::PoseOptimization``
-(robust rounds, chi-square outlier classification, kernel dropped in the last round) solved by a
-vectorised Levenberg-Marquardt on SE(3) in numpy: the same answers as gtsam factor graphs of the
-problem, in a fraction of the time, because building and linearising per-observation factors from
-Python dominates a single 6-dof solve (``benchmarks/pose_optimizer.py``, benchmarks/frontend.md).
+(robust rounds, chi-square outlier classification, kernel dropped in the last round) solved by
+Levenberg-Marquardt on SE(3), its normal equations summed by a compiled loop over the observations
+(``pose_normal_equations``): the same answers as gtsam factor graphs of the problem, in a fraction
+of the time, because building and linearising per-observation factors from Python dominates a
+single 6-dof solve (``benchmarks/pose_optimizer.py``, benchmarks/frontend.md).
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from zenslam.camera import PinholeCalibration
-from zenslam.geometry import se3_exp, skew
+from zenslam.geometry import se3_exp
 
 logger = logging.getLogger(__name__)
 
@@ -315,69 +316,27 @@ def _chi2(T: np.ndarray, problem: _Problem, min_depth_m: float) -> tuple[np.ndar
     return np.where(in_front, chi2, np.inf), in_front
 
 
-def _jacobian(p_cam: np.ndarray, problem: _Problem) -> np.ndarray:
-    """d(prediction)/d(xi) (N, 3, 6) for the left perturbation T <- exp(xi) T, xi = (omega, upsilon).
-
-    The chain d(u, v, u_right)/d(p_cam) @ [-[p_cam]x | I], written out per entry (as g2o's
-    EdgeStereoSE3ProjectXYZOnlyPose) because that is several times faster than the matrix product.
-    """
-    x, y, z = p_cam[:, 0], p_cam[:, 1], p_cam[:, 2]
-    inv_z = 1.0 / z
-    xz, yz = x * inv_z, y * inv_z
-    fx, fy, bf = problem.fx, problem.fy, problem.bf
-    J = np.empty((len(p_cam), 3, 6))
-    J[:, 0, 0] = -fx * xz * yz
-    J[:, 0, 1] = fx * (1.0 + xz * xz)
-    J[:, 0, 2] = -fx * yz
-    J[:, 0, 3] = fx * inv_z
-    J[:, 0, 4] = 0.0
-    J[:, 0, 5] = -fx * xz * inv_z
-    J[:, 1, 0] = -fy * (1.0 + yz * yz)
-    J[:, 1, 1] = fy * xz * yz
-    J[:, 1, 2] = fy * xz
-    J[:, 1, 3] = 0.0
-    J[:, 1, 4] = fy * inv_z
-    J[:, 1, 5] = -fy * yz * inv_z
-    # u_right = u - bf / z adds bf / z^2 * d(z)/d(xi), with d(z)/d(xi) = (y, -x, 0, 0, 0, 1).
-    b = bf * inv_z * inv_z
-    J[:, 2, :] = J[:, 0, :]
-    J[:, 2, 0] += b * y
-    J[:, 2, 1] -= b * x
-    J[:, 2, 5] += b
-    return J
-
-
 def _linearize(T: np.ndarray, problem: _Problem, robust: bool, min_depth_m: float):
-    """Robust cost and normal equations (H, g) of the IRLS-weighted problem at T."""
-    p_cam, residual = _project(T, problem)
-    if problem.information is None:
-        chi2 = problem.inv_sigma2 * (residual * residual).sum(axis=1)
-    else:
-        chi2 = _weighted_chi2(residual, problem)
-    delta2 = problem.delta2
-    if robust:
-        # Huber on the chi-square (as g2o): rho(s) = s inside, 2 delta sqrt(s) - delta^2 outside.
-        root = np.sqrt(np.maximum(chi2, delta2))
-        delta = np.sqrt(delta2)
-        rho = np.where(chi2 > delta2, 2.0 * delta * root - delta2, chi2)
-        weight = delta / root
-    else:
-        rho, weight = chi2, np.ones_like(chi2)
-    in_front = p_cam[:, 2] > min_depth_m
-    if in_front.all():
-        cost = float(rho.sum())
-    else:
-        # Points pushed behind the camera get a constant cost, so leaving the frustum is no gain.
-        cost = float(rho[in_front].sum() + delta2[~in_front].sum())
-        p_cam, residual, weight = p_cam[in_front], residual[in_front], weight[in_front]
-        problem = problem.subset(in_front)
-    J = _jacobian(p_cam, problem)
-    if problem.information is None:
-        Jw = J * ((weight * problem.inv_sigma2)[:, None] * problem.row_mask)[:, :, None]
-    else:
-        Jw = (problem.information * weight[:, None, None]) @ (J * problem.row_mask[:, :, None])  # matmul: faster than einsum
-    Jw = Jw.reshape(-1, 6)
-    return cost, Jw.T @ J.reshape(-1, 6), Jw.T @ residual.reshape(-1)
+    """Robust cost and normal equations (H, g) of the IRLS-weighted problem at T (``pose_normal_equations``)."""
+    # Imported here: the compiled kernel loads numba (~60 MB), and the processes that only read a
+    # PoseOptimizerConfig (the supervising run, the backend) do not optimise poses.
+    from zenslam.pose_normal_equations import normal_equations
+
+    information = problem.information if problem.information is not None else _NO_INFORMATION
+    return normal_equations(
+        T, problem.p_world, problem.obs, problem.row_mask, problem.inv_sigma2, problem.delta2, information,
+        problem.fx, problem.fy, problem.cx, problem.cy, problem.bf, robust, min_depth_m,
+    )
+
+
+_NO_INFORMATION = np.zeros((0, 3, 3))  # ``normal_equations``: weigh by inv_sigma2 alone
+
+
+def load_compiled_kernel() -> None:
+    """Load the normal equations' compiled kernel from numba's cache (compile it, on a machine's first
+    start): for a process to call at its start when a later first pose optimisation must not wait
+    for it (numba's start and the load take most of a second)."""
+    _linearize(np.eye(4), _Problem(*(np.ones((1, 3)),) * 3, np.ones(1), np.ones(1), 1.0, 1.0, 0.0, 0.0, 0.0), True, 1e-3)
 
 
 def _solve_round(T, problem, robust, config) -> tuple[np.ndarray, int]:

@@ -15,6 +15,7 @@ import numpy as np
 
 from zenslam.frontend.feature_matcher import search_by_projection
 from zenslam.frontend.orb_extractor import OrbConfig, OrbExtractor
+from zenslam.pose_optimizer import load_compiled_kernel
 
 logger = logging.getLogger(__name__)
 
@@ -29,6 +30,7 @@ def warm_up_kernels() -> float:
     features, _pyramid = OrbExtractor(OrbConfig(n_features=64, n_levels=2, threads=1)).extract(image)
     px, level, descriptors = features.px, features.level, features.descriptors
     search_by_projection(px, level, descriptors, px, level, descriptors, 4.0)
+    load_compiled_kernel()
     seconds = time.perf_counter() - start
     logger.info("compiled kernels ready in %.1f s (a first start on a machine compiles them)", seconds)
     return seconds
