@@ -92,7 +92,12 @@ def refine_level_by_sad(
     cols_left, cols_right = image_left.shape[1], image_right.shape[1]
     w = half_window
     n_offsets = 2 * search + 1
-    costs = np.empty(n_offsets, np.int64)
+    side = 2 * w + 1
+    strip_width = side + 2 * search
+    patch = np.empty((side, side), np.int32)
+    strip = np.empty((side, strip_width), np.int32)
+    centres = np.empty(n_offsets, np.int32)
+    costs = np.empty(n_offsets, np.int32)  # at most 121 * 510 for the default window
     for k in range(len(i_left)):
         if left_level[i_left[k]] != level:
             continue
@@ -105,19 +110,29 @@ def refine_level_by_sad(
             continue
         if not (v_l - w >= 0 and v_l + w < rows):
             continue
-        centre_left = np.int64(image_left[v_l, u_l])
-        best = 0
+        # the left window less its centre, and the right strip, as int32 copies: the slide's
+        # loops then run over small contiguous arrays with indices known to be in range
+        centre_left = np.int32(image_left[v_l, u_l])
+        for y in range(side):
+            row_left = image_left[v_l - w + y]
+            row_right = image_right[v_l - w + y]
+            for x in range(side):
+                patch[y, x] = np.int32(row_left[u_l - w + x]) - centre_left
+            for x in range(strip_width):
+                strip[y, x] = np.int32(row_right[u_r0 - search - w + x])
+        # SAD of the window at every offset at once, offsets innermost: integer sums, so the
+        # order of the additions does not change them
         for offset in range(n_offsets):
-            u_strip = u_r0 - search + offset  # the right window's centre column
-            centre_right = np.int64(image_right[v_l, u_strip])
-            cost = np.int64(0)
-            for dy in range(-w, w + 1):
-                for dx in range(-w, w + 1):
-                    a = np.int64(image_right[v_l + dy, u_strip + dx]) - centre_right
-                    b = np.int64(image_left[v_l + dy, u_l + dx]) - centre_left
-                    cost += abs(a - b)
-            costs[offset] = cost
-            if cost < costs[best]:  # the first lowest cost, as argmin
+            centres[offset] = strip[w, w + offset]
+            costs[offset] = 0
+        for y in range(side):
+            for x in range(side):
+                value = patch[y, x]
+                for offset in range(n_offsets):
+                    costs[offset] += abs(strip[y, offset + x] - centres[offset] - value)
+        best = 0
+        for offset in range(1, n_offsets):
+            if costs[offset] < costs[best]:  # the first lowest cost, as argmin
                 best = offset
         if not (0 < best < 2 * search):
             continue
@@ -131,3 +146,51 @@ def refine_level_by_sad(
         u_level = np.float64(u_r0 + (best - search)) + delta
         u_right[k] = (u_level + 0.5) * right_to_base_u - 0.5
         sad[k] = c2
+
+
+@kernel
+def keep_matches(
+    left_px, i_left, i_right, u_right, sad, disparity_offset, max_disparity, outlier_factor, bf,
+    right_u_out, depth_out, right_index_out, sad_out,
+):  # fmt: skip
+    """Write the matches that pass the disparity range and the SAD outlier rule into the (N,) outputs.
+
+    A match keeps u_right - disparity_offset if its disparity (left u minus that) is in
+    [0, max_disparity); a zero disparity becomes 0.01 px (float32 u_left - 0.01, as numpy computes
+    it on the float32 keypoints). Of those, a match whose SAD exceeds outlier_factor times the
+    middle SAD (the upper median of an even count) is dropped. Depth is bf / disparity.
+    """
+    n = len(i_left)
+    u_kept = np.empty(n, np.float64)
+    disparity_kept = np.empty(n, np.float64)
+    keep = np.empty(n, np.int64)
+    n_kept = 0
+    for k in range(n):
+        u = u_right[k] - disparity_offset
+        disparity = np.float64(left_px[i_left[k], 0]) - u
+        if not (np.isfinite(u) and disparity >= 0 and disparity < max_disparity):
+            continue
+        if disparity <= 0:
+            disparity = 0.01
+            u = np.float64(left_px[i_left[k], 0] - np.float32(0.01))
+        u_kept[n_kept] = u
+        disparity_kept[n_kept] = disparity
+        keep[n_kept] = k
+        n_kept += 1
+    if n_kept == 0:
+        return 0
+    sad_kept = np.empty(n_kept, np.float64)
+    for m in range(n_kept):
+        sad_kept[m] = sad[keep[m]]
+    threshold = outlier_factor * np.sort(sad_kept)[n_kept // 2]
+    n_inliers = 0
+    for m in range(n_kept):
+        if not sad_kept[m] <= threshold:
+            continue
+        i = i_left[keep[m]]
+        right_u_out[i] = u_kept[m]
+        depth_out[i] = bf / disparity_kept[m]
+        right_index_out[i] = i_right[keep[m]]
+        sad_out[i] = sad_kept[m]
+        n_inliers += 1
+    return n_inliers

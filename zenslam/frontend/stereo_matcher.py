@@ -105,44 +105,37 @@ def match_stereo(
     bf = calibration.bf
     min_depth = config.min_depth_m if config.min_depth_m > 0 else calibration.baseline_m
     max_disparity = bf / min_depth
-    i_left, i_right, u_right, sad = _matches_refined(left, right, left_pyramid, right_pyramid, max_disparity, config)
-    u_right = u_right - config.disparity_offset_px  # the right u the offset's disparity implies
-    disparity = left.px[i_left, 0].astype(np.float64) - u_right
-    valid = np.isfinite(u_right) & (disparity >= 0) & (disparity < max_disparity)
-    i_left, i_right, u_right, sad, disparity = (a[valid] for a in (i_left, i_right, u_right, sad, disparity))
-    tiny = disparity <= 0  # ORB-SLAM2 keeps zero disparity as a point at 100 * bf
-    disparity[tiny] = 0.01
-    u_right[tiny] = left.px[i_left[tiny], 0] - 0.01
-    if len(sad):
-        threshold = config.outlier_sad_factor * np.sort(sad)[len(sad) // 2]
-        inlier = sad <= threshold
-        i_left, i_right, u_right, sad, disparity = (a[inlier] for a in (i_left, i_right, u_right, sad, disparity))
-    right_u[i_left] = u_right
-    depth[i_left] = bf / disparity
-    right_index[i_left] = i_right
-    sad_out[i_left] = sad
-    logger.debug("stereo: %d of %d left keypoints matched", len(i_left), n_left)
+    n_matches = _match(
+        left, right, left_pyramid, right_pyramid, bf, max_disparity, config, right_u, depth, right_index, sad_out
+    )
+    logger.debug("stereo: %d of %d left keypoints matched", n_matches, n_left)
     return StereoMatches(right_u, depth, right_index, sad_out)
 
 
-def _matches_refined(
+def _match(
     left: Features,
     right: Features,
     left_pyramid: list[np.ndarray],
     right_pyramid: list[np.ndarray],
+    bf: float,
     max_disparity: float,
     config: StereoMatchConfig,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Each left keypoint's best ORB match (left index, right index), and per match the sub-pixel
-    right u (level-0 px, NaN if the SAD refinement rejects it) and its SAD cost (inf if rejected).
+    right_u: np.ndarray,
+    depth: np.ndarray,
+    right_index: np.ndarray,
+    sad_out: np.ndarray,
+) -> int:
+    """Fill the (N,) outputs of the matched left keypoints; returns how many were matched.
 
-    A left keypoint's candidates are the right keypoints whose row band (+-row_tolerance * scale of
-    their level) holds its row, at a level within level_tolerance of its own, with u in
-    [u_left - max_disparity, u_left]. Each match's SAD slide runs on the left keypoint's level.
+    Each left keypoint's best ORB match, refined by SAD (dropped if the refinement fails), is kept
+    if its disparity is in range and its SAD passes the outlier rule. A left keypoint's candidates
+    are the right keypoints whose row band (+-row_tolerance * scale of their level) holds its row,
+    at a level within level_tolerance of its own, with u in [u_left - max_disparity, u_left]. Each
+    match's SAD slide runs on the left keypoint's level.
     """
     # The kernels import numba (~60 MB and most of a second per process): only a process that
     # matches loads it, not every one that imports the frame or its configs.
-    from zenslam.frontend.stereo_kernel import best_descriptor_matches, refine_level_by_sad
+    from zenslam.frontend.stereo_kernel import best_descriptor_matches, keep_matches, refine_level_by_sad
 
     base_shape = left_pyramid[0].shape
     u_low = left.px[:, 0] - max_disparity  # numpy's promotion of the caller's max_disparity, as the rule states it
@@ -163,7 +156,10 @@ def _matches_refined(
             int(config.sad_half_window_px), int(config.sad_search_px), float(config.max_subpixel_correction_px),
             u_right, sad,
         )  # fmt: skip
-    return i_left, i_right, u_right, sad
+    return keep_matches(
+        left.px, i_left, i_right, u_right, sad, float(config.disparity_offset_px), float(max_disparity),
+        float(config.outlier_sad_factor), float(bf), right_u, depth, right_index, sad_out,
+    )  # fmt: skip
 
 
 def _words(descriptors: np.ndarray) -> np.ndarray:
