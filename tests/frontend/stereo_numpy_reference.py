@@ -36,13 +36,32 @@ def match_stereo(
     max_disparity = bf / min_depth
     i_left, i_right = _best_descriptor_matches(left, right, left_pyramid[0].shape[0], max_disparity, config)
     u_right, sad = _refine_by_sad(left, right, i_left, i_right, left_pyramid, right_pyramid, config)
+    return StereoMatches(*kept_matches(left.px, i_left, i_right, u_right, sad, bf, max_disparity, config))
+
+
+def kept_matches(
+    left_px: np.ndarray,
+    i_left: np.ndarray,
+    i_right: np.ndarray,
+    u_right: np.ndarray,
+    sad: np.ndarray,
+    bf: float,
+    max_disparity: float,
+    config: StereoMatchConfig,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(right_u, depth_m, right_index, sad) of the refined matches that pass the disparity range and the SAD outlier rule."""
+    n_left = len(left_px)
+    right_u = np.full(n_left, -1.0, np.float32)
+    depth = np.full(n_left, -1.0, np.float32)
+    right_index = np.full(n_left, -1, np.int32)
+    sad_out = np.full(n_left, -1.0, np.float32)
     u_right = u_right - config.disparity_offset_px  # the right u the offset's disparity implies
-    disparity = left.px[i_left, 0].astype(np.float64) - u_right
+    disparity = left_px[i_left, 0].astype(np.float64) - u_right
     valid = np.isfinite(u_right) & (disparity >= 0) & (disparity < max_disparity)
     i_left, i_right, u_right, sad, disparity = (a[valid] for a in (i_left, i_right, u_right, sad, disparity))
     tiny = disparity <= 0  # ORB-SLAM2 keeps zero disparity as a point at 100 * bf
     disparity[tiny] = 0.01
-    u_right[tiny] = left.px[i_left[tiny], 0] - 0.01
+    u_right[tiny] = left_px[i_left[tiny], 0] - 0.01
     if len(sad):
         threshold = config.outlier_sad_factor * np.sort(sad)[len(sad) // 2]
         inlier = sad <= threshold
@@ -51,7 +70,7 @@ def match_stereo(
     depth[i_left] = bf / disparity
     right_index[i_left] = i_right
     sad_out[i_left] = sad
-    return StereoMatches(right_u, depth, right_index, sad_out)
+    return right_u, depth, right_index, sad_out
 
 
 def _best_descriptor_matches(

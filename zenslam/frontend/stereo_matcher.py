@@ -138,9 +138,12 @@ def _match(
     from zenslam.frontend.stereo_kernel import best_descriptor_matches, keep_matches, refine_level_by_sad
 
     base_shape = left_pyramid[0].shape
-    u_low = left.px[:, 0] - max_disparity  # numpy's promotion of the caller's max_disparity, as the rule states it
+    left_px, right_px = np.ascontiguousarray(left.px), np.ascontiguousarray(right.px)
+    # u_left - max_disparity in numpy's promotion of the caller's types, held in float64 (exact for
+    # float32 too): one compiled signature whether bf is a Python float or a numpy one
+    u_low = (left_px[:, 0] - max_disparity).astype(np.float64)
     i_left, i_right = best_descriptor_matches(
-        left.px, left.level, _words(left.descriptors), u_low, right.px, right.level, _words(right.descriptors),
+        left_px, left.level, _words(left.descriptors), u_low, right_px, right.level, _words(right.descriptors),
         np.ascontiguousarray(right.scale_factors, np.float64), base_shape[0],
         float(config.row_tolerance_px), int(config.level_tolerance), int(config.max_descriptor_distance),
     )  # fmt: skip
@@ -150,14 +153,14 @@ def _match(
         image_left = np.ascontiguousarray(left_pyramid[level])
         image_right = np.ascontiguousarray(right_pyramid[level])
         refine_level_by_sad(
-            image_left, image_right, level, left.px, left.level, right.px, i_left, i_right,
+            image_left, image_right, level, left_px, left.level, right_px, i_left, i_right,
             image_left.shape[1] / base_shape[1], image_left.shape[0] / base_shape[0],
             image_right.shape[1] / base_shape[1], base_shape[1] / image_right.shape[1],
             int(config.sad_half_window_px), int(config.sad_search_px), float(config.max_subpixel_correction_px),
             u_right, sad,
         )  # fmt: skip
     return keep_matches(
-        left.px, i_left, i_right, u_right, sad, float(config.disparity_offset_px), float(max_disparity),
+        left_px, i_left, i_right, u_right, sad, float(config.disparity_offset_px), float(max_disparity),
         float(config.outlier_sad_factor), float(bf), right_u, depth, right_index, sad_out,
     )  # fmt: skip
 
