@@ -83,7 +83,8 @@ def test_the_disparity_and_outlier_rules_keep_what_the_numpy_formulation_keeps()
         i_right = rng.integers(0, 1000, len(i_left))
         max_disparity = float(rng.choice([20.0, 500.0, rng.uniform(1, 100)]))
         config = StereoMatchConfig(
-            disparity_offset_px=float(rng.choice([0.0, 0.25, -1.5])), outlier_sad_factor=float(rng.choice([2.1, 1.0, 0.5]))
+            disparity_offset_px=float(rng.choice([0.0, 0.25, -1.5])),
+            outlier_sad_factor=float(rng.choice([2.1, 1.0, 0.5])),
         )
         # right u of zero disparity once the offset is subtracted (exact: the offsets are binary fractions)
         u_zero = left_px[i_left, 0].astype(np.float64) + config.disparity_offset_px
@@ -135,6 +136,31 @@ def test_features_on_the_image_border_and_without_candidates(synthetic_pairs) ->
     for config in CONFIGS:
         assert_same_matches(moved, f_right, p_left, p_right, CALIBRATION, config)
         assert_same_matches(moved, f_right.subset(np.array([7])), p_left, p_right, CALIBRATION, config)
+
+
+def test_read_only_inputs_take_the_compiled_signature_of_writable_ones(synthetic_pairs) -> None:
+    """Images decoded from the bus are read-only, an in-process source's are not: both must run the
+    kernels the warm-up compiled, not compile their own at a first frame."""
+    from zenslam.frontend import stereo_kernel
+
+    kernels = (stereo_kernel.best_descriptor_matches, stereo_kernel.refine_level_by_sad, stereo_kernel.keep_matches)
+    f_left, p_left, f_right, p_right = synthetic_pairs[0]
+    match_stereo(f_left, f_right, p_left, p_right, CALIBRATION)
+    signatures = [len(k.signatures) for k in kernels]
+
+    def frozen(array: np.ndarray) -> np.ndarray:
+        copy = array.copy()
+        copy.flags.writeable = False
+        return copy
+
+    def frozen_features(features: Features) -> Features:
+        names = ("px", "level", "angle_deg", "response", "descriptors", "scale_factors", "inv_level_sigma2")
+        return Features(**{name: frozen(getattr(features, name)) for name in names})
+
+    match_stereo(
+        frozen_features(f_left), frozen_features(f_right), [frozen(a) for a in p_left], [frozen(a) for a in p_right], CALIBRATION
+    )
+    assert [len(k.signatures) for k in kernels] == signatures
 
 
 def _frames(spec: str, every: int) -> tuple[PinholeCalibration, list]:

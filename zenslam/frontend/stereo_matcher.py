@@ -138,33 +138,45 @@ def _match(
     from zenslam.frontend.stereo_kernel import best_descriptor_matches, keep_matches, refine_level_by_sad
 
     base_shape = left_pyramid[0].shape
-    left_px, right_px = np.ascontiguousarray(left.px), np.ascontiguousarray(right.px)
+    left_px, left_level, right_px, right_level = (_read_only(a) for a in (left.px, left.level, right.px, right.level))
     # u_left - max_disparity in numpy's promotion of the caller's types, held in float64 (exact for
     # float32 too): one compiled signature whether bf is a Python float or a numpy one
-    u_low = (left_px[:, 0] - max_disparity).astype(np.float64)
+    u_low = _read_only((left_px[:, 0] - max_disparity).astype(np.float64))
     i_left, i_right = best_descriptor_matches(
-        left_px, left.level, _words(left.descriptors), u_low, right_px, right.level, _words(right.descriptors),
-        np.ascontiguousarray(right.scale_factors, np.float64), base_shape[0],
+        left_px, left_level, _words(left.descriptors), u_low, right_px, right_level, _words(right.descriptors),
+        _read_only(right.scale_factors.astype(np.float64)), base_shape[0],
         float(config.row_tolerance_px), int(config.level_tolerance), int(config.max_descriptor_distance),
     )  # fmt: skip
+    i_left, i_right = _read_only(i_left), _read_only(i_right)
     u_right = np.full(len(i_left), np.nan)
     sad = np.full(len(i_left), np.inf)
-    for level in np.unique(left.level[i_left]).tolist():
-        image_left = np.ascontiguousarray(left_pyramid[level])
-        image_right = np.ascontiguousarray(right_pyramid[level])
+    for level in np.unique(left_level[i_left]).tolist():
+        image_left, image_right = _read_only(left_pyramid[level]), _read_only(right_pyramid[level])
         refine_level_by_sad(
-            image_left, image_right, level, left_px, left.level, right_px, i_left, i_right,
+            image_left, image_right, level, left_px, left_level, right_px, i_left, i_right,
             image_left.shape[1] / base_shape[1], image_left.shape[0] / base_shape[0],
             image_right.shape[1] / base_shape[1], base_shape[1] / image_right.shape[1],
             int(config.sad_half_window_px), int(config.sad_search_px), float(config.max_subpixel_correction_px),
             u_right, sad,
         )  # fmt: skip
     return keep_matches(
-        left_px, i_left, i_right, u_right, sad, float(config.disparity_offset_px), float(max_disparity),
-        float(config.outlier_sad_factor), float(bf), right_u, depth, right_index, sad_out,
+        left_px, i_left, i_right, _read_only(u_right), _read_only(sad), float(config.disparity_offset_px),
+        float(max_disparity), float(config.outlier_sad_factor), float(bf), right_u, depth, right_index, sad_out,
     )  # fmt: skip
 
 
 def _words(descriptors: np.ndarray) -> np.ndarray:
-    """(K, 32) uint8 descriptors as (K, 4) uint64 words."""
-    return np.ascontiguousarray(descriptors, dtype=np.uint8).reshape(-1, 32).view(np.uint64)
+    """(K, 32) uint8 descriptors as (K, 4) read-only uint64 words."""
+    return _read_only(np.ascontiguousarray(descriptors, dtype=np.uint8).reshape(-1, 32).view(np.uint64))
+
+
+def _read_only(array: np.ndarray) -> np.ndarray:
+    """A read-only, C-contiguous view of ``array`` (a copy only if it is not contiguous).
+
+    numba compiles one signature per argument type, and whether an array is writable is part of
+    it: images decoded from the bus are read-only, those of an in-process source are not. Inputs
+    always passed read-only keep to the one signature the warm-up compiled.
+    """
+    view = np.ascontiguousarray(array).view()
+    view.flags.writeable = False
+    return view
