@@ -71,7 +71,7 @@ def _child(**env: str) -> dict:
     return json.loads(result.stdout)
 
 
-@pytest.mark.slow(20)
+@pytest.mark.slow(34)
 @pytest.mark.skipif(platform.machine().lower() not in ("x86_64", "amd64"), reason="the generic target named is x86-64's")
 def test_generic_x86_64_build_gives_the_same_features_as_the_machines_own(tmp_path: Path) -> None:
     own = _child(NUMBA_CACHE_DIR=str(tmp_path))
@@ -81,7 +81,7 @@ def test_generic_x86_64_build_gives_the_same_features_as_the_machines_own(tmp_pa
     assert generic["digest"] == own["digest"]
 
 
-@pytest.mark.slow(15)
+@pytest.mark.slow(22)
 def test_a_second_start_loads_the_kernels_from_the_cache(tmp_path: Path) -> None:
     first = _child(NUMBA_CACHE_DIR=str(tmp_path))
     second = _child(NUMBA_CACHE_DIR=str(tmp_path))

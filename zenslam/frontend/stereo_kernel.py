@@ -1,4 +1,4 @@
-"""Stereo matching of ORB keypoints, compiled: the row-band descriptor search and the SAD refinement.
+"""Stereo matching of ORB keypoints, compiled: row-band descriptor search, SAD refinement, disparity rules.
 
 ``stereo_matcher.match_stereo`` states the rules; these kernels apply them one left keypoint at a
 time, as ORB-SLAM2's Frame::ComputeStereoMatches does, instead of numpy's sorted pair arrays.
