@@ -125,7 +125,7 @@ def main() -> None:
     from zenslam.runtime.supervisor import stage_environment
 
     env = stage_environment(os.environ, "zenslam.frontend.node")
-    if env != dict(os.environ):
+    if any(os.environ.get(name) != value for name, value in env.items()):
         # the pins are read when numpy and OpenCV load: start again in the frontend's environment
         os.execve(sys.executable, [sys.executable, *sys.argv], env)
     load_before = os.getloadavg()
