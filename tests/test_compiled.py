@@ -13,31 +13,45 @@ import pytest
 
 
 # A child's view: a digest of the ORB features of a textured image and (when present) two KITTI frames
-# (FAST corners, quadtree, orientation, descriptors: every kernel of the extractor),
-# the CPU numba compiled for, and how many of the extractor's kernels it compiled or loaded from the cache.
+# (FAST corners, quadtree, orientation, descriptors: every kernel of the extractor) and of the
+# stereo matches of the textured image with itself shifted and of the KITTI pair, the CPU numba
+# compiled for, and how many of the extractor's and the stereo matcher's kernels it compiled or
+# loaded from the cache.
 _CHILD = """
 import hashlib, json, sys
 from pathlib import Path
 import cv2
 import numpy as np
 from numba.core import config
-from zenslam.frontend import orb_descriptor, orb_fast, orb_orientation, orb_quadtree
+from zenslam.camera import PinholeCalibration
+from zenslam.frontend import orb_descriptor, orb_fast, orb_orientation, orb_quadtree, stereo_kernel
 from zenslam.frontend.orb_extractor import OrbConfig, OrbExtractor
+from zenslam.frontend.stereo_matcher import match_stereo
 rng = np.random.default_rng(5)
 images = [cv2.GaussianBlur(rng.integers(0, 256, (370, 1226), dtype=np.uint8), (0, 0), 1.5)]
 folder = Path(sys.argv[1]) / "kitti_odometry" / "sequences" / "06"
 images += [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in sorted(folder.glob("image_[01]/000010.png"))]
 extractor = OrbExtractor(OrbConfig(threads=2))
 digest = hashlib.sha256()
+extracted = []
 for image in images:
-    features, _ = extractor.extract(image)
+    features, pyramid = extractor.extract(image)
+    extracted.append((features, pyramid))
     for name in ("px", "level", "angle_deg", "response", "descriptors"):
         digest.update(getattr(features, name).tobytes())
+calibration = PinholeCalibration(707.0912, 707.0912, 601.8873, 183.1104, 1226, 370, baseline_m=0.5372)
+pairs = [(extracted[0], extractor.extract(np.roll(images[0], -9, axis=1)))] + [tuple(extracted[1:])] * (len(images) == 3)
+for (left, left_pyramid), (right, right_pyramid) in pairs:
+    matches = match_stereo(left, right, left_pyramid, right_pyramid, calibration)
+    for name in ("right_u", "depth_m", "right_index", "sad"):
+        digest.update(getattr(matches, name).tobytes())
 kernels = [orb_quadtree._morton_codes, orb_quadtree._distribute, orb_orientation._centroid_moments, orb_descriptor._descriptors,
            orb_fast._strengths, orb_fast._suppressed]
+kernels += [stereo_kernel.best_descriptor_matches, stereo_kernel.refine_level_by_sad, stereo_kernel.keep_matches]
 print(json.dumps({
     "digest": digest.hexdigest(),
     "images": len(images),
+    "stereo_pairs": len(pairs),
     "cpu": config.CPU_NAME or "host",
     "misses": sum(sum(k.stats.cache_misses.values()) for k in kernels),
     "hits": sum(sum(k.stats.cache_hits.values()) for k in kernels),
@@ -59,16 +73,17 @@ def _child(**env: str) -> dict:
     return json.loads(result.stdout)
 
 
-@pytest.mark.slow(20)
+@pytest.mark.slow(34)
 @pytest.mark.skipif(platform.machine().lower() not in ("x86_64", "amd64"), reason="the generic target named is x86-64's")
 def test_generic_x86_64_build_gives_the_same_features_as_the_machines_own(tmp_path: Path) -> None:
     own = _child(NUMBA_CACHE_DIR=str(tmp_path))
     generic = _child(NUMBA_CACHE_DIR=str(tmp_path), NUMBA_CPU_NAME="generic")
     assert (own["cpu"], generic["cpu"]) == ("host", "generic")
+    assert own["stereo_pairs"] >= 1
     assert generic["digest"] == own["digest"]
 
 
-@pytest.mark.slow(15)
+@pytest.mark.slow(22)
 def test_a_second_start_loads_the_kernels_from_the_cache(tmp_path: Path) -> None:
     first = _child(NUMBA_CACHE_DIR=str(tmp_path))
     second = _child(NUMBA_CACHE_DIR=str(tmp_path))

@@ -13,8 +13,10 @@ import time
 
 import numpy as np
 
+from zenslam.camera import PinholeCalibration
 from zenslam.frontend.feature_matcher import search_by_projection
 from zenslam.frontend.orb_extractor import OrbConfig, OrbExtractor
+from zenslam.frontend.stereo_matcher import match_stereo
 from zenslam.pose_optimizer import load_compiled_kernel
 
 logger = logging.getLogger(__name__)
@@ -27,9 +29,10 @@ def warm_up_kernels() -> float:
     start = time.perf_counter()
     rng = np.random.default_rng(0)
     image = rng.integers(0, 256, (_IMAGE_SIDE_PX, _IMAGE_SIDE_PX), dtype=np.uint8)
-    features, _pyramid = OrbExtractor(OrbConfig(n_features=64, n_levels=2, threads=1)).extract(image)
+    features, pyramid = OrbExtractor(OrbConfig(n_features=64, n_levels=2, threads=1)).extract(image)
     px, level, descriptors = features.px, features.level, features.descriptors
     search_by_projection(px, level, descriptors, px, level, descriptors, 4.0)
+    match_stereo(features, features, pyramid, pyramid, PinholeCalibration(90.0, 90.0, 48.0, 48.0, 96, 96, baseline_m=0.1))
     load_compiled_kernel()
     seconds = time.perf_counter() - start
     logger.info("compiled kernels ready in %.1f s (a first start on a machine compiles them)", seconds)

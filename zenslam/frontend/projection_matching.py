@@ -61,7 +61,7 @@ def search_in_windows(
 
 
 @kernel
-def _popcount(word):
+def popcount(word):
     """Set bits of a uint64 (SWAR: exact integer arithmetic)."""
     word = word - ((word >> np.uint64(1)) & np.uint64(0x5555555555555555))
     word = (word & np.uint64(0x3333333333333333)) + ((word >> np.uint64(2)) & np.uint64(0x3333333333333333))
@@ -133,7 +133,7 @@ def _candidates(
                             distances = _grown(distances, capacity)
                         d = np.int64(0)
                         for w in range(4):
-                            d += _popcount(point_words[p, w] ^ kp_words[k, w])
+                            d += popcount(point_words[p, w] ^ kp_words[k, w])
                         candidates[n_found] = k
                         distances[n_found] = d
                         n_found += 1
