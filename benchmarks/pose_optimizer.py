@@ -1,10 +1,11 @@
-"""Benchmark pose-only optimisation: the numpy Levenberg-Marquardt against two gtsam factor graphs.
+"""Benchmark pose-only optimisation: zenslam's Levenberg-Marquardt against two gtsam factor graphs.
 
 Each solver runs ORB-SLAM2's schedule (4 rounds x 10 iterations, Huber in the first 3 rounds,
 chi-square outlier classification after each round) on synthetic stereo+mono scenes with 30%
 gross outliers, 1 px noise and an initial pose 10 cm / 5 degrees off. Variants:
 
-- ``numpy_lm``: ``zenslam.pose_optimizer.optimize_pose`` (the implementation kept).
+- ``numpy_lm``: ``zenslam.pose_optimizer.optimize_pose`` (the implementation kept: numpy around a
+  compiled pass for its normal equations, ``pose_normal_equations``; the key keeps its old name).
 - ``gtsam_custom``: one Pose3 variable, one ``gtsam.CustomFactor`` per observation with analytic
   Jacobians in Python, Huber noise models, gtsam's LM (10 iterations per round).
 - ``gtsam_builtin``: C++ ``GenericProjectionFactorCal3_S2`` / ``GenericStereoFactor3D``, each map
