@@ -145,13 +145,19 @@ def test_extract_equals_opencv_per_window_on_kitti_and_euroc(kitti_root: Path, e
         _assert_same_features(OrbExtractor(OrbConfig(threads=1)).extract(image)[0], _extract_with(image, window_detect_cells))
 
 
-def test_the_warm_up_compiles_the_fast_kernels_for_the_types_extraction_uses() -> None:
-    from zenslam.frontend import orb_fast
+def test_the_warm_up_compiles_the_extractor_kernels_for_the_types_extraction_uses() -> None:
+    # A frame decoded from the bus is read-only, one from an in-process source is not: neither may
+    # leave a kernel to compile (seconds, on a machine's first start) at a run's first frame.
+    from zenslam.frontend import orb_descriptor, orb_fast, orb_orientation, orb_quadtree
     from zenslam.frontend.kernel_warm_up import warm_up_kernels
 
     warm_up_kernels()
-    kernels = (orb_fast._strengths, orb_fast._suppressed)
+    kernels = (orb_fast._strengths, orb_fast._suppressed, orb_orientation._centroid_moments, orb_descriptor._separable_blur,
+               orb_descriptor._descriptors, orb_quadtree._morton_codes, orb_quadtree._distribute)  # fmt: skip
     compiled = [len(k.signatures) for k in kernels]
     assert all(compiled)
-    OrbExtractor(OrbConfig(threads=1)).extract(textured_image(0, 370, 1226))
-    assert [len(k.signatures) for k in kernels] == compiled  # nothing left to compile at the first frame
+    read_only = textured_image(0, 370, 1226)
+    read_only.setflags(write=False)
+    for image in (textured_image(0, 370, 1226), read_only):
+        OrbExtractor(OrbConfig(threads=1)).extract(image)
+        assert [len(k.signatures) for k in kernels] == compiled  # nothing left to compile at the first frame

@@ -152,14 +152,22 @@ class OrbExtractor:
         return self._per_level.copy()
 
     def build_pyramid(self, image: np.ndarray) -> list[np.ndarray]:
-        """Level images: level 0 is ``image``, level l is level l-1 resized (INTER_LINEAR) by 1/scale_factor."""
+        """Level images: level 0 is ``image``, level l is level l-1 resized (INTER_LINEAR) by 1/scale_factor.
+
+        Every level is a read-only array: numba compiles a kernel once per signature, and read-only
+        is part of it. Frames decoded from the bus are read-only, those of an in-process source and
+        the resized levels are not; all read-only, the kernels keep to the one signature the
+        warm-up compiled, instead of compiling another at a run's first frame.
+        """
         _check_image(image)
-        pyramid = [np.ascontiguousarray(image)]
+        pyramid = [np.ascontiguousarray(image).view()]  # a view: the caller's array keeps its flags
         h0, w0 = image.shape
         for level in range(1, self._config.n_levels):
             inv = 1.0 / self._scale_factors[level]
             size = (int(round(w0 * inv)), int(round(h0 * inv)))
             pyramid.append(cv2.resize(pyramid[-1], size, interpolation=cv2.INTER_LINEAR))
+        for level_image in pyramid:
+            level_image.setflags(write=False)
         return pyramid
 
     def extract(self, image: np.ndarray) -> tuple[Features, list[np.ndarray]]:

@@ -52,7 +52,10 @@ class BusConfig:
     zenoh_config_file: str | None = None  # a zenoh JSON5 config file; when set it replaces the five fields above
     lossless_queue: int = 32  # messages a lossless inbox holds before the sender blocks, messages
     live_queue: int = 2  # newest camera frames a live inbox keeps (older ones dropped), frames
-    start_timeout_s: float = 60.0  # seconds a process waits for the stages it needs to come up
+    # Seconds a process waits for the stages it needs to come up. The frontend's first start on a
+    # machine compiles its kernels before it says it is up: about 36 s of CPU, over a minute on a
+    # busy 2-core machine; later starts load them from numba's cache in about a second.
+    start_timeout_s: float = 180.0
 
 
 def zenoh_config_from_file(config_file: str | Path, name: str) -> zenoh.Config:
