@@ -386,10 +386,10 @@ def test_the_frontend_recent_point_culling_keys_are_dropped(tmp_path, caplog):
     assert "the backend culls them (backend.point_culling)" in caplog.text
 
 
-def test_the_golden_recording_config_reads_through_the_upgrade(caplog):
+def test_a_config_written_before_the_map_section_reads_through_the_upgrade(caplog):
     from pathlib import Path
 
-    golden = Path(__file__).parents[2] / "recordings" / "golden" / "synthetic_loop" / "config.yaml"
+    golden = Path(__file__).parent / "data" / "config_before_map_section.yaml"
     text = golden.read_text()
     config = load_run_config(golden)
     assert config.map == MapRulesConfig() and config.backend.local_mapping.map_rules == config.map
