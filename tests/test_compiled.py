@@ -13,7 +13,7 @@ import pytest
 
 
 # A child's view: a digest of the ORB features of a textured image and (when present) two KITTI frames
-# (quadtree, orientation, descriptors: every kernel of the extractor) and of the
+# (FAST corners, quadtree, orientation, descriptors: every kernel of the extractor) and of the
 # stereo matches of the textured image with itself shifted and of the KITTI pair, the CPU numba
 # compiled for, and how many of the extractor's and the stereo matcher's kernels it compiled or
 # loaded from the cache.
@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 from numba.core import config
 from zenslam.camera import PinholeCalibration
-from zenslam.frontend import orb_descriptor, orb_orientation, orb_quadtree, stereo_kernel
+from zenslam.frontend import orb_descriptor, orb_fast, orb_orientation, orb_quadtree, stereo_kernel
 from zenslam.frontend.orb_extractor import OrbConfig, OrbExtractor
 from zenslam.frontend.stereo_matcher import match_stereo
 rng = np.random.default_rng(5)
@@ -46,6 +46,7 @@ for (left, left_pyramid), (right, right_pyramid) in pairs:
     for name in ("right_u", "depth_m", "right_index", "sad"):
         digest.update(getattr(matches, name).tobytes())
 kernels = [orb_quadtree._morton_codes, orb_quadtree._distribute, orb_orientation._centroid_moments, orb_descriptor._descriptors]
+kernels += [orb_fast._fast_in_cells]  # it calls orb_fast._strengths and _suppressed, compiled into it
 kernels += [stereo_kernel.best_descriptor_matches, stereo_kernel.refine_level_by_sad, stereo_kernel.keep_matches]
 print(json.dumps({
     "digest": digest.hexdigest(),
