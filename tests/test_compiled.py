@@ -14,9 +14,9 @@ import pytest
 
 # A child's view: a digest of the ORB features of a textured image and (when present) two KITTI frames
 # (FAST corners, quadtree, orientation, descriptors: every kernel of the extractor) and of the
-# stereo matches of the textured image with itself shifted and of the KITTI pair, the CPU numba
-# compiled for, and how many of the extractor's and the stereo matcher's kernels it compiled or
-# loaded from the cache.
+# stereo matches of the textured image with itself shifted and of the KITTI pair, and of a local BA
+# (the backend's Schur kernels) on a synthetic stereo window with outliers; the CPU numba compiled
+# for, and how many of those kernels it compiled or loaded from the cache.
 _CHILD = """
 import hashlib, json, sys
 from pathlib import Path
@@ -47,6 +47,16 @@ for (left, left_pyramid), (right, right_pyramid) in pairs:
         digest.update(getattr(matches, name).tobytes())
 kernels = [orb_quadtree._morton_codes, orb_quadtree._distribute, orb_orientation._centroid_moments, orb_descriptor._descriptors]
 kernels += [orb_fast._fast_in_cells]  # it calls orb_fast._strengths and _suppressed, compiled into it
+sys.path.insert(0, sys.argv[2])  # tests/backend: its synthetic local BA window
+from test_local_ba import make_window
+from zenslam.backend import ba_normal_equations, schur_complement
+from zenslam.backend.ba_problem import LocalBAConfig
+from zenslam.backend.schur_ba import SchurBundleAdjuster
+window, _, _, _ = make_window(12, n_keyframes=7, outlier_fraction=0.05)
+ba = SchurBundleAdjuster(LocalBAConfig()).optimize(window)
+for array in (ba.T_world_cam, ba.p_world, ba.inlier_obs):
+    digest.update(np.ascontiguousarray(array).tobytes())
+kernels += [ba_normal_equations._project, ba_normal_equations._blocks, schur_complement._reduced_system, schur_complement._back_substitute]
 kernels += [stereo_kernel.best_descriptor_matches, stereo_kernel.refine_level_by_sad, stereo_kernel.keep_matches]
 print(json.dumps({
     "digest": digest.hexdigest(),
@@ -67,7 +77,7 @@ _DATA = Path(os.environ.get("ZENSLAM_DATA") or Path(__file__).resolve().parents[
 
 def _child(**env: str) -> dict:
     environment = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_")} | env
-    command = [sys.executable, "-c", _CHILD, str(_DATA)]
+    command = [sys.executable, "-c", _CHILD, str(_DATA), str(Path(__file__).parent / "backend")]
     result = subprocess.run(command, env=environment, capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr[-2000:]
     return json.loads(result.stdout)

@@ -6,6 +6,7 @@ from collections.abc import Callable
 from typing import TypeVar
 
 import numba
+import numpy as np
 
 F = TypeVar("F", bound=Callable)
 
@@ -21,3 +22,12 @@ def kernel(function: F) -> F:
     target numba may compile for (tests/test_compiled.py checks the generic one against the host's).
     """
     return numba.njit(cache=True, nogil=True, fastmath=False)(function)
+
+
+def kernel_array(array: np.ndarray, dtype: type) -> np.ndarray:
+    """``array`` as a C-contiguous, writable array of ``dtype``, copied only when it is not one.
+
+    numba compiles a kernel once per argument type, and a read-only array (a message's, a view's)
+    is another type: kernels that take arrays from such callers keep one signature this way.
+    """
+    return np.require(array, dtype, ("C", "W"))

@@ -422,7 +422,7 @@ def _windows_of_every_kind():
 
 
 @pytest.mark.parametrize("kind", ["stereo", "mono", "rgbd", "scaled_right_u", "stereo_and_mono", "point_seen_twice"])
-def test_the_numpy_reduced_system_takes_gtsams_steps_to_the_same_optimum(kind):
+def test_the_reduced_system_takes_gtsams_steps_to_the_same_optimum(kind):
     # The same problem, damping, acceptance and stopping rules: the same iterations and errors, and
     # an estimate that differs only by rounding (and so the same classification of every observation).
     problem = _windows_of_every_kind()[kind]
@@ -435,3 +435,21 @@ def test_the_numpy_reduced_system_takes_gtsams_steps_to_the_same_optimum(kind):
     np.testing.assert_array_equal(schur_result.inlier_obs, gtsam_result.inlier_obs)
     np.testing.assert_array_equal(schur_result.removed_point_ids, gtsam_result.removed_point_ids)
     assert gtsam_result.stats["n_outliers"] > 0 or kind == "rgbd"
+
+
+def test_the_warm_up_compiles_the_schur_kernels_for_the_types_local_ba_uses():
+    # The backend loads them at its start; its first local BA must find nothing left to compile.
+    from zenslam.backend import ba_normal_equations, schur_complement
+    from zenslam.backend.schur_ba import load_compiled_kernels
+
+    load_compiled_kernels()
+    kernels = (ba_normal_equations._project, ba_normal_equations._blocks, schur_complement._reduced_system,
+               schur_complement._back_substitute)  # fmt: skip
+    compiled = [len(k.signatures) for k in kernels]
+    assert all(compiled)
+    for kind, problem in _windows_of_every_kind().items():
+        frozen = dataclasses.replace(problem, T_world_cam=problem.T_world_cam.copy(), p_world=problem.p_world.copy())
+        frozen.T_world_cam.setflags(write=False)  # arrays from a message are read-only
+        frozen.p_world.setflags(write=False)
+        run(frozen, "schur_lm")
+        assert [len(k.signatures) for k in kernels] == compiled, kind

@@ -11,11 +11,12 @@ time through its generic factor machinery (a HessianFactor assembled, factored a
 landmark: the largest part of a window's time, benchmarks/local_ba.md). BA
 solvers (g2o's block solver, which ORB-SLAM uses; Ceres' SPARSE_SCHUR) instead exploit that a
 landmark's 3x3 block touches only the poses that see it: every landmark block is factored at once
-(Cholesky), the reduced camera system (6 x free poses, square) is assembled as one product and
-solved densely, and the landmarks' steps follow by back-substitution. Here each of those is a few
-array operations over all observations. The reduced system is held densely, which suits a local
-window (~10 free poses); global BA, over every keyframe of the map, keeps gtsam's sparse
-elimination (``global_ba``).
+(Cholesky), the reduced camera system (6 x free poses, square) is assembled block by block from
+the poses that see each landmark, and the landmarks' steps follow by back-substitution. Here the
+linearisation is a few array operations over all observations and the reduced system and the
+back-substitution are compiled loops (``schur_complement``). The reduced system is solved
+densely, which suits a local window (~10-20 free poses); global BA, over every keyframe of the
+map, keeps gtsam's sparse elimination (``global_ba``).
 
 The step is the one gtsam's Levenberg-Marquardt takes: the Gauss-Newton system of the whitened,
 Huber-reweighted residuals (gtsam's robust noise model reweights each observation by
@@ -26,9 +27,9 @@ upsilon); a point by addition. A point behind a camera gives gtsam's constant er
 component) and no Jacobian. Both solvers reach the same optimum (tests compare them on the same
 windows); their results differ in the last digits.
 
-Determinism: only numpy (elementwise arithmetic, reductions in a fixed order, matrix products and
-``np.linalg.solve`` through OpenBLAS, whose kernels and single thread the stages pin), so lockstep
-runs give the same bits on any x86-64 CPU.
+Determinism: numpy (elementwise arithmetic, reductions in a fixed order, matrix products and
+``np.linalg.solve`` through OpenBLAS, whose kernels and single thread the stages pin) and compiled
+loops in a fixed order without fastmath, so lockstep runs give the same bits on any x86-64 CPU.
 """
 
 from __future__ import annotations
@@ -87,6 +88,22 @@ class SchurBundleAdjuster:
         )
         logger.debug("local BA: %s", stats)
         return BAResult(T_world_cam, state.p_world, active, removed, stats)
+
+
+def load_compiled_kernels() -> None:
+    """Load the compiled kernels of the solve from numba's cache (compile them, on a machine's first
+    start), on a one-observation problem: for the backend to call at its start, so that its first
+    local BA does not wait for numba's start and the load (most of a second; ~60 MB)."""
+    from zenslam.backend import ba_normal_equations, schur_complement
+
+    T, p, index = np.eye(4)[None], np.array([[0.0, 0.0, 5.0]]), np.zeros(1, np.int64)
+    camera, in_front, e = ba_normal_equations.project(T, p, index, index, np.zeros((1, 3)), np.ones((1, 3)), (1.0, 1.0, 0.0, 0.0, 1.0))
+    U, V, W, cell_point, cell_pose, g_pose, g_point = ba_normal_equations.normal_equation_blocks(
+        camera, in_front, T, index, e, np.ones((1, 3)), np.ones(1), index, index, 1, 1, (1.0, 1.0, 1.0), True
+    )
+    C_inv = _inverse_cholesky_3x3(V + np.eye(3))
+    S, r, Z, h = schur_complement.reduced_system(W, C_inv, cell_point, cell_pose, g_point, U + np.eye(6), g_pose)
+    schur_complement.back_substitute(Z, C_inv, cell_point, cell_pose, h, np.linalg.solve(S, r))
 
 
 @dataclass
@@ -153,29 +170,18 @@ class _Rows:
         )  # fmt: skip
 
     def project(self, problem: BAProblem, rows: np.ndarray, T_world_cam: np.ndarray, p_world: np.ndarray) -> _Projection:
-        """The observation ``rows``' points in their cameras and their whitened residuals."""
-        kf = problem.obs_keyframe[rows]
-        R = np.ascontiguousarray(T_world_cam[:, :3, :3]).reshape(-1, 9)[kf]  # row-major R per row
-        d = p_world[problem.obs_point[rows]] - T_world_cam[kf, :3, 3]
-        d0, d1, d2 = d[:, 0], d[:, 1], d[:, 2]
-        X = R[:, 0] * d0 + R[:, 3] * d1 + R[:, 6] * d2  # p_cam = R^T (p_world - t)
-        Y = R[:, 1] * d0 + R[:, 4] * d1 + R[:, 7] * d2
-        Z = R[:, 2] * d0 + R[:, 5] * d1 + R[:, 8] * d2
-        in_front = Z > 0.0
-        inv_z = 1.0 / np.where(in_front, Z, 1.0)
-        u = self.fx * X * inv_z + self.cx
-        r_u = u - problem.obs_px[rows, 0]
-        r_v = self.fy * Y * inv_z + self.cy - problem.obs_px[rows, 1]
-        r_right = u - self.bf * inv_z - self.right_u[rows]
-        behind = ~in_front
-        if behind.any():  # gtsam's factors on a point behind the camera: a constant error
-            r_u[behind] = r_v[behind] = r_right[behind] = 2.0 * self.fx
-        w = self.w[rows]
-        e = np.empty((len(rows), 3))
-        e[:, 0] = w * r_u
-        e[:, 1] = w * r_v
-        e[:, 2] = self.w_right[rows] * r_right + self.w_cross[rows] * r_u
-        return _Projection(X, Y, Z, inv_z, in_front, R, e)
+        """The observation ``rows``' points in their cameras and their whitened residuals (``ba_normal_equations.project``)."""
+        from zenslam.backend.ba_normal_equations import project  # numba: see _solve
+
+        measured = np.empty((len(rows), 3))
+        measured[:, :2] = problem.obs_px[rows]
+        measured[:, 2] = self.right_u[rows]
+        weights = np.stack([self.w[rows], self.w_right[rows], self.w_cross[rows]], axis=1)
+        camera, in_front, e = project(
+            T_world_cam, p_world, problem.obs_keyframe[rows], problem.obs_point[rows], measured, weights,
+            (self.fx, self.fy, self.cx, self.cy, self.bf),
+        )
+        return _Projection(camera, in_front, weights, e)
 
     def classify(self, problem: BAProblem, state: _State) -> np.ndarray:
         """(O,) inlier mask at the current estimate: usable, in front of the camera, chi2 within threshold."""
@@ -193,13 +199,14 @@ class _Rows:
 class _Projection:
     """Observations' points in their cameras and whitened residuals at one estimate."""
 
-    X: np.ndarray  # (n,) m
-    Y: np.ndarray  # (n,) m
-    Z: np.ndarray  # (n,) m
-    inv_z: np.ndarray  # (n,) 1/m, 1 behind the camera
+    camera: np.ndarray  # (n, 4): X, Y, Z (m) in the camera and 1/Z (1/m; 1 behind the camera)
     in_front: np.ndarray  # (n,) bool
-    R: np.ndarray  # (n, 9) the observing camera's rotation (camera to world), row-major
+    weights: np.ndarray  # (n, 3) the rows' whitening: w, w_right, w_cross (1/px)
     e: np.ndarray  # (n, 3) whitened residuals
+
+    @property
+    def Z(self) -> np.ndarray:
+        return self.camera[:, 2]
 
 
 @dataclass(frozen=True)
@@ -324,101 +331,42 @@ def _evaluate(
 
 
 def _linearize(problem: BAProblem, f: _Rows, s: _Structure, at: _Evaluation, robust: bool) -> _Linearized:
+    """The normal equations' blocks at ``at`` (``ba_normal_equations``: the Jacobians, Huber's reweighting, the sums)."""
+    from zenslam.backend.ba_normal_equations import normal_equation_blocks  # numba: see _solve
+
     rows, q = s.rows, at.projection
-    X, Y, Z, inv_z, R, e = q.X, q.Y, q.Z, q.inv_z, q.R, q.e
-    # M = d e / d p_cam (whitened), zero behind the camera (gtsam's factors give no Jacobian there):
-    # rows (a0, 0, c0), (0, b1, c1), (a2, 0, c2), from u = fx X/Z + cx, v = fy Y/Z + cy, u_right = u - bf/Z.
-    w, w_right, w_cross = f.w[rows], f.w_right[rows], f.w_cross[rows]
-    fx_z = np.where(q.in_front, f.fx * inv_z, 0.0)
-    x_z2 = X * inv_z * inv_z
-    a0 = w * fx_z
-    c0 = np.where(q.in_front, -w * f.fx * x_z2, 0.0)
-    b1 = w * np.where(q.in_front, f.fy * inv_z, 0.0)
-    c1 = -w * np.where(q.in_front, f.fy * Y * inv_z * inv_z, 0.0)
-    a2 = (w_right + w_cross) * fx_z
-    c2 = np.where(q.in_front, w_right * f.bf * inv_z * inv_z - (w_right + w_cross) * f.fx * x_z2, 0.0)
-    if robust:  # gtsam's robust noise model: rows reweighted by sqrt(w)
-        norm = np.sqrt((e * e).sum(axis=1))
-        k = f.huber[rows]
-        sqrt_w = np.sqrt(np.where(norm <= k, 1.0, k / np.where(norm > 0, norm, 1.0)))
-        a0, c0, b1, c1, a2, c2 = (sqrt_w * x for x in (a0, c0, b1, c1, a2, c2))
-        e = e * sqrt_w[:, None]
-    # d p_cam = [p_cam]x omega - upsilon for T * exp(xi); d p_cam / d p_world = R^T
-    A = np.zeros((len(rows), 3, 6))
-    A[:, 0, 0], A[:, 0, 1], A[:, 0, 2], A[:, 0, 3], A[:, 0, 5] = -c0 * Y, c0 * X - a0 * Z, a0 * Y, -a0, -c0
-    A[:, 1, 0], A[:, 1, 1], A[:, 1, 2], A[:, 1, 4], A[:, 1, 5] = b1 * Z - c1 * Y, c1 * X, -b1 * X, -b1, -c1
-    A[:, 2, 0], A[:, 2, 1], A[:, 2, 2], A[:, 2, 3], A[:, 2, 5] = -c2 * Y, c2 * X - a2 * Z, a2 * Y, -a2, -c2
-    # B = M R^T = d e / d p_world, entry by entry as whole arrays over the rows: b[i][j] = B[:, i, j]
-    R_entries = [np.ascontiguousarray(R[:, k]) for k in range(9)]  # R[j, k] is R_entries[3 * j + k]
-    b = [
-        [a0 * R_entries[3 * j] + c0 * R_entries[3 * j + 2] for j in range(3)],
-        [b1 * R_entries[3 * j + 1] + c1 * R_entries[3 * j + 2] for j in range(3)],
-        [a2 * R_entries[3 * j] + c2 * R_entries[3 * j + 2] for j in range(3)],
-    ]
-    # B^T B and B^T e per row from those arrays: the sums numpy's stacked 3x3 matmul makes, in its
-    # order (the same bits), in a fraction of its time on a window's rows (it loops matrix by matrix;
-    # benchmarks/local_ba.md).
-    n_rows = len(rows)
-    BtB = np.empty((n_rows, 3, 3))
-    for i in range(3):
-        for j in range(i, 3):
-            BtB[:, i, j] = BtB[:, j, i] = b[0][i] * b[0][j] + b[1][i] * b[1][j] + b[2][i] * b[2][j]
-    e_entries = [np.ascontiguousarray(e[:, k]) for k in range(3)]
-    Bte = np.empty((n_rows, 3))
-    for i in range(3):
-        Bte[:, i] = b[0][i] * e_entries[0] + b[1][i] * e_entries[1] + b[2][i] * e_entries[2]
-    V = np.add.reduceat(BtB, s.point_starts, axis=0)
-    g_point = np.add.reduceat(Bte, s.point_starts, axis=0)
-    n_free = len(s.free_pose_rows)
-    U = np.empty((n_free, 6, 6))
-    g_pose = np.empty((n_free, 6))
-    A_pose, e_pose = A[s.by_pose], e[s.by_pose]
-    start = 0
-    for f_index, end in enumerate(s.pose_ends.tolist()):  # one product per free pose: its rows stacked
-        J = A_pose[start:end].reshape(-1, 6)
-        U[f_index] = J.T @ J
-        g_pose[f_index] = J.T @ e_pose[start:end].reshape(-1)
-        start = end
-    free = s.free
-    B = np.empty((len(free), 3, 3))
-    for i in range(3):
-        for j in range(3):
-            B[:, i, j] = b[i][j][free]
-    W = A[free].transpose(0, 2, 1) @ B
-    if s.cell_starts is not None:  # a point seen twice by one keyframe: sum its rows
-        W = np.add.reduceat(W, s.cell_starts, axis=0)
-        free = free[s.cell_starts]
-    return _Linearized(U, V, W, s.point_of[free], s.pose_of[free], g_pose, g_point)
+    U, V, W, cell_point, cell_pose, g_pose, g_point = normal_equation_blocks(
+        q.camera, q.in_front, at.T_world_cam, problem.obs_keyframe[rows], q.e, q.weights, f.huber[rows],
+        s.point_of, s.pose_of, len(s.point_rows), len(s.free_pose_rows), (f.fx, f.fy, f.bf), robust,
+    )  # fmt: skip
+    return _Linearized(U, V, W, cell_point, cell_pose, g_pose, g_point)
 
 
 def _solve(linear: _Linearized, lam: float) -> tuple[np.ndarray, np.ndarray] | None:
     """The damped step (free poses (F, 6), points (L, 3)), or None when it is not finite.
 
     Normal equations [U W; W^T V] [d_pose; d_point] = -[g_pose; g_point], each block damped by
-    lam * I. The points are eliminated: with V = C C^T (Cholesky, per point) and Z = W C^-T, the
-    reduced camera system is S = U - Z Z^T, its right-hand side Z h - g_pose with h = C^-1 g_point;
-    then d_point = -C^-T (h + Z^T d_pose).
+    lam * I. The points are eliminated (``schur_complement``): with V = C C^T (Cholesky, per point)
+    and Z = W C^-T, the reduced camera system is S = U - Z Z^T, its right-hand side Z h - g_pose
+    with h = C^-1 g_point; then d_point = -C^-T (h + Z^T d_pose).
     """
-    n_points, n_free = len(linear.V), len(linear.U)
+    # Imported here: the compiled kernels load numba (~60 MB), which the backend's other work and
+    # the processes that only read a LocalBAConfig do not need before a first local BA.
+    from zenslam.backend import schur_complement
+
     C_inv = _inverse_cholesky_3x3(linear.V + lam * np.eye(3))
-    h = (C_inv @ linear.g_point[:, :, None])[:, :, 0]
-    if n_free:
-        Z = np.zeros((n_free, 6, n_points, 3))  # dense (pose, 6) x (point, 3): S is one product
-        Z[linear.cell_pose, :, linear.cell_point, :] = linear.W @ C_inv[linear.cell_point].transpose(0, 2, 1)
-        Z = Z.reshape(6 * n_free, 3 * n_points)
-        S = -(Z @ Z.T)  # numpy computes a product with its own transpose as a symmetric rank-k update
-        U = linear.U + lam * np.eye(6)
-        for f in range(n_free):
-            S[6 * f : 6 * f + 6, 6 * f : 6 * f + 6] += U[f]
+    S, r, Z, h = schur_complement.reduced_system(
+        linear.W, C_inv, linear.cell_point, linear.cell_pose, linear.g_point, linear.U + lam * np.eye(6), linear.g_pose
+    )
+    if len(linear.U):
         try:
-            d_pose = np.linalg.solve(S, Z @ h.reshape(-1) - linear.g_pose.reshape(-1))
+            d_pose = np.linalg.solve(S, r)
         except np.linalg.LinAlgError:
             return None
-        h = h + (d_pose @ Z).reshape(n_points, 3)
-        d_pose = d_pose.reshape(n_free, 6)
     else:
-        d_pose = np.zeros((0, 6))
-    d_point = -(C_inv.transpose(0, 2, 1) @ h[:, :, None])[:, :, 0]
+        d_pose = np.zeros(0)
+    d_point = schur_complement.back_substitute(Z, C_inv, linear.cell_point, linear.cell_pose, h, d_pose)
+    d_pose = d_pose.reshape(-1, 6)
     if not (np.isfinite(d_pose).all() and np.isfinite(d_point).all()):
         return None
     return d_pose, d_point
