@@ -215,20 +215,15 @@ class _Structure:
 
     The pass's observation rows are ordered by point, then keyframe, so each point's rows are
     contiguous; points and free poses are numbered from 0 in the order of their rows in the
-    problem. A cell is a point and a free pose that sees it: the point-pose coupling J_pose^T
-    J_point has one 6x3 block per cell.
+    problem. A cell is a point and a free pose that sees it (a run of rows in this order): the
+    point-pose coupling J_pose^T J_point has one 6x3 block per cell.
     """
 
     rows: np.ndarray  # (n,) observation rows of the pass, by point then keyframe
     point_rows: np.ndarray  # (L,) problem point rows that are variables
     point_of: np.ndarray  # (n,) variable point of each row
-    point_starts: np.ndarray  # (L,) where each point's rows start
     free_pose_rows: np.ndarray  # (F,) problem keyframe rows that are variables
     pose_of: np.ndarray  # (n,) free pose of each row, -1 on a fixed keyframe
-    free: np.ndarray  # (m,) the rows on free poses
-    by_pose: np.ndarray  # (m,) the rows on free poses, by pose
-    pose_ends: np.ndarray  # (F,) where each free pose's rows end in by_pose
-    cell_starts: np.ndarray | None  # where each (point, free pose) group starts in free; None: one row each
 
     @staticmethod
     def of(problem: BAProblem, rows: np.ndarray) -> _Structure:
@@ -240,22 +235,7 @@ class _Structure:
         free_pose_rows, free_index = np.unique(kf[on_free], return_inverse=True)
         pose_of = np.full(len(rows), -1, dtype=np.intp)
         pose_of[on_free] = free_index
-        free = np.flatnonzero(on_free)
-        by_pose = free[np.argsort(pose_of[free], kind="stable")]
-        cell = point_of[free] * n_keyframes + kf[free]
-        cell_starts = _group_starts(cell)
-        return _Structure(
-            rows=rows,
-            point_rows=point_rows,
-            point_of=point_of,
-            point_starts=_group_starts(point_of),
-            free_pose_rows=free_pose_rows,
-            pose_of=pose_of,
-            free=free,
-            by_pose=by_pose,
-            pose_ends=np.cumsum(np.bincount(pose_of[free], minlength=len(free_pose_rows))),
-            cell_starts=None if len(cell_starts) == len(free) else cell_starts,
-        )
+        return _Structure(rows=rows, point_rows=point_rows, point_of=point_of, free_pose_rows=free_pose_rows, pose_of=pose_of)
 
 
 @dataclass(frozen=True)
@@ -388,13 +368,6 @@ def _loss(norm2: np.ndarray, huber: np.ndarray, robust: bool) -> float:
         return float(0.5 * norm2.sum())
     norm = np.sqrt(norm2)
     return float(np.where(norm <= huber, 0.5 * norm2, huber * norm - 0.5 * huber * huber).sum())
-
-
-def _group_starts(sorted_ids: np.ndarray) -> np.ndarray:
-    """Where each run of equal values starts in a sorted array."""
-    if len(sorted_ids) == 0:
-        return np.zeros(0, dtype=np.intp)
-    return np.flatnonzero(np.concatenate(([True], sorted_ids[1:] != sorted_ids[:-1])))
 
 
 def _inverse_cholesky_3x3(V: np.ndarray) -> np.ndarray:
