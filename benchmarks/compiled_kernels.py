@@ -82,11 +82,12 @@ def import_cost(repeats: int) -> dict:
     return {key: summary([r[key] for r in runs]) for key in runs[0]}
 
 
-def start_cost(cpu_name: str | None) -> dict:
+def start_cost(cpu_name: str | None, code: str = _START_CHILD) -> dict:
+    """``code``'s figures in a fresh process with an empty numba cache (compile), then twice with it filled (load)."""
     env = {} if cpu_name is None else {"NUMBA_CPU_NAME": cpu_name}
     with tempfile.TemporaryDirectory() as cache:
-        compiling = child(_START_CHILD, NUMBA_CACHE_DIR=cache, **env)
-        loading = [child(_START_CHILD, NUMBA_CACHE_DIR=cache, **env) for _ in range(2)]
+        compiling = child(code, NUMBA_CACHE_DIR=cache, **env)
+        loading = [child(code, NUMBA_CACHE_DIR=cache, **env) for _ in range(2)]
     return {"cpu": cpu_name or "host", "empty_cache": compiling, "filled_cache": loading}
 
 

@@ -21,12 +21,11 @@ import argparse
 import json
 import os
 import platform
-import statistics
-import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
+
+from compiled_kernels import start_cost, summary
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results" / "frontend_fast.json"
@@ -43,10 +42,6 @@ fast_in_windows(image, np.array([[0, 0, 64, 64]]), 20)
 t2 = time.perf_counter()
 print(json.dumps({"import_ms": 1e3 * (t1 - t0), "first_call_ms": 1e3 * (t2 - t1), "first_call_cpu_ms": 1e3 * (time.process_time() - c1)}))
 """
-
-
-def summary(values_ms: list[float]) -> dict[str, float]:
-    return {"median": statistics.median(values_ms), "mean": statistics.fmean(values_ms), "min": min(values_ms)}
 
 
 def per_image(data: Path, repeats: int) -> dict:
@@ -93,20 +88,6 @@ def per_image(data: Path, repeats: int) -> dict:
     return result
 
 
-def child(code: str, **env: str) -> dict:
-    environment = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_")} | env
-    result = subprocess.run([sys.executable, "-c", code], env=environment, capture_output=True, text=True, check=True)
-    return json.loads(result.stdout.splitlines()[-1])
-
-
-def start_cost(cpu_name: str | None) -> dict:
-    env = {} if cpu_name is None else {"NUMBA_CPU_NAME": cpu_name}
-    with tempfile.TemporaryDirectory() as cache:
-        compiling = child(_START_CHILD, NUMBA_CACHE_DIR=cache, **env)
-        loading = [child(_START_CHILD, NUMBA_CACHE_DIR=cache, **env) for _ in range(2)]
-    return {"cpu": cpu_name or "host", "empty_cache": compiling, "filled_cache": loading}
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, default=REPO.parent / "shared" / "data", help="benchmark clips root")
@@ -123,7 +104,7 @@ def main() -> None:
         "machine": platform.platform(),
         "cpu_count": os.cpu_count(),
         "load_average_1_5_15_before": load_before,
-        "start": [start_cost(None), start_cost("generic")],
+        "start": [start_cost(None, _START_CHILD), start_cost("generic", _START_CHILD)],
         "per_image": per_image(args.data, args.repeats),
         "load_average_1_5_15_after": os.getloadavg(),
     }
