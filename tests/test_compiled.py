@@ -14,8 +14,9 @@ import pytest
 
 # A child's view: a digest of the ORB features of a textured image and (when present) two KITTI frames
 # (FAST corners, quadtree, orientation, descriptors: every kernel of the extractor) and of the
-# stereo matches of the textured image with itself shifted and of the KITTI pair, and of a local BA
-# (the backend's Schur kernels) on a synthetic stereo window with outliers; the CPU numba compiled
+# stereo matches of the textured image with itself shifted and of the KITTI pair, of a local BA
+# (the backend's Schur kernels) on a synthetic stereo window with outliers and of local mapping's
+# searches (triangulation's pairs, fusion's matches) on synthetic scenes; the CPU numba compiled
 # for, and how many of those kernels it compiled or loaded from the cache.
 _CHILD = """
 import hashlib, json, sys
@@ -58,6 +59,13 @@ for array in (ba.T_world_cam, ba.p_world, ba.inlier_obs):
     digest.update(np.ascontiguousarray(array).tobytes())
 kernels += [ba_normal_equations._project, ba_normal_equations._blocks, schur_complement._reduced_system, schur_complement._back_substitute]
 kernels += [stereo_kernel.best_descriptor_matches, stereo_kernel.refine_level_by_sad, stereo_kernel.keep_matches]
+import test_mapping_search as searches  # local mapping's searches, on its synthetic scenes
+from zenslam.backend import epipolar_search, fusion_search
+for kind in searches.SCENES:
+    for found in (searches.pair_searches(kind, 0)[0], searches.fusion_searches(kind, 0)[0]):
+        for array in found:
+            digest.update(np.ascontiguousarray(array).tobytes())
+kernels += [epipolar_search.node_pair_candidates, fusion_search.best_in_windows]
 print(json.dumps({
     "digest": digest.hexdigest(),
     "images": len(images),

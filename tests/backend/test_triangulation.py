@@ -8,8 +8,8 @@ import pytest
 from zenslam.backend.map import BackendKeyframe, BackendMap
 from zenslam.backend.triangulation import (
     TriangulationConfig,
-    _candidates,
-    _same_node_pairs,
+    _node_runs,
+    candidate_pairs,
     create_new_points,
     fundamental_matrix,
     match_for_triangulation,
@@ -198,13 +198,19 @@ def test_each_neighbour_triangulates_from_the_keypoints_the_previous_ones_left()
     assert bmap.check_consistency() == []  # among others: no keypoint of keyframe 0 observes two points
 
 
-def test_same_node_pairs_are_every_pair_under_one_node_in_row_order() -> None:
+def _pairs(runs) -> list[tuple[int, int]]:
+    order2, first, count = runs
+    return [(r, int(order2[k])) for r in range(len(first)) for k in range(first[r], first[r] + count[r])]
+
+
+def test_node_runs_are_every_pair_under_one_node_in_row_order() -> None:
     rng = np.random.default_rng(3)
     nodes1, nodes2 = rng.integers(-1, 6, 40), rng.integers(-1, 6, 50)
-    r, c = _same_node_pairs(nodes1, nodes2)
     expected = [(i, j) for i in range(40) for j in range(50) if nodes1[i] == nodes2[j] >= 0]
-    assert list(zip(r.tolist(), c.tolist())) == expected
-    assert [len(a) for a in _same_node_pairs(nodes1, np.full(5, -1))] == [0, 0]
+    assert _pairs(_node_runs(nodes1, nodes2)) == expected
+    assert _pairs(_node_runs(nodes1, np.full(5, -1))) == []
+    assert _node_runs(nodes1, nodes2, max_pairs=len(expected)) is not None
+    assert _node_runs(nodes1, nodes2, max_pairs=len(expected) - 1) is None
 
 
 def test_keypoints_are_paired_only_under_the_same_vocabulary_node() -> None:
@@ -215,20 +221,20 @@ def test_keypoints_are_paired_only_under_the_same_vocabulary_node() -> None:
     kf2, o2 = view(1, T2, p, d, rng)
     F12 = fundamental_matrix(kf1, kf2)
     idx1, idx2 = np.arange(kf1.n_keypoints), np.arange(kf2.n_keypoints)
-    dense = _candidates(kf1, kf2, idx1, idx2, F12, CONFIG)
-    one_node = _candidates(kf1, kf2, idx1, idx2, F12, CONFIG, (np.zeros(len(idx1), np.int64), np.zeros(len(idx2), np.int64)))
+    dense = candidate_pairs(kf1, kf2, idx1, idx2, F12, CONFIG)
+    one_node = candidate_pairs(kf1, kf2, idx1, idx2, F12, CONFIG, (np.zeros(len(idx1), np.int64), np.zeros(len(idx2), np.int64)))
     assert all(a.tolist() == b.tolist() for a, b in zip(dense, one_node))
     # keypoints of points 0-59 under node 3, the others under 7; kf2's of points 50-59 under 7
     node1 = np.where(o1 < 60, 3, 7)
     node2 = np.where(o2 < 50, 3, 7)
-    i1, i2, _ = _candidates(kf1, kf2, idx1, idx2, F12, CONFIG, (node1, node2))
+    i1, i2, _ = candidate_pairs(kf1, kf2, idx1, idx2, F12, CONFIG, (node1, node2))
     kept = [(a, b) for a, b in zip(*dense[:2]) if node1[a] == node2[b]]
     assert list(zip(i1.tolist(), i2.tolist())) == kept
     assert len(kept) < len(dense[0])
     # More pairs under one node than a block of the dense test holds: the dense test, kept to nodes.
     few_rows = TriangulationConfig(block_rows=8)
-    assert _same_node_pairs(node1, node2, max_pairs=few_rows.block_rows * len(idx2)) is None
-    blocked = _candidates(kf1, kf2, idx1, idx2, F12, few_rows, (node1, node2))
+    assert _node_runs(node1, node2, max_pairs=few_rows.block_rows * len(idx2)) is None
+    blocked = candidate_pairs(kf1, kf2, idx1, idx2, F12, few_rows, (node1, node2))
     assert list(zip(blocked[0].tolist(), blocked[1].tolist())) == kept
     matched_points = set(o1[i1[o1[i1] == o2[i2]]].tolist())
     assert matched_points == set(range(120)) - set(range(50, 60))  # a point split between nodes is lost

@@ -42,6 +42,7 @@ import numpy as np
 from zenslam.backend.config import BackendConfig
 from zenslam.backend.journal import JOURNAL_NAME, JournalWriter
 from zenslam.backend.journal_rebuild import journal_entries, rebuild_from_journal
+from zenslam.backend.kernel_warm_up import warm_up_kernels
 from zenslam.backend.keyframe_inbox import (
     Received,
     count_keyframes_waiting,
@@ -511,10 +512,7 @@ def _run(stage: StageStart) -> None:
     yield_cpu(config.nice if mode == "live" else 0)  # only a live camera does not wait for tracking
     node = BackendNode.from_config(config, global_ba_in_background=not lockstep)
     mapping = config.local_mapping
-    if config.local_ba.method == "schur_lm":  # its kernels loaded before the first keyframe, as the frontend's are
-        from zenslam.backend.schur_ba import load_compiled_kernels
-
-        load_compiled_kernels()
+    warm_up_kernels(config)  # before the first keyframe, as the frontend's are
     if not lockstep and mapping.defer_when_queued and mapping.placement.enabled:
         # A keyframe is placed by pose optimisation when others wait behind it: then the backend is
         # behind, and must not also wait for numba's start and the kernel's load (~1 s, ~60-100 MB).

@@ -16,7 +16,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from zenslam.backend.map import BackendKeyframe, BackendMap, MapPoint, PointGeometry, frustum_projection
-from zenslam.descriptors import hamming_distance_rows
 
 logger = logging.getLogger(__name__)
 
@@ -64,42 +63,30 @@ def match_projected(
     empty = np.zeros(0, dtype=np.int64)
     if len(descriptors) == 0 or kf.n_keypoints == 0:
         return empty, empty
+    from zenslam.backend.fusion_search import best_in_windows
+    from zenslam.compiled import kernel_array
+    from zenslam.descriptor_words import words
+
     proj = frustum_projection(kf, geometry, config.min_view_cos)
     rows = np.flatnonzero(proj.visible)
     predicted = proj.level[rows]
     radius = config.search_radius_px * kf.scale_factors[predicted]
-    # Per pair, 1-D gathers (np.take) of each column: cheaper than indexing rows of the 2-D arrays.
-    kp_u, kp_v = kf.keypoints_px[:, 0], kf.keypoints_px[:, 1]
     order = kf.u_order()
-    sorted_u = np.take(kp_u, order)
+    sorted_u = np.take(kf.keypoints_px[:, 0], order)
     u, v = np.take(proj.px[:, 0], rows), np.take(proj.px[:, 1], rows)
-    lo = np.searchsorted(sorted_u, u - radius, side="right")
+    lo = np.searchsorted(sorted_u, u - radius, side="right")  # keypoints with u strictly inside the window
     hi = np.searchsorted(sorted_u, u + radius, side="left")
-    counts = np.maximum(hi - lo, 0)
-    pair = np.repeat(np.arange(len(rows)), counts)  # index into rows
-    offsets = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-    kp = np.take(order, np.repeat(lo, counts) + offsets)
-    # The window's v side and the level first: most pairs of the u window fail them.
-    dv = np.take(kp_v, kp) - np.take(v, pair)
-    level = np.take(kf.levels, kp)
-    pair_level = np.take(predicted, pair)
-    keep = (np.abs(dv) < np.take(radius, pair)) & (level >= pair_level - 1) & (level <= pair_level)
-    pair, kp, level, dv = pair[keep], kp[keep], level[keep], dv[keep]
-    du = np.take(kp_u, kp) - np.take(u, pair)
-    right_u = np.take(kf.right_u, kp)
-    stereo = right_u >= 0
-    err2 = (du**2 + dv**2) + np.where(stereo, (np.nan_to_num(np.take(proj.right_u[rows], pair)) - right_u) ** 2, 0.0)
-    inv_sigma2 = 1.0 / np.take(kf.level_sigma2, level)
-    keep = np.where(stereo, err2 * inv_sigma2 <= config.chi2_stereo, err2 * inv_sigma2 <= config.chi2_mono)
-    p, kp = np.take(rows, pair[keep]), kp[keep]
-    if len(p) == 0:
-        return empty, empty
-    dist = hamming_distance_rows(descriptors, p, kf.descriptors, kp)
-    order = np.lexsort((kp, dist, p))
-    p, kp, dist = p[order], kp[order], dist[order]
-    good = dist <= config.max_descriptor_distance
-    good[1:] &= p[1:] != p[:-1]  # each point's best keypoint only
-    return p[good].astype(np.int64), kp[good].astype(np.int64)
+    arrays = (
+        rows, u, v, radius, predicted, np.take(proj.right_u, rows), lo, hi, order, kf.keypoints_px, kf.levels,
+        kf.right_u, kf.level_sigma2,
+    )  # fmt: skip
+    best = best_in_windows(
+        *(kernel_array(a, a.dtype) for a in arrays), float(config.chi2_mono), float(config.chi2_stereo),
+        kernel_array(words(descriptors), np.uint64), kernel_array(words(kf.descriptors), np.uint64),
+        int(config.max_descriptor_distance),
+    )  # fmt: skip
+    found = best >= 0
+    return rows[found].astype(np.int64), best[found]
 
 
 def fuse_into_keyframe(bmap: BackendMap, kf_id: int, point_ids: list[int], config: FusionConfig) -> int:

@@ -85,46 +85,39 @@ def _epipolar_pairs(kf1, idx1, kf2, idx2, F12, config) -> tuple[np.ndarray, np.n
     return np.concatenate(rows), np.concatenate(cols)
 
 
-def _same_node_pairs(nodes1: np.ndarray, nodes2: np.ndarray, max_pairs: int | None = None) -> tuple[np.ndarray, np.ndarray] | None:
-    """Index pairs (r into ``nodes1``, c into ``nodes2``) of equal nodes (>= 0), by r then c; None
-    when there would be more than ``max_pairs``."""
+def _node_runs(nodes1: np.ndarray, nodes2: np.ndarray, max_pairs: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The pairs of equal nodes (>= 0) as runs: row r of ``nodes1`` pairs with the rows
+    ``order2[first[r]:first[r] + count[r]]`` of ``nodes2`` (ascending). None when there would be
+    more than ``max_pairs`` pairs."""
     order2 = np.argsort(nodes2, kind="stable")
     sorted2 = nodes2[order2]
     first = np.searchsorted(sorted2, nodes1, "left")
     count = np.where(nodes1 >= 0, np.searchsorted(sorted2, nodes1, "right") - first, 0)
     if max_pairs is not None and int(count.sum()) > max_pairs:
         return None
-    r = np.repeat(np.arange(len(nodes1)), count)
-    # the k-th pair of row r takes the k-th of its node's entries in sorted2
-    at = np.arange(len(r)) + np.repeat(first - (np.cumsum(count) - count), count)
-    return r, order2[at]
+    return order2, first, count
 
 
-def _epipolar_pairs_in_nodes(kf1, idx1, kf2, idx2, F12, config, nodes1, nodes2) -> tuple[np.ndarray, np.ndarray]:
-    """As ``_epipolar_pairs``, among the pairs under the same vocabulary node (``nodes1`` of kf1's
-    keypoints, ``nodes2`` of kf2's): few enough to test one by one, in float64. With a vocabulary of
-    few nodes at that level (more pairs than one block of the dense test), the dense test, kept to
-    the pairs under one node."""
-    node1, node2 = nodes1[idx1], nodes2[idx2]
-    pairs = _same_node_pairs(node1, node2, max_pairs=config.block_rows * len(idx2))
-    if pairs is None:
-        r, c = _epipolar_pairs(kf1, idx1, kf2, idx2, F12, config)
-        same = (node1[r] == node2[c]) & (node1[r] >= 0)
-        return r[same], c[same]
-    r, c = pairs
+def _node_candidates(kf1, idx1, kf2, idx2, F12, config, runs, mono1, mono2, near_epipole):
+    """``candidate_pairs`` among the pairs under one node (``runs``: ``_node_runs`` of the keypoints'
+    nodes), one pair at a time (``epipolar_search``)."""
+    from zenslam.backend.epipolar_search import node_pair_candidates
+    from zenslam.compiled import kernel_array
+    from zenslam.descriptor_words import words
+
+    order2, first, count = runs
     lines = np.column_stack([kf1.keypoints_px[idx1], np.ones(len(idx1))]) @ F12  # (N1, 3): a x + b y + c = 0 in kf2
-    # Per pair, 1-D gathers of each coefficient and coordinate: cheaper than gathering rows of
-    # (N, 3) and (N, 2) arrays and reading their strided columns, for the same products.
-    a, b, offset = (np.take(coefficient, r) for coefficient in lines.T)
-    uv2 = kf2.keypoints_px[idx2]
-    u2, v2 = np.take(uv2[:, 0], c), np.take(uv2[:, 1], c)
-    gate2 = np.take(config.epipolar_chi2 * kf2.level_sigma2[kf2.levels[idx2]], c) * np.take(lines[:, 0] ** 2 + lines[:, 1] ** 2, r)
-    signed = a * u2 + b * v2 + offset
-    near = signed * signed < gate2  # squared distance to the line < chi2 * sigma^2
-    return r[near], c[near]
+    arrays = (
+        lines, lines[:, 0] ** 2 + lines[:, 1] ** 2, first, count, order2, kf2.keypoints_px[idx2],
+        config.epipolar_chi2 * kf2.level_sigma2[kf2.levels[idx2]], idx1, words(kf1.descriptors), idx2,
+        words(kf2.descriptors),
+    )  # fmt: skip
+    typed = [kernel_array(a, a.dtype) for a in arrays]
+    flags = [kernel_array(a, np.bool_) for a in (mono1, mono2, near_epipole)]
+    return node_pair_candidates(*typed, int(config.max_descriptor_distance), *flags)
 
 
-def _candidates(
+def candidate_pairs(
     kf1: BackendKeyframe,
     kf2: BackendKeyframe,
     idx1: np.ndarray,
@@ -134,26 +127,37 @@ def _candidates(
     nodes: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Keypoint pairs (i1 of kf1 among ``idx1``, i2 of kf2 among ``idx2``) in the epipolar band with
-    descriptors close enough and, without stereo, not next to the epipole; and their distances.
-    With ``nodes`` (the vocabulary node of each keypoint of kf1 and of kf2), only pairs under the
-    same node."""
-    if nodes is None:
-        r, c = _epipolar_pairs(kf1, idx1, kf2, idx2, F12, config)
-    else:
-        r, c = _epipolar_pairs_in_nodes(kf1, idx1, kf2, idx2, F12, config, *nodes)
+    descriptors close enough and, without stereo, not next to the epipole; and their distances, by
+    i1's row in ``idx1`` then i2's in ``idx2``. With ``nodes`` (the vocabulary node of each keypoint
+    of kf1 and of kf2), only pairs under the same node: few enough to test one by one, unless the
+    vocabulary has few nodes at that level (more pairs than one block of the dense test), when the
+    dense test is kept to the pairs under one node."""
+    mono1, mono2 = kf1.right_u[idx1] < 0, kf2.right_u[idx2] < 0
+    near_epipole = _near_epipole(kf1, kf2, idx2, config) if np.any(mono1) and np.any(mono2) else np.zeros(len(idx2), bool)
+    if nodes is not None:
+        node1, node2 = nodes[0][idx1], nodes[1][idx2]
+        runs = _node_runs(node1, node2, max_pairs=config.block_rows * len(idx2))
+        if runs is not None:
+            return _node_candidates(kf1, idx1, kf2, idx2, F12, config, runs, mono1, mono2, near_epipole)
+    r, c = _epipolar_pairs(kf1, idx1, kf2, idx2, F12, config)
+    if nodes is not None:
+        same = (node1[r] == node2[c]) & (node1[r] >= 0)
+        r, c = r[same], c[same]
     i1, i2 = idx1[r], idx2[c]
     dist = hamming_distance_rows(kf1.descriptors, i1, kf2.descriptors, i2)
-    keep = dist <= config.max_descriptor_distance
-    both_mono = (kf1.right_u[i1] < 0) & (kf2.right_u[i2] < 0)
-    if np.any(both_mono):
-        # Keypoints next to the epipole triangulate badly without stereo (rays nearly parallel).
-        centre1_in_2 = transform_points(kf2.T_cam_world, kf1.centre_world[None])[0]
-        if centre1_in_2[2] > 1e-9:
-            epipole = kf2.calibration.K @ (centre1_in_2 / centre1_in_2[2])
-            d2 = np.sum((kf2.keypoints_px[idx2] - epipole[:2]) ** 2, axis=1)
-            near = d2 < config.epipole_min_distance_px**2 * kf2.scale_factors[kf2.levels[idx2]]
-            keep &= ~(both_mono & near[c])
+    keep = (dist <= config.max_descriptor_distance) & ~(mono1[r] & mono2[c] & near_epipole[c])
     return i1[keep], i2[keep], dist[keep]
+
+
+def _near_epipole(kf1: BackendKeyframe, kf2: BackendKeyframe, idx2: np.ndarray, config: TriangulationConfig) -> np.ndarray:
+    """(N2,) bool: kf2's keypoints ``idx2`` next to the epipole (kf1's centre in kf2's image), where
+    rays without stereo are nearly parallel and triangulate badly; none when kf1 is not in front."""
+    centre1_in_2 = transform_points(kf2.T_cam_world, kf1.centre_world[None])[0]
+    if centre1_in_2[2] <= 1e-9:
+        return np.zeros(len(idx2), dtype=bool)
+    epipole = kf2.calibration.K @ (centre1_in_2 / centre1_in_2[2])
+    d2 = np.sum((kf2.keypoints_px[idx2] - epipole[:2]) ** 2, axis=1)
+    return d2 < config.epipole_min_distance_px**2 * kf2.scale_factors[kf2.levels[idx2]]
 
 
 def _one_to_one(i1: np.ndarray, i2: np.ndarray, dist: np.ndarray, config: TriangulationConfig) -> tuple[np.ndarray, np.ndarray]:
@@ -184,7 +188,7 @@ def match_for_triangulation(
     idx2 = np.flatnonzero(kf2.map_point_ids < 0)
     if len(idx1) == 0 or len(idx2) == 0:
         return empty, empty
-    i1, i2, dist = _candidates(kf1, kf2, idx1, idx2, F12, config)
+    i1, i2, dist = candidate_pairs(kf1, kf2, idx1, idx2, F12, config)
     chosen = _one_to_one(i1, i2, dist, config)
     return i1[chosen], i2[chosen]
 
@@ -361,7 +365,7 @@ def create_new_points(bmap: BackendMap, kf_id: int, config: TriangulationConfig,
         idx2 = np.flatnonzero(kf2.map_point_ids < 0)
         if len(idx1) and len(idx2):
             nodes = None if nodes1 is None else (nodes1, feature_nodes(kf2.id, kf2.descriptors))
-            i1, i2, dist = _candidates(kf1, kf2, idx1, idx2, fundamental_matrix(kf1, kf2), config, nodes)
+            i1, i2, dist = candidate_pairs(kf1, kf2, idx1, idx2, fundamental_matrix(kf1, kf2), config, nodes)
             parts.append((np.full(len(i1), j, dtype=np.int64), i1, i2, dist))
     if not parts:
         return []

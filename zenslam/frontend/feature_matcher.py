@@ -54,6 +54,7 @@ def search_by_projection(
     """
     # The kernels import numba (~60 MB and most of a second per process): only a process that
     # searches loads it, not every one that imports the tracking configs.
+    from zenslam.descriptor_words import words
     from zenslam.frontend.projection_matching import search_in_windows
 
     proj_px = np.ascontiguousarray(proj_px, dtype=float).reshape(-1, 2)
@@ -67,10 +68,10 @@ def search_by_projection(
         proj_px,
         np.ascontiguousarray(np.broadcast_to(np.asarray(radius_px, dtype=float), (m,))),
         np.ascontiguousarray(predicted_level, dtype=np.int64).reshape(m),
-        _words(point_desc),
+        words(point_desc),
         kp_px,
         np.ascontiguousarray(kp_level, dtype=np.int64).reshape(n),
-        _words(kp_desc),
+        words(kp_desc),
         free,
         np.ascontiguousarray(proj_right_u, dtype=float).reshape(m) if use_right else None,
         np.ascontiguousarray(kp_right_u, dtype=float).reshape(n) if use_right else None,
@@ -80,11 +81,6 @@ def search_by_projection(
         ratio,
         max_passes,
     )
-
-
-def _words(descriptors: np.ndarray) -> np.ndarray:
-    """(K, 32) uint8 descriptors as (K, 4) uint64 words."""
-    return np.ascontiguousarray(descriptors, dtype=np.uint8).reshape(-1, 32).view(np.uint64)
 
 
 def rotation_consistent(angle_diff_deg: np.ndarray, n_bins: int = 30, keep_bins: int = 3) -> np.ndarray:

@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from zenslam.compiled import kernel
+from zenslam.descriptor_words import popcount
 
 _NO_LEVEL_BOUND = np.iinfo(np.int64).max  # a level offset that admits every level
 _NO_RIGHT_U = np.zeros(0)  # the right-image u arrays of a search without the stereo check (never read)
@@ -58,15 +59,6 @@ def search_in_windows(
         candidates, distances, starts, kp_level, len(kp_px), int(max_distance),
         ratio is not None, 0.0 if ratio is None else float(ratio), max(int(max_passes), 1),
     )  # fmt: skip
-
-
-@kernel
-def popcount(word):
-    """Set bits of a uint64 (SWAR: exact integer arithmetic)."""
-    word = word - ((word >> np.uint64(1)) & np.uint64(0x5555555555555555))
-    word = (word & np.uint64(0x3333333333333333)) + ((word >> np.uint64(2)) & np.uint64(0x3333333333333333))
-    word = (word + (word >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
-    return np.int64((word * np.uint64(0x0101010101010101)) >> np.uint64(56))
 
 
 @kernel

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from zenslam.compiled import kernel
-from zenslam.frontend.projection_matching import popcount
+from zenslam.descriptor_words import popcount
 
 
 @kernel

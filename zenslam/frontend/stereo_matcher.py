@@ -135,6 +135,7 @@ def _match(
     """
     # The kernels import numba (~60 MB and most of a second per process): only a process that
     # matches loads it, not every one that imports the frame or its configs.
+    from zenslam.descriptor_words import words
     from zenslam.frontend.stereo_kernel import best_descriptor_matches, keep_matches, refine_level_by_sad
 
     base_shape = left_pyramid[0].shape
@@ -143,7 +144,7 @@ def _match(
     # float32 too): one compiled signature whether bf is a Python float or a numpy one
     u_low = _read_only((left_px[:, 0] - max_disparity).astype(np.float64))
     i_left, i_right = best_descriptor_matches(
-        left_px, left_level, _words(left.descriptors), u_low, right_px, right_level, _words(right.descriptors),
+        left_px, left_level, _read_only(words(left.descriptors)), u_low, right_px, right_level, _read_only(words(right.descriptors)),
         _read_only(right.scale_factors.astype(np.float64)), base_shape[0],
         float(config.row_tolerance_px), int(config.level_tolerance), int(config.max_descriptor_distance),
     )  # fmt: skip
@@ -163,11 +164,6 @@ def _match(
         left_px, i_left, i_right, _read_only(u_right), _read_only(sad), float(config.disparity_offset_px),
         float(max_disparity), float(config.outlier_sad_factor), float(bf), right_u, depth, right_index, sad_out,
     )  # fmt: skip
-
-
-def _words(descriptors: np.ndarray) -> np.ndarray:
-    """(K, 32) uint8 descriptors as (K, 4) read-only uint64 words."""
-    return _read_only(np.ascontiguousarray(descriptors, dtype=np.uint8).reshape(-1, 32).view(np.uint64))
 
 
 def _read_only(array: np.ndarray) -> np.ndarray:
