@@ -20,7 +20,7 @@ from zenslam.descriptor_words import distance
 @kernel
 def node_pair_candidates(
     lines, line_norm2, first, count, order2, uv2, gate2, idx1, words1, idx2, words2, max_distance, mono1, mono2,
-    near_epipole,
+    epipole, epipole_gate2,
 ):  # fmt: skip
     """(i1, i2, distance) of the candidate pairs, by their first keypoint's row then their second's.
 
@@ -28,8 +28,10 @@ def node_pair_candidates(
     the second image, ``line_norm2[r]`` = a^2 + b^2) is paired with the second keyframe's rows
     ``order2[first[r]:first[r] + count[r]]`` (those under its node, ascending). Row c of the second
     (``idx2[c]`` at ``uv2[c]``) is in the band when (a u + b v + c)^2 < ``gate2[c]`` x a^2 + b^2
-    (``gate2``: chi2 x its level's sigma^2). ``mono1`` / ``mono2``: rows without stereo;
-    ``near_epipole``: second-keyframe rows too near the epipole for a pair of two such rows.
+    (``gate2``: chi2 x its level's sigma^2). ``mono1`` / ``mono2``: rows without stereo; a pair of
+    two such rows is dropped when its second keypoint is near the ``epipole`` (u, v) in the second
+    image: its squared distance below ``epipole_gate2[c]`` (empty: the first keyframe is not in
+    front of the second, no epipole).
     """
     total = 0
     for r in range(len(first)):
@@ -47,8 +49,12 @@ def node_pair_candidates(
             if not signed * signed < gate2[c] * norm2:
                 continue
             d = distance(words1, idx1[r], words2, idx2[c])
-            if d > max_distance or (mono1[r] and mono2[c] and near_epipole[c]):
+            if d > max_distance:
                 continue
+            if mono1[r] and mono2[c] and len(epipole_gate2):
+                du, dv = uv2[c, 0] - epipole[0], uv2[c, 1] - epipole[1]
+                if du * du + dv * dv < epipole_gate2[c]:
+                    continue
             out1[n], out2[n], out_distance[n] = idx1[r], idx2[c], d
             n += 1
     return out1[:n], out2[:n], out_distance[:n]

@@ -209,18 +209,34 @@ class BackendMap:
     # ---- points ------------------------------------------------------------------------------------
     def add_point(self, point_id: int, p_world: np.ndarray, first_keyframe_id: int) -> MapPoint:
         """A point without observations yet (add them with ``add_observation``)."""
-        if point_id in self.points or point_id in self._replaced:
-            raise MapError(f"map point id {point_id} is already used; ids are never reused")
-        if point_id < 0:
-            raise MapError(f"map point ids are non-negative, got {point_id}")
-        if self.point_store.full and 2 * len(self.points) <= self.point_store.capacity:
-            self._compact_point_store()
-        row = self.point_store.append()
-        self.point_store.p_world[row] = np.asarray(p_world, dtype=float).reshape(3)
-        pt = MapPoint(point_id, self.point_store, row, first_keyframe_id, self._next_serial - 1)
-        self.points[pt.id] = pt
-        self.changes.points.add(pt.id)
-        return pt
+        return self.add_points([point_id], np.asarray(p_world, dtype=float).reshape(1, 3), first_keyframe_id)[0]
+
+    def add_points(self, point_ids: list[int], p_world: np.ndarray, first_keyframe_id: int) -> list[MapPoint]:
+        """Points ``point_ids`` (distinct, unused) at the rows of ``p_world`` (M, 3), without
+        observations yet: what ``add_point`` of each in turn makes, their rows taken a block at a time."""
+        ids = [int(p) for p in point_ids]
+        p_world = np.asarray(p_world, dtype=float).reshape(len(ids), 3)
+        points, replaced = self.points, self._replaced
+        used = [p for p in ids if p in points or p in replaced]
+        if used:
+            raise MapError(f"map point id {used[0]} is already used; ids are never reused")
+        if len(set(ids)) != len(ids):
+            raise MapError(f"map point id {next(p for p in ids if ids.count(p) > 1)} is given twice; ids are never reused")
+        if ids and min(ids) < 0:
+            raise MapError(f"map point ids are non-negative, got {min(ids)}")
+        serial = self._next_serial - 1
+        out: list[MapPoint] = []
+        while len(out) < len(ids):
+            if self.point_store.full and 2 * len(points) <= self.point_store.capacity:
+                self._compact_point_store()
+            store, done = self.point_store, len(out)
+            first_row, n = store.append_rows(len(ids) - done)
+            store.p_world[first_row : first_row + n] = p_world[done : done + n]
+            for point_id, row in zip(ids[done : done + n], range(first_row, first_row + n)):
+                pt = points[point_id] = MapPoint(point_id, store, row, first_keyframe_id, serial)
+                out.append(pt)
+        self.changes.points.update(ids)
+        return out
 
     def add_observed_points(self, point_ids: list[int], p_world: np.ndarray, kf_id: int, keypoints: list[int]) -> None:
         """Points ``point_ids`` created at keyframe ``kf_id`` (metres, world frame, rows of ``p_world``
@@ -232,8 +248,7 @@ class BackendMap:
         if len(taken) or len(np.unique(at)) != len(at):
             keypoint = int(taken[0]) if len(taken) else int(at[0])
             raise MapError(f"keypoint {keypoint} of keyframe {kf_id} already observes a point, or gets two new ones")
-        points = [self.add_point(point_id, p, kf_id) for point_id, p in zip(point_ids, p_world)]
-        self._observe_all(points, kf, at)
+        self._observe_all(self.add_points(point_ids, p_world, kf_id), kf, at)
 
     def _compact_point_store(self) -> None:
         """Move the live points into a new store without the rows of removed ones."""
@@ -268,7 +283,10 @@ class BackendMap:
         for k, at in ((kf, keypoints), (other, other_keypoints)):
             if np.any(k.map_point_ids[at] >= 0) or len(np.unique(at)) != len(at):
                 raise MapError(f"keypoints of keyframe {k.id} already observe points or are listed twice")
-        points = [self.new_point(p, kf_id) for p in np.asarray(p_world, dtype=float).reshape(-1, 3)]
+        p_world = np.asarray(p_world, dtype=float).reshape(-1, 3)
+        ids = [self.point_id_allocator.next() for _ in range(len(p_world))]
+        points = self.add_points(ids, p_world, kf_id)
+        self.changes.created_points.update(ids)
         self._observe_all(points, kf, keypoints)
         if points:
             self.covisibility.add_shared(other_id, {kf_id: len(points)})  # each new point: +1 for the pair

@@ -52,6 +52,16 @@ class PointStore:
         self.n_rows += 1
         return row
 
+    def append_rows(self, n: int) -> tuple[int, int]:
+        """Up to ``n`` new rows in one block (as many as fit, after growing the columns when they
+        are full): (the first row, how many), each as ``append`` makes it."""
+        if self.full:
+            self._grow(2 * self.capacity)
+        row = self.n_rows
+        n = min(int(n), self.capacity - row)
+        self.n_rows += n
+        return row, n
+
     def _grow(self, capacity: int) -> None:
         for name, (shape, dtype, initial) in COLUMNS.items():
             old = getattr(self, name)

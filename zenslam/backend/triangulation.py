@@ -98,7 +98,7 @@ def _node_runs(nodes1: np.ndarray, nodes2: np.ndarray, max_pairs: int | None = N
     return order2, first, count
 
 
-def _node_candidates(kf1, idx1, kf2, idx2, F12, config, runs, mono1, mono2, near_epipole):
+def _node_candidates(kf1, idx1, kf2, idx2, F12, config, runs, mono1, mono2):
     """``candidate_pairs`` among the pairs under one node (``runs``: ``_node_runs`` of the keypoints'
     nodes), one pair at a time (``epipolar_search``)."""
     from zenslam.backend.epipolar_search import node_pair_candidates
@@ -107,14 +107,19 @@ def _node_candidates(kf1, idx1, kf2, idx2, F12, config, runs, mono1, mono2, near
 
     order2, first, count = runs
     lines = np.column_stack([kf1.keypoints_px[idx1], np.ones(len(idx1))]) @ F12  # (N1, 3): a x + b y + c = 0 in kf2
+    epipole = _epipole(kf1, kf2)
+    uv2 = kf2.keypoints_px[idx2]
     arrays = (
-        lines, lines[:, 0] ** 2 + lines[:, 1] ** 2, first, count, order2, kf2.keypoints_px[idx2],
+        lines, lines[:, 0] ** 2 + lines[:, 1] ** 2, first, count, order2, uv2,
         config.epipolar_chi2 * kf2.level_sigma2[kf2.levels[idx2]], idx1, words(kf1.descriptors), idx2,
         words(kf2.descriptors),
     )  # fmt: skip
     typed = [kernel_array(a, a.dtype) for a in arrays]
-    flags = [kernel_array(a, np.bool_) for a in (mono1, mono2, near_epipole)]
-    return node_pair_candidates(*typed, int(config.max_descriptor_distance), *flags)
+    flags = [kernel_array(a, np.bool_) for a in (mono1, mono2)]
+    epipole_gate2 = _epipole_gate2(kf2, idx2, config) if epipole is not None else np.zeros(0)
+    return node_pair_candidates(
+        *typed, int(config.max_descriptor_distance), *flags, np.zeros(2) if epipole is None else epipole, epipole_gate2
+    )
 
 
 def candidate_pairs(
@@ -133,12 +138,12 @@ def candidate_pairs(
     vocabulary has few nodes at that level (more pairs than one block of the dense test), when the
     dense test is kept to the pairs under one node."""
     mono1, mono2 = kf1.right_u[idx1] < 0, kf2.right_u[idx2] < 0
-    near_epipole = _near_epipole(kf1, kf2, idx2, config) if np.any(mono1) and np.any(mono2) else np.zeros(len(idx2), bool)
     if nodes is not None:
         node1, node2 = nodes[0][idx1], nodes[1][idx2]
         runs = _node_runs(node1, node2, max_pairs=config.block_rows * len(idx2))
         if runs is not None:
-            return _node_candidates(kf1, idx1, kf2, idx2, F12, config, runs, mono1, mono2, near_epipole)
+            return _node_candidates(kf1, idx1, kf2, idx2, F12, config, runs, mono1, mono2)
+    near_epipole = _near_epipole(kf1, kf2, idx2, config) if np.any(mono1) and np.any(mono2) else np.zeros(len(idx2), bool)
     r, c = _epipolar_pairs(kf1, idx1, kf2, idx2, F12, config)
     if nodes is not None:
         same = (node1[r] == node2[c]) & (node1[r] >= 0)
@@ -149,15 +154,27 @@ def candidate_pairs(
     return i1[keep], i2[keep], dist[keep]
 
 
-def _near_epipole(kf1: BackendKeyframe, kf2: BackendKeyframe, idx2: np.ndarray, config: TriangulationConfig) -> np.ndarray:
-    """(N2,) bool: kf2's keypoints ``idx2`` next to the epipole (kf1's centre in kf2's image), where
-    rays without stereo are nearly parallel and triangulate badly; none when kf1 is not in front."""
+def _epipole(kf1: BackendKeyframe, kf2: BackendKeyframe) -> np.ndarray | None:
+    """(2,) pixels of kf1's centre in kf2's image, None when kf1 is not in front of kf2."""
     centre1_in_2 = transform_points(kf2.T_cam_world, kf1.centre_world[None])[0]
     if centre1_in_2[2] <= 1e-9:
+        return None
+    return (kf2.calibration.K @ (centre1_in_2 / centre1_in_2[2]))[:2]
+
+
+def _epipole_gate2(kf2: BackendKeyframe, idx2: np.ndarray, config: TriangulationConfig) -> np.ndarray:
+    """(N2,) squared pixels: how near the epipole kf2's keypoints ``idx2`` may not be, by their level."""
+    return config.epipole_min_distance_px**2 * kf2.scale_factors[kf2.levels[idx2]]
+
+
+def _near_epipole(kf1: BackendKeyframe, kf2: BackendKeyframe, idx2: np.ndarray, config: TriangulationConfig) -> np.ndarray:
+    """(N2,) bool: kf2's keypoints ``idx2`` next to the epipole, where rays without stereo are nearly
+    parallel and triangulate badly; none when kf1 is not in front."""
+    epipole = _epipole(kf1, kf2)
+    if epipole is None:
         return np.zeros(len(idx2), dtype=bool)
-    epipole = kf2.calibration.K @ (centre1_in_2 / centre1_in_2[2])
-    d2 = np.sum((kf2.keypoints_px[idx2] - epipole[:2]) ** 2, axis=1)
-    return d2 < config.epipole_min_distance_px**2 * kf2.scale_factors[kf2.levels[idx2]]
+    d2 = np.sum((kf2.keypoints_px[idx2] - epipole) ** 2, axis=1)
+    return d2 < _epipole_gate2(kf2, idx2, config)
 
 
 def _one_to_one(i1: np.ndarray, i2: np.ndarray, dist: np.ndarray, config: TriangulationConfig) -> tuple[np.ndarray, np.ndarray]:
