@@ -16,8 +16,9 @@ import pytest
 # (FAST corners, quadtree, orientation, descriptors: every kernel of the extractor) and of the
 # stereo matches of the textured image with itself shifted and of the KITTI pair, of a local BA
 # (the backend's Schur kernels) on a synthetic stereo window with outliers and of local mapping's
-# searches (triangulation's pairs, fusion's matches) on synthetic scenes; the CPU numba compiled
-# for, and how many of those kernels it compiled or loaded from the cache.
+# searches (triangulation's pairs, fusion's matches) on synthetic scenes and of the shipped
+# vocabulary's descent; the CPU numba compiled for, and how many of those kernels it compiled or
+# loaded from the cache.
 _CHILD = """
 import hashlib, json, sys
 from pathlib import Path
@@ -66,6 +67,12 @@ for kind in searches.SCENES:
         for array in found:
             digest.update(np.ascontiguousarray(array).tobytes())
 kernels += [epipolar_search.node_pair_candidates, fusion_search.best_in_windows]
+from zenslam.vocabulary import load_vocabulary
+from zenslam.vocabulary.descent import descend
+words = np.random.default_rng(3).integers(0, 256, (500, 32), dtype=np.uint8).view(np.uint64)
+for array in load_vocabulary(None)._descend(words, 2):
+    digest.update(array.tobytes())
+kernels += [descend]
 print(json.dumps({
     "digest": digest.hexdigest(),
     "images": len(images),

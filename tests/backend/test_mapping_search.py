@@ -158,13 +158,18 @@ def test_the_backend_warm_up_compiles_the_searches_for_the_types_local_mapping_u
     from zenslam.backend import epipolar_search, fusion_search
     from zenslam.backend.config import BackendConfig
     from zenslam.backend.kernel_warm_up import warm_up_kernels
+    from zenslam.vocabulary import load_vocabulary
+    from zenslam.vocabulary.descent import descend
 
     warm_up_kernels(BackendConfig())
-    kernels = (epipolar_search.node_pair_candidates, fusion_search.best_in_windows)
+    kernels = (epipolar_search.node_pair_candidates, fusion_search.best_in_windows, descend)
     compiled = [len(k.signatures) for k in kernels]
     assert all(compiled)
     test_pairs_under_one_node_are_the_numpy_formulations("stereo sideways", 0)
     test_pairs_under_one_node_are_the_numpy_formulations("mono forward (epipole in the image)", 0)
     test_fusion_matches_are_the_numpy_formulations("stereo sideways", 0)
     test_fusion_matches_are_the_numpy_formulations("mono sideways, whole pixels", 0)
+    descriptors = np.random.default_rng(0).integers(0, 256, (50, 32), dtype=np.uint8)
+    descriptors.setflags(write=False)  # a message's
+    load_vocabulary(None).transform(descriptors)
     assert [len(k.signatures) for k in kernels] == compiled

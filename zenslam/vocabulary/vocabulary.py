@@ -260,32 +260,14 @@ class Vocabulary:
 
     def _descend(self, d64: np.ndarray, node_level: int) -> tuple[np.ndarray, np.ndarray]:
         """(leaf node of each descriptor, its node at ``node_level`` or its leaf if that is shallower)."""
-        current = np.zeros(d64.shape[0], dtype=np.int64)
-        at_level = current.copy()
-        for level in range(1, self._height + 1):
-            rows = self._inner_row[current]
-            moving = np.flatnonzero(rows >= 0)
-            if moving.size == 0:
-                break
-            if moving.size < rows.size:
-                r = rows[moving]
-                current[moving] = self._child_nodes[r, self._nearest_child(d64[moving], r)]
-            else:
-                current = self._child_nodes[rows, self._nearest_child(d64, rows)]
-            if level == node_level:
-                at_level = current.copy()
-        if node_level > self._height:
-            at_level = current
-        elif node_level > 0:
-            at_level = np.where(self._node_depth[current] < node_level, current, at_level)
-        return current, at_level
+        # numba (~60 MB, most of a second at a process's start) only where descriptors are looked up
+        from zenslam.compiled import kernel_array
+        from zenslam.vocabulary.descent import descend
 
-    def _nearest_child(self, d64: np.ndarray, rows: np.ndarray) -> np.ndarray:
-        """Slot of the nearest child (the first on a tie) of inner node row ``rows[i]`` for descriptor i."""
-        counts = np.bitwise_count(self._child_desc[rows] ^ d64[:, None, :])  # (n, k, 4) uint8
-        # Two words add up to at most 128, safe in uint8; the total (up to 256) is not.
-        distance = (counts[..., 0] + counts[..., 1]).astype(np.int32) + (counts[..., 2] + counts[..., 3])
-        return np.argmin(distance + self._child_penalty[rows], axis=1)
+        return descend(
+            kernel_array(d64, np.uint64), self._inner_row, self._child_nodes, self._child_desc, self._child_penalty,
+            self._node_depth, self._height, int(node_level),
+        )  # fmt: skip
 
     def __repr__(self) -> str:
         return (
