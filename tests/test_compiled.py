@@ -16,8 +16,8 @@ import pytest
 # (FAST corners, quadtree, orientation, descriptors: every kernel of the extractor) and of the
 # stereo matches of the textured image with itself shifted and of the KITTI pair, of a local BA
 # (the backend's Schur kernels) on a synthetic stereo window with outliers and of local mapping's
-# searches (triangulation's pairs, fusion's matches) on synthetic scenes and of the shipped
-# vocabulary's descent; the CPU numba compiled for, and how many of those kernels it compiled or
+# searches (triangulation's pairs, fusion's matches) on synthetic scenes, of the shipped
+# vocabulary's descent and of representative descriptors; the CPU numba compiled for, and how many of those kernels it compiled or
 # loaded from the cache.
 _CHILD = """
 import hashlib, json, sys
@@ -73,6 +73,11 @@ words = np.random.default_rng(3).integers(0, 256, (500, 32), dtype=np.uint8).vie
 for array in load_vocabulary(None)._descend(words, 2):
     digest.update(array.tobytes())
 kernels += [descend]
+from zenslam.map_point_rules import representative_descriptors
+from zenslam.representative_descriptor import representative_offsets
+groups = np.random.default_rng(4).integers(0, 256, (200, 9, 32), dtype=np.uint8)
+digest.update(representative_descriptors(groups, np.arange(200) % 9 + 1).tobytes())
+kernels += [representative_offsets]
 print(json.dumps({
     "digest": digest.hexdigest(),
     "images": len(images),

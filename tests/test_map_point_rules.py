@@ -13,6 +13,7 @@ from zenslam.map_point_rules import (
     radius_by_viewing_cos,
     representative_descriptor,
     representative_descriptors,
+    representative_offsets,
     scale_invariance_range,
 )
 
@@ -52,6 +53,25 @@ def test_batched_representatives_match_one_by_one() -> None:
     batched = representative_descriptors(groups)
     for g, b in zip(groups, batched):
         assert np.array_equal(representative_descriptor(g), b)
+
+
+def test_representatives_with_ties_and_padding_are_the_brute_force_choice() -> None:
+    # Descriptors drawn from 3 bases with 0-2 bits flipped: many equal medians, where the first wins.
+    rng = np.random.default_rng(4)
+    bases = rng.integers(0, 256, (3, 32), dtype=np.uint8)
+    groups = bases[rng.integers(0, 3, (300, 12))]
+    for g in groups[::3]:
+        g[rng.integers(0, 12)] = _flip_bits(g[0], rng.choice(256, rng.integers(0, 3), replace=False))
+    counts = rng.integers(1, 13, 300)
+    chosen = representative_descriptors(groups, counts)
+    ties = 0
+    for g, k, c in zip(groups, counts, chosen):
+        medians = np.sort(hamming_distance(g[:k], g[:k]), axis=1)[:, (k - 1) // 2]
+        assert np.array_equal(c, g[int(np.argmin(medians))])
+        ties += int(np.count_nonzero(medians == medians.min()) > 1)
+    assert ties > 100
+    runs = representative_offsets(groups.reshape(-1, 32), np.arange(300) * 12, counts)
+    assert np.array_equal(groups[np.arange(300), runs], chosen)
 
 
 def test_scale_invariance_range_follows_level() -> None:

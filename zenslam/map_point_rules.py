@@ -34,28 +34,23 @@ def representative_descriptors(groups: np.ndarray, counts: np.ndarray | None = N
     padding, ignored."""
     groups = np.ascontiguousarray(groups, dtype=np.uint8)
     n_groups, k = groups.shape[:2]
-    if k <= 2:
-        return groups[:, 0].copy()  # two descriptors: both medians are 0 (the distance to itself), the first wins
-    words = groups.view(np.uint64).reshape(n_groups, k, 4)
-    # All K x K pairs gathered as contiguous rows: much cheaper than broadcasting (P, K, 1, 4) ^ (P, 1, K, 4).
-    xor = np.take(words, np.repeat(np.arange(k), k), axis=1)
-    xor ^= np.take(words, np.tile(np.arange(k), k), axis=1)
-    bits = np.bitwise_count(xor)  # (P, K * K, 4) bits set per 64-bit word
-    dists = bits[..., 0].astype(np.int16)
-    for word in range(1, 4):
-        dists += bits[..., word]
-    dists = dists.reshape(n_groups, k, k)
-    if counts is None:
-        medians = np.sort(dists, axis=2)[:, :, (k - 1) // 2]
-    else:
-        counts = np.asarray(counts, dtype=np.int64)
-        padding = np.arange(k) >= counts[:, None]  # (P, K)
-        dists[np.broadcast_to(padding[:, None, :], dists.shape)] = np.iinfo(np.int16).max  # sorted last
-        middle = ((counts - 1) // 2)[:, None, None]
-        medians = np.take_along_axis(np.sort(dists, axis=2), np.broadcast_to(middle, (n_groups, k, 1)), axis=2)[..., 0]
-        medians[padding] = np.iinfo(np.int16).max  # padding is never the representative
-    best = np.argmin(medians, axis=1)
-    return groups[np.arange(n_groups), best]
+    counts = np.full(n_groups, k, np.int64) if counts is None else np.asarray(counts, dtype=np.int64)
+    offsets = representative_offsets(groups.reshape(-1, 32), np.arange(n_groups, dtype=np.int64) * k, counts)
+    return groups[np.arange(n_groups), offsets]
+
+
+def representative_offsets(descriptors: np.ndarray, starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """The rule of ``representative_descriptors`` on runs: point p's descriptors are rows
+    ``starts[p]:starts[p] + counts[p]`` (counts >= 1) of ``descriptors`` (O, 32) uint8; returns the
+    (P,) offset of each point's representative within its run."""
+    # compiled (numba: ~60 MB, most of a second at a process's start): only a process that needs it loads it
+    from zenslam.compiled import kernel_array
+    from zenslam.descriptor_words import words
+    from zenslam.representative_descriptor import representative_offsets as compiled
+
+    return compiled(
+        kernel_array(words(descriptors), np.uint64), kernel_array(starts, np.int64), kernel_array(counts, np.int64)
+    )
 
 
 def scale_invariance_range(

@@ -1,8 +1,9 @@
 """Recomputing map points' derived attributes (ORB-SLAM's ComputeDistinctiveDescriptors and UpdateNormalAndDepth).
 
 The points' observations are flattened into arrays once per refresh, each point's sorted by
-keyframe id, and the work is done per group of points with similar observation counts, each
-group one padded (P, K, ...) array computation giving what one computation per point would.
+keyframe id. The representative descriptors come from one compiled pass over each point's run of
+observations; the viewing directions are computed per group of points with similar observation
+counts, each group one padded (P, K, ...) array computation giving what one per point would.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ import numpy as np
 from zenslam.backend.keyframe import BackendKeyframe
 from zenslam.backend.map_point import MapPoint
 from zenslam.backend.point_store import PointStore
-from zenslam.map_point_rules import mean_viewing_directions, representative_descriptors, scale_invariance_range
+from zenslam.map_point_rules import mean_viewing_directions, representative_offsets, scale_invariance_range
 
 _OBSERVATIONS, _ROW, _FIRST_KEYFRAME = attrgetter("observations"), attrgetter("row"), attrgetter("first_keyframe_id")
 
@@ -91,17 +92,18 @@ Groups = list[tuple[np.ndarray, np.ndarray, np.ndarray]]  # ``ObservationTable.g
 
 
 def refresh_descriptors(
-    keyframes: list[BackendKeyframe], store: PointStore, rows: np.ndarray, table: ObservationTable, groups: Groups
+    keyframes: list[BackendKeyframe], store: PointStore, rows: np.ndarray, table: ObservationTable, selected: np.ndarray
 ) -> None:
-    """Give each point of ``groups`` (``table.groups`` of those selected; the table's points are at
-    ``rows`` in ``store``) the representative descriptor of its observations."""
-    if not groups:
+    """Give each ``selected`` point (bool (P,) over the table's points, which are at ``rows`` in
+    ``store``) the representative descriptor of its observations."""
+    chosen = np.flatnonzero(selected & (table.counts > 0))
+    if len(chosen) == 0:
         return
-    needed = np.concatenate([idx.ravel() for _, _, idx in groups])
-    descriptors = np.empty((len(table.keypoints), 32), dtype=np.uint8)
-    descriptors[needed] = _descriptors_at(keyframes, table.keyframe_rows[needed], table.keypoints[needed])
-    for members, counts, idx in groups:
-        store.descriptor[rows[members]] = representative_descriptors(descriptors[idx], counts)
+    counts = table.counts[chosen]
+    run_starts = np.cumsum(counts) - counts  # each point's run in the gathered descriptors
+    at = np.arange(int(counts.sum())) + np.repeat(table.starts[chosen] - run_starts, counts)
+    descriptors = _descriptors_at(keyframes, table.keyframe_rows[at], table.keypoints[at])
+    store.descriptor[rows[chosen]] = descriptors[run_starts + representative_offsets(descriptors, run_starts, counts)]
 
 
 def refresh_geometry(
@@ -178,10 +180,8 @@ def refresh_points(
     ids_arr = np.asarray(ids, dtype=np.int64)
     by_descriptor = _members(ids_arr, descriptor_ids)
     by_geometry = by_descriptor if geometry_ids is descriptor_ids else _members(ids_arr, geometry_ids)
-    descriptor_groups = table.groups(by_descriptor)
-    geometry_groups = descriptor_groups if by_geometry is by_descriptor else table.groups(by_geometry)
-    refresh_descriptors(kf_list, store, rows, table, descriptor_groups)
-    refresh_geometry(kf_list, store, rows, first, table, by_geometry, geometry_groups)
+    refresh_descriptors(kf_list, store, rows, table, by_descriptor)
+    refresh_geometry(kf_list, store, rows, first, table, by_geometry, table.groups(by_geometry))
 
 
 def _members(ids: np.ndarray, subset: list[int]) -> np.ndarray:

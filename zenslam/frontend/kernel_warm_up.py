@@ -17,6 +17,7 @@ from zenslam.camera import PinholeCalibration
 from zenslam.frontend.feature_matcher import search_by_projection
 from zenslam.frontend.orb_extractor import OrbConfig, OrbExtractor
 from zenslam.frontend.stereo_matcher import match_stereo
+from zenslam.map_point_rules import representative_descriptors
 from zenslam.pose_optimizer import load_compiled_kernel
 
 logger = logging.getLogger(__name__)
@@ -34,6 +35,7 @@ def warm_up_kernels() -> float:
     px, level, descriptors = features.px, features.level, features.descriptors
     search_by_projection(px, level, descriptors, px, level, descriptors, 4.0)
     match_stereo(features, features, pyramid, pyramid, PinholeCalibration(90.0, 90.0, 48.0, 48.0, 96, 96, baseline_m=0.1))
+    representative_descriptors(descriptors[None, :3])
     load_compiled_kernel()
     seconds = time.perf_counter() - start
     logger.info("compiled kernels ready in %.1f s (a first start on a machine compiles them)", seconds)

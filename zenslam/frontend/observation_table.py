@@ -8,7 +8,7 @@ import numpy as np
 
 from zenslam.frontend.map_arrays import OBS_ARRAYS, compacted, grow
 from zenslam.frontend.point_table import PointTable
-from zenslam.map_point_rules import representative_descriptors
+from zenslam.map_point_rules import representative_offsets
 
 
 class ObservationTable:
@@ -85,7 +85,6 @@ def refresh_points(points: PointTable, observations: ObservationTable, kf_centre
     pts["normals"][rows] = sums[rows] / counts[rows, None]
     starts = np.cumsum(counts) - counts  # first sorted entry of each row (rows outside have none)
     desc = observations.view("desc")[entries]
-    for k in np.unique(counts[rows]):
-        group = rows[counts[rows] == k]
-        index = starts[group][:, None] + np.arange(k)[None, :]
-        pts["descriptors"][group] = representative_descriptors(desc[index])
+    observed = rows[counts[rows] > 0]
+    chosen = starts[observed] + representative_offsets(desc, starts[observed], counts[observed])
+    pts["descriptors"][observed] = desc[chosen]
