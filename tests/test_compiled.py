@@ -13,12 +13,12 @@ import pytest
 
 
 # A child's view: a digest of the ORB features of a textured image and (when present) two KITTI frames
-# (FAST corners, quadtree, orientation, descriptors: every kernel of the extractor) and of the
-# stereo matches of the textured image with itself shifted and of the KITTI pair, of a local BA
-# (the backend's Schur kernels) on a synthetic stereo window with outliers and of local mapping's
-# searches (triangulation's pairs, fusion's matches) on synthetic scenes, of the shipped
-# vocabulary's descent and of representative descriptors; the CPU numba compiled for, and how many of those kernels it compiled or
-# loaded from the cache.
+# (FAST corners, quadtree, orientation, descriptors: every kernel of the extractor), of the stereo
+# matches of the textured image with itself shifted and of the KITTI pair, of a local BA (the
+# backend's Schur kernels) on a synthetic stereo window with outliers, of local mapping's searches
+# (triangulation's pairs, fusion's matches) on synthetic scenes, of the shipped vocabulary's descent
+# and of representative descriptors and viewing directions; the CPU numba compiled for, and how
+# many of those kernels it compiled or loaded from the cache.
 _CHILD = """
 import hashlib, json, sys
 from pathlib import Path
@@ -78,6 +78,11 @@ from zenslam.representative_descriptor import representative_offsets
 groups = np.random.default_rng(4).integers(0, 256, (200, 9, 32), dtype=np.uint8)
 digest.update(representative_descriptors(groups, np.arange(200) % 9 + 1).tobytes())
 kernels += [representative_offsets]
+from zenslam.map_point_rules import mean_viewing_directions
+from zenslam.viewing_direction import mean_rays
+rays = np.random.default_rng(6).normal(0, 10, (200, 6, 3))
+digest.update(mean_viewing_directions(rays[:, 0], rays[:, 1:], np.arange(200) % 5 + 1).tobytes())
+kernels += [mean_rays]
 print(json.dumps({
     "digest": digest.hexdigest(),
     "images": len(images),

@@ -9,6 +9,7 @@ from zenslam.descriptors import hamming_distance
 from zenslam.map_point_rules import (
     mean_viewing_direction,
     mean_viewing_directions,
+    mean_viewing_directions_of_runs,
     predict_scale_level,
     radius_by_viewing_cos,
     representative_descriptor,
@@ -72,6 +73,28 @@ def test_representatives_with_ties_and_padding_are_the_brute_force_choice() -> N
     assert ties > 100
     runs = representative_offsets(groups.reshape(-1, 32), np.arange(300) * 12, counts)
     assert np.array_equal(groups[np.arange(300), runs], chosen)
+
+
+def _numpy_mean_viewing_directions(p_world, centres_world, counts):
+    """The padded numpy formulation the compiled one replaced (padding adds -0.0)."""
+    rays = p_world[:, None, :] - centres_world
+    rays /= np.maximum(np.linalg.norm(rays, axis=2, keepdims=True), 1e-12)
+    rays[np.arange(rays.shape[1]) >= counts[:, None]] = -0.0
+    return rays.sum(axis=1) / counts[:, None]
+
+
+def test_viewing_directions_have_the_bits_of_the_numpy_formulation() -> None:
+    rng = np.random.default_rng(6)
+    p_world = rng.normal(0, 10, (400, 3))
+    centres = rng.normal(0, 10, (400, 9, 3))
+    centres[::7, 0] = p_world[::7]  # a camera centre on the point: a zero ray, kept at length 1e-12
+    counts = rng.integers(1, 10, 400)
+    got = mean_viewing_directions(p_world, centres, counts)
+    assert got.tobytes() == _numpy_mean_viewing_directions(p_world, centres, counts).tobytes()
+    full = mean_viewing_directions(p_world, centres)
+    assert full.tobytes() == _numpy_mean_viewing_directions(p_world, centres, np.full(400, 9)).tobytes()
+    runs = mean_viewing_directions_of_runs(p_world, centres.reshape(-1, 3), np.arange(400) * 9, counts)
+    assert runs.tobytes() == got.tobytes()
 
 
 def test_scale_invariance_range_follows_level() -> None:

@@ -14,7 +14,7 @@ from zenslam.backend.point_fusion import FusionConfig, match_projected
 from zenslam.backend.triangulation import TriangulationConfig, candidate_pairs, fundamental_matrix
 from zenslam.camera import PinholeCalibration
 from zenslam.geometry import invert_T, make_T, so3_exp, transform_points
-from zenslam.map_point_rules import representative_descriptors
+from zenslam.map_point_rules import mean_viewing_directions, representative_descriptors
 
 from mapping_search_numpy_reference import match_projected as numpy_match_projected  # noqa: E402  (tests/backend is on the path)
 from mapping_search_numpy_reference import node_candidates as numpy_node_candidates  # noqa: E402
@@ -161,10 +161,11 @@ def test_the_backend_warm_up_compiles_the_searches_for_the_types_local_mapping_u
     from zenslam.backend.kernel_warm_up import warm_up_kernels
     from zenslam.vocabulary import load_vocabulary
     from zenslam.representative_descriptor import representative_offsets
+    from zenslam.viewing_direction import mean_rays
     from zenslam.vocabulary.descent import descend
 
     warm_up_kernels(BackendConfig())
-    kernels = (epipolar_search.node_pair_candidates, fusion_search.best_in_windows, descend, representative_offsets)
+    kernels = (epipolar_search.node_pair_candidates, fusion_search.best_in_windows, descend, representative_offsets, mean_rays)
     compiled = [len(k.signatures) for k in kernels]
     assert all(compiled)
     test_pairs_under_one_node_are_the_numpy_formulations("stereo sideways", 0)
@@ -175,4 +176,5 @@ def test_the_backend_warm_up_compiles_the_searches_for_the_types_local_mapping_u
     descriptors.setflags(write=False)  # a message's
     load_vocabulary(None).transform(descriptors)
     representative_descriptors(descriptors.reshape(10, 5, 32), np.arange(10) % 5 + 1)
+    mean_viewing_directions(np.ones((4, 3)), np.zeros((4, 3, 3)), np.array([1, 2, 3, 1]))
     assert [len(k.signatures) for k in kernels] == compiled

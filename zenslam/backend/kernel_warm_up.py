@@ -20,7 +20,7 @@ from zenslam.backend.point_fusion import match_projected
 from zenslam.backend.triangulation import candidate_pairs, fundamental_matrix
 from zenslam.camera import PinholeCalibration
 from zenslam.geometry import make_T
-from zenslam.map_point_rules import representative_descriptors
+from zenslam.map_point_rules import mean_viewing_directions, representative_descriptors
 from zenslam.vocabulary.vocabulary import Vocabulary
 
 logger = logging.getLogger(__name__)
@@ -47,13 +47,14 @@ def _keyframe(kf_id: int, x_m: float, right: bool) -> BackendKeyframe:
 
 def warm_up_kernels(config: BackendConfig) -> float:
     """Run the compiled kernels of local mapping (the vocabulary's descent, the points' representative
-    descriptors, triangulation's pair search, fusion's search by projection and, with ``schur_lm``,
+    descriptors and viewing directions, triangulation's pair search, fusion's search by projection and, with ``schur_lm``,
     local BA) once on small inputs; returns the seconds it took."""
     start = time.perf_counter()
     kf1, kf2 = _keyframe(1, 0.0, True), _keyframe(2, 0.5, False)
     words = np.arange(3 * 32, dtype=np.uint8).reshape(3, 32)  # a root and two leaves
     Vocabulary(2, 1, np.array([-1, 0, 0]), words, np.ones(3)).transform(kf1.descriptors)
     representative_descriptors(words[None])
+    mean_viewing_directions(_POINTS, np.zeros((len(_POINTS), 2, 3)))
     idx = np.arange(kf1.n_keypoints)
     nodes = np.zeros(kf1.n_keypoints, np.int64)
     mapping = config.local_mapping

@@ -1,9 +1,8 @@
 """Recomputing map points' derived attributes (ORB-SLAM's ComputeDistinctiveDescriptors and UpdateNormalAndDepth).
 
 The points' observations are flattened into arrays once per refresh, each point's sorted by
-keyframe id. The representative descriptors come from one compiled pass over each point's run of
-observations; the viewing directions are computed per group of points with similar observation
-counts, each group one padded (P, K, ...) array computation giving what one per point would.
+keyframe id; the representative descriptors and the mean viewing directions come from one
+compiled pass over each point's run of observations.
 """
 
 from __future__ import annotations
@@ -17,7 +16,7 @@ import numpy as np
 from zenslam.backend.keyframe import BackendKeyframe
 from zenslam.backend.map_point import MapPoint
 from zenslam.backend.point_store import PointStore
-from zenslam.map_point_rules import mean_viewing_directions, representative_offsets, scale_invariance_range
+from zenslam.map_point_rules import mean_viewing_directions_of_runs, representative_offsets, scale_invariance_range
 
 _OBSERVATIONS, _ROW, _FIRST_KEYFRAME = attrgetter("observations"), attrgetter("row"), attrgetter("first_keyframe_id")
 
@@ -58,24 +57,6 @@ class ObservationTable:
         rows = sorter[np.searchsorted(keyframe_order, kf_ids, sorter=sorter)]
         return cls(counts, starts, kf_ids, rows, keypoints)
 
-    def groups(self, selected: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-        """The ``selected`` points (bool (P,)) in groups of similar observation counts: for each, the
-        points (in order), their counts (G,) and the (G, K) indices of their observations, K the
-        largest count in the group (shorter rows repeat their first observation as padding).
-        Counts 1, 2, 3-4, 5-8, ... share a group: few array computations, at most twice the work."""
-        counts = self.counts[selected]
-        if len(counts) == 0:
-            return []
-        widths = 1 << np.ceil(np.log2(np.maximum(counts, 1))).astype(np.int64)  # 1, 2, 4, 8, ...
-        chosen = np.flatnonzero(selected)
-        out = []
-        for width in np.unique(widths).tolist():
-            members = chosen[widths == width]
-            k = int(self.counts[members].max())
-            offsets = np.minimum(np.arange(k), self.counts[members][:, None] - 1)
-            out.append((members, self.counts[members], self.starts[members][:, None] + offsets))
-        return out
-
 
 def _descriptors_at(keyframes: list[BackendKeyframe], rows: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
     """Descriptors (M, 32) uint8 of (keyframe row in insertion order, keypoint) pairs, in order."""
@@ -86,9 +67,6 @@ def _descriptors_at(keyframes: list[BackendKeyframe], rows: np.ndarray, keypoint
         sel = order[a:b]
         out[sel] = np.take(keyframes[int(rows[sel[0]])].descriptors, keypoints[sel], axis=0)
     return out
-
-
-Groups = list[tuple[np.ndarray, np.ndarray, np.ndarray]]  # ``ObservationTable.groups`` of the points refreshed
 
 
 def refresh_descriptors(
@@ -113,9 +91,8 @@ def refresh_geometry(
     first_keyframe_ids: np.ndarray,
     table: ObservationTable,
     selected: np.ndarray,
-    groups: Groups,
 ) -> None:
-    """Give each ``selected`` point (``groups``: ``table.groups(selected)``) its mean viewing direction
+    """Give each ``selected`` point (bool (P,) over the table's points) its mean viewing direction
     and scale-invariance distance range (from its distance to its reference keyframe and the
     keypoint's level there)."""
     chosen = np.flatnonzero(selected)
@@ -140,8 +117,9 @@ def refresh_geometry(
         lo, hi = scale_invariance_range(distance[sel], level[sel], scale_factor, n_levels)
         store.min_distance_m[rows[chosen[sel]]] = lo
         store.max_distance_m[rows[chosen[sel]]] = hi
-    for members, counts, idx in groups:
-        store.normal[rows[members]] = mean_viewing_directions(p_world[members], centres[table.keyframe_rows[idx]], counts)
+    store.normal[rows[chosen]] = mean_viewing_directions_of_runs(
+        p_world[chosen], centres[table.keyframe_rows], table.starts[chosen], table.counts[chosen]
+    )
 
 
 def _reference_observations(table: ObservationTable, chosen: np.ndarray, first_keyframe_ids: np.ndarray) -> np.ndarray:
@@ -181,7 +159,7 @@ def refresh_points(
     by_descriptor = _members(ids_arr, descriptor_ids)
     by_geometry = by_descriptor if geometry_ids is descriptor_ids else _members(ids_arr, geometry_ids)
     refresh_descriptors(kf_list, store, rows, table, by_descriptor)
-    refresh_geometry(kf_list, store, rows, first, table, by_geometry, table.groups(by_geometry))
+    refresh_geometry(kf_list, store, rows, first, table, by_geometry)
 
 
 def _members(ids: np.ndarray, subset: list[int]) -> np.ndarray:
