@@ -47,8 +47,8 @@ def _keyframe(kf_id: int, x_m: float, right: bool) -> BackendKeyframe:
 
 def warm_up_kernels(config: BackendConfig) -> float:
     """Run the compiled kernels of local mapping (the vocabulary's descent, the points' representative
-    descriptors and viewing directions, triangulation's pair search, fusion's search by projection and, with ``schur_lm``,
-    local BA) once on small inputs; returns the seconds it took."""
+    descriptors and viewing directions, triangulation's pair search, fusion's search by projection
+    and, with ``schur_lm``, local BA) once on small inputs; returns the seconds it took."""
     start = time.perf_counter()
     kf1, kf2 = _keyframe(1, 0.0, True), _keyframe(2, 0.5, False)
     words = np.arange(3 * 32, dtype=np.uint8).reshape(3, 32)  # a root and two leaves
