@@ -41,6 +41,17 @@ def _local_mapper():
     return LocalMapper(new_backend_map(config.local_mapping), config.local_mapping, bundle_adjuster(config.local_ba))
 
 
+def _warm_up_kernels() -> None:
+    """Compile (or load from the cache) every kernel first, as the stages do at start, so that the
+    profiles show the per-frame work rather than numba's compiler."""
+    from zenslam.backend.config import BackendConfig
+    from zenslam.backend.kernel_warm_up import warm_up_kernels as warm_up_backend
+    from zenslam.frontend.kernel_warm_up import warm_up_kernels as warm_up_frontend
+
+    warm_up_frontend()
+    warm_up_backend(BackendConfig())
+
+
 def profile_run(source, max_frames: int | None) -> dict:
     """Track ``source``'s frames (loaded beforehand) with both profilers; their summaries and counts."""
     from zenslam.frontend.node import keyframe_message
@@ -49,6 +60,7 @@ def profile_run(source, max_frames: int | None) -> dict:
     frames = list(source)[:max_frames]
     pipeline = FrontendPipeline(FrontendConfig(), source.calibration, source.sensor)
     mapper = _local_mapper()
+    _warm_up_kernels()
     frontend, backend = cProfile.Profile(time.process_time), cProfile.Profile(time.process_time)
     n_keyframes = 0
     for frame in frames:
@@ -121,7 +133,8 @@ def sources(data: Path, corridor_frames: int):
     from zenslam.service.sources.synthetic import SyntheticSource, scene_config
 
     yield "kitti_06_clip", KittiSource(data / "kitti_odometry" / "sequences" / "06"), None
-    yield "synthetic_corridor_stereo", SyntheticSource(scene_config("corridor", sensor="stereo")), corridor_frames
+    if corridor_frames > 0:
+        yield "synthetic_corridor_stereo", SyntheticSource(scene_config("corridor", sensor="stereo")), corridor_frames
 
 
 def main() -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Callable
 from typing import TypeVar
 
@@ -9,6 +10,31 @@ import numba
 import numpy as np
 
 F = TypeVar("F", bound=Callable)
+
+# The module whose import tells numba a BLAS is there (numba/np/linalg.py's ensure_blas).
+_SCIPY_BLAS = "scipy.linalg.cython_blas"
+
+
+def _load_numpy_support_without_scipy() -> None:
+    """Load numba's numpy support without scipy.linalg: its first import (at a process's first
+    kernel load) imports scipy.linalg to find a BLAS for ``np.dot`` and ``np.linalg`` in nopython
+    code (``numba.np.arraymath._HAVE_BLAS``). No zenslam kernel calls either; scipy.linalg costs
+    each stage that loads kernels ~0.35 s of CPU and ~27 MB at start (benchmarks/footprint.md).
+
+    The BLAS module reads as missing only while numba's numpy support is imported: a kernel that
+    calls ``np.dot`` then fails to compile with numba's "scipy 0.16+ is required" (never a wrong
+    result), and scipy itself imports as usual for whoever uses it afterwards.
+    """
+    if _SCIPY_BLAS in sys.modules or "numba.np.arraymath" in sys.modules:
+        return  # scipy.linalg already loaded, or numba's numpy support already decided
+    sys.modules[_SCIPY_BLAS] = None  # type: ignore[assignment]  # import of it raises ImportError
+    try:
+        import numba.np.arraymath  # noqa: F401  (its _check_blas runs here)
+    finally:
+        del sys.modules[_SCIPY_BLAS]
+
+
+_load_numpy_support_without_scipy()
 
 
 def kernel(function: F) -> F:
