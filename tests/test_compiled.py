@@ -90,6 +90,7 @@ print(json.dumps({
     "cpu": config.CPU_NAME or "host",
     "misses": sum(sum(k.stats.cache_misses.values()) for k in kernels),
     "hits": sum(sum(k.stats.cache_hits.values()) for k in kernels),
+    "scipy_linalg_loaded": "scipy.linalg" in sys.modules,
 }))
 """
 
@@ -125,6 +126,16 @@ def test_a_second_start_loads_the_kernels_from_the_cache(tmp_path: Path) -> None
     assert first["misses"] > 0 and first["hits"] == 0  # an empty cache: compiled, then written
     assert second["misses"] == 0 and second["hits"] == first["misses"]
     assert second["digest"] == first["digest"]
+    assert not first["scipy_linalg_loaded"] and not second["scipy_linalg_loaded"]  # compiled.py keeps numba off it
+
+
+def test_scipy_linalg_still_imports_after_the_kernels_module():
+    """compiled.py hides scipy's BLAS from numba only while numba's numpy support loads: a process
+    that loads kernels can still use scipy.linalg afterwards."""
+    code = "import zenslam.compiled, scipy.linalg, numba.np.arraymath as a\nprint(scipy.linalg.solve([[2.0]], [1.0])[0], a._HAVE_BLAS)"
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split() == ["0.5", "False"]
 
 
 def test_only_the_processes_that_extract_or_search_load_numba():
