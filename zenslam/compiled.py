@@ -50,6 +50,15 @@ def kernel(function: F) -> F:
     return numba.njit(cache=True, nogil=True, fastmath=False)(function)
 
 
+def inlined_kernel(function: F) -> F:
+    """``kernel``, inlined into the kernels that call it (numba's ``inline="always"``, on its IR).
+
+    A call from one kernel to another is otherwise a real call, with numba's status and exception
+    handling around it: in a loop over every pixel, the helpers it calls cost more than their work.
+    """
+    return numba.njit(cache=True, nogil=True, fastmath=False, inline="always")(function)
+
+
 def kernel_array(array: np.ndarray, dtype: type) -> np.ndarray:
     """``array`` as a C-contiguous, writable array of ``dtype``, copied only when it is not one.
 

@@ -5,8 +5,8 @@ Lockstep output has the same bits on any x86-64 CPU (``cpu_kernels``), but only 
 versions, and the figures can move with them: when the synthetic scenes were rendered through
 OpenCV's ``warpPerspective``, which OpenCV 5.0 rounds differently from 4.14, that alone changed the
 synthetic loop's map enough that the figure-eight's first frame no longer relocalised into it
-(benchmarks/saved_maps.md); their texture sampling is now numpy's
-(``sources/synthetic/texture_sampling``), the same on every install. A figure read from a run
+(benchmarks/saved_maps.md); their texture sampling is now exact IEEE arithmetic
+(``sources/synthetic/tile_raster``), the same on every install. A figure read from a run
 folder still names the versions that made it.
 """
 

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from zenslam.runtime import cpu_kernels
-from zenslam.service.sources.synthetic.texture_sampling import reflect_101, sample_bilinear
+from renderer_numpy_reference import reflect_101
+from zenslam.service.sources.synthetic.tile_raster import sample_bilinear
 
 RNG = np.random.default_rng(3)
 TEXTURE = RNG.integers(0, 256, size=(37, 53), dtype=np.uint8)

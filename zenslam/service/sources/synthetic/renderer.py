@@ -1,10 +1,10 @@
 """Z-buffered rasteriser of textured planar tiles for a pinhole camera: grey image and exact per-pixel depth.
 
 Each tile facing the camera is clipped to the view frustum; inside the image bounding box of its
-projection the texture is resampled through the plane's homography (bilinear, by
-``texture_sampling``, which gives the same bits on every CPU and OpenCV version, from a mip level
-chosen by the tile's texel-per-pixel footprint), and the plane's inverse depth,
-affine in pixel coordinates, drives the z-buffer. Pixel (u, v) is centred at integer coordinates.
+projection the texture is resampled through the plane's homography (bilinear, from a mip level
+chosen by the tile's texel-per-pixel footprint), and the plane's inverse depth, affine in pixel
+coordinates, drives the z-buffer; ``tile_raster`` does the per-pixel work, with the same bits on
+every CPU and OpenCV version. Pixel (u, v) is centred at integer coordinates.
 """
 
 from __future__ import annotations
@@ -16,8 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from zenslam.camera import PinholeCalibration
+from zenslam.service.sources.synthetic.quad import Quad
 from zenslam.service.sources.synthetic.scene import Tile
-from zenslam.service.sources.synthetic.texture_sampling import sample_bilinear
 
 
 @dataclass(frozen=True)
@@ -48,6 +48,16 @@ def _clip(poly: np.ndarray, plane: np.ndarray) -> np.ndarray:
     return np.array(out).reshape(-1, 3)
 
 
+def _plane_to_cam(quad: Quad, R_cw: np.ndarray, t_cw: np.ndarray) -> np.ndarray:
+    """3x3 map from the plane coordinates (s, t, 1) of ``quad``'s plane to camera coordinates, C-contiguous
+    (as ``np.column_stack`` lays it out: the products with it take the same BLAS path)."""
+    M = np.empty((3, 3))
+    M[:, 0] = R_cw @ quad.axis_s
+    M[:, 1] = R_cw @ quad.axis_t
+    M[:, 2] = R_cw @ quad.origin_world + t_cw
+    return M
+
+
 class Renderer:
     """Renders a fixed set of tiles for one camera calibration; ``render`` takes the camera pose."""
 
@@ -55,8 +65,6 @@ class Renderer:
         self._tiles = tuple(tiles)
         self._cal = calibration
         self._K = calibration.K
-        self._u = np.arange(calibration.width, dtype=np.float32)[None, :]
-        self._v = np.arange(calibration.height, dtype=np.float32)[:, None]
         self._corners = np.stack([t.quad.corners_world() for t in self._tiles])  # (N, 4, 3)
         self._normals = np.stack([t.quad.normal for t in self._tiles])
         self._near_m = near_m
@@ -98,23 +106,24 @@ class Renderer:
                 if len(poly) < 3:
                     break
             if len(poly) >= 3:
-                self._draw(self._tiles[i], poly, crosses_near, (R_cw, t_cw), grey, inv_depth)
+                self._draw(i, poly, crosses_near, (R_cw, t_cw), grey, inv_depth)
         return Rendering(grey, inv_depth)
 
     def _draw(
         self,
-        tile: Tile,
+        index: int,
         poly_cam: np.ndarray,
         crosses_near: bool,
         pose_cw: tuple[np.ndarray, np.ndarray],
         grey: np.ndarray,
         inv_depth: np.ndarray,
     ) -> None:
-        """Z-test and texture one tile whose frustum-clipped polygon is ``poly_cam`` (k, 3), in place.
+        """Z-test and texture tile ``index``, whose frustum-clipped polygon is ``poly_cam`` (k, 3), in place.
 
         ``pose_cw`` is (R_cam_world, t_cam_world); ``crosses_near`` says the tile reaches closer than near_m.
         """
         c = self._cal
+        tile = self._tiles[index]
         R_cw, t_cw = pose_cw
         uv = poly_cam[:, :2] / poly_cam[:, 2:3] * (c.fx, c.fy) + (c.cx, c.cy)
         x0, y0 = max(0, math.floor(uv[:, 0].min())), max(0, math.floor(uv[:, 1].min()))
@@ -122,29 +131,28 @@ class Renderer:
         if x1 <= x0 or y1 <= y0:
             return
         # A plane n . p = d seen along the ray K^-1 (u, v, 1) has 1/z affine in (u, v).
-        n_cam = R_cw @ tile.quad.normal
+        n_cam = R_cw @ self._normals[index]
         d = float(n_cam @ poly_cam[0])
         a, b = n_cam[0] / (c.fx * d), n_cam[1] / (c.fy * d)
         k = (n_cam[2] - n_cam[0] * c.cx / c.fx - n_cam[1] * c.cy / c.fy) / d
-        iz = (self._u[:, x0:x1] * np.float32(a) + np.float32(k)) + self._v[y0:y1] * np.float32(b)
-        zb = inv_depth[y0:y1, x0:x1]
-        visible = iz > zb
-        if crosses_near:
-            visible &= iz < np.float32(1.0 / self._near_m)
-        if not self._inside_tile(tile, R_cw, t_cw, (x0, y0, x1, y1), visible):
+        edges = self._edge_half_planes(tile, R_cw, t_cw, (x0, y0, x1, y1))
+        if edges is None:
             return
-        np.copyto(zb, iz, where=visible)
         level = self._mip_level(tile, self._homography(tile, 0, R_cw, t_cw), uv)
-        H_img_tex = self._homography(tile, level, R_cw, t_cw)
-        M = np.linalg.inv(H_img_tex)  # image pixel -> texel of the chosen level
-        cols = np.arange(x0, x1, dtype=np.float64)[None, :]
-        rows = np.arange(y0, y1, dtype=np.float64)[:, None]
-        grey[y0:y1, x0:x1][visible] = sample_bilinear(tile.pyramid[level], M, cols, rows, visible)
+        M = np.linalg.inv(self._homography(tile, level, R_cw, t_cw))  # image pixel -> texel of the chosen level
+        near_limit = np.float32(1.0 / self._near_m) if crosses_near else None
+        # The compiled pixel loop is imported here, at the first frame drawn: a source of recorded
+        # frames (KITTI, EuRoC, a bus) never loads numba.
+        from zenslam.service.sources.synthetic.tile_raster import raster_tile
 
-    def _inside_tile(
-        self, tile: Tile, R_cw: np.ndarray, t_cw: np.ndarray, roi: tuple[int, int, int, int], visible: np.ndarray
-    ) -> bool:
-        """Clear ``visible`` where the pixel centre's ray misses the tile rectangle; False if nothing is left.
+        plane = (np.float32(a), np.float32(b), np.float32(k))
+        raster_tile(grey, inv_depth, (x0, y0, x1, y1), plane, near_limit, edges, tile.pyramid[level], M)
+
+    def _edge_half_planes(
+        self, tile: Tile, R_cw: np.ndarray, t_cw: np.ndarray, roi: tuple[int, int, int, int]
+    ) -> np.ndarray | None:
+        """The tile's edges as image half-planes (m, 3) float32 rows (e0, e1, e2), u * e0 + (v * e1 + e2) >= 0
+        inside, for the edges that cut the box ``roi``; None when one leaves the whole box outside.
 
         The ray through pixel p meets the plane at tile coordinates (s, t, 1) / z = G p with G the inverse
         of the tile-plane-to-image homography, so each of s >= 0, s <= size_s, t >= 0, t <= size_t is a
@@ -154,21 +162,20 @@ class Renderer:
         """
         x0, y0, x1, y1 = roi
         quad = tile.quad
-        plane_to_cam = np.column_stack([R_cw @ quad.axis_s, R_cw @ quad.axis_t, R_cw @ quad.origin_world + t_cw])
-        G = np.linalg.inv(self._K @ plane_to_cam)
+        G = np.linalg.inv(self._K @ _plane_to_cam(quad, R_cw, t_cw))
         size_s, size_t = quad.size_m
         corners = np.array([[x0, y0, 1.0], [x1 - 1, y0, 1.0], [x0, y1 - 1, 1.0], [x1 - 1, y1 - 1, 1.0]])
+        cutting = []
         for edge in (G[0], size_s * G[2] - G[0], G[1], size_t * G[2] - G[1]):
             edge = edge / math.hypot(edge[0], edge[1])  # signed distance to the edge line, pixels
             edge[2] += 1e-3  # a hair of overlap so coplanar neighbours leave no gap
             at_corners = corners @ edge
-            if np.all(at_corners >= 0):
+            if (at_corners >= 0).all():
                 continue
-            if np.all(at_corners < 0):
-                return False
-            e = self._u[:, x0:x1] * np.float32(edge[0]) + (self._v[y0:y1] * np.float32(edge[1]) + np.float32(edge[2]))
-            visible &= e >= 0
-        return bool(visible.any())
+            if (at_corners < 0).all():
+                return None
+            cutting.append(edge)
+        return np.array(cutting, np.float32).reshape(-1, 3)
 
     def _homography(self, tile: Tile, level: int, R_cw: np.ndarray, t_cw: np.ndarray) -> np.ndarray:
         """3x3 map from texel (column, row) of pyramid ``level`` to image pixel (homogeneous)."""
@@ -181,8 +188,7 @@ class Renderer:
                 [0.0, 0.0, 1.0],
             ]
         )
-        plane_to_cam = np.column_stack([R_cw @ surf.axis_s, R_cw @ surf.axis_t, R_cw @ surf.origin_world + t_cw])
-        return self._K @ plane_to_cam @ texel_to_plane
+        return self._K @ _plane_to_cam(surf, R_cw, t_cw) @ texel_to_plane
 
     @staticmethod
     def _mip_level(tile: Tile, H_img_tex0: np.ndarray, uv: np.ndarray) -> int:
