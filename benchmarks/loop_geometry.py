@@ -330,6 +330,8 @@ def corridor_map(n_keyframes: int, n_points: int, seed: int):
 
 GLOBAL_BA_VARIANTS = {
     "default": GlobalBAConfig(),
+    "batch_lm": GlobalBAConfig(solver="batch_lm"),
+    "schur_lm": GlobalBAConfig(solver="schur_lm"),
     "orbslam_schedule": GlobalBAConfig(robust_iterations=0, iterations=10),
     "colamd": GlobalBAConfig(ordering="colamd"),
 }

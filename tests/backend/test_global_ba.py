@@ -151,3 +151,21 @@ def test_global_ba_config_schedules():
     assert GlobalBAConfig().local_ba_config().robust_iterations == 5
     plain = GlobalBAConfig(robust_iterations=0, iterations=10).local_ba_config()
     assert plain.robust_iterations == 0 and plain.refine_iterations == 10 and plain.two_passes
+
+
+def test_auto_solves_maps_up_to_the_dense_limit_by_the_schur_complement_and_larger_ones_by_gtsam():
+    config = GlobalBAConfig(dense_max_keyframes=300)
+    assert [config.local_ba_config(n).method for n in (2, 300, 301, 2000)] == ["schur_lm", "schur_lm", "batch_lm", "batch_lm"]
+    assert GlobalBAConfig(solver="batch_lm").local_ba_config(5).method == "batch_lm"
+    assert GlobalBAConfig(solver="schur_lm").local_ba_config(5000).method == "schur_lm"
+
+
+def test_both_solvers_reach_the_same_global_optimum():
+    bmap, _, _ = perturbed_map()
+    problem = global_ba_problem(bmap, BAWindowConfig())
+    schur = run_global_ba(problem, GlobalBAConfig(solver="schur_lm"))
+    gtsam = run_global_ba(problem, GlobalBAConfig(solver="batch_lm"))
+    assert schur.stats["final_error"] == pytest.approx(gtsam.stats["final_error"], rel=1e-6)
+    assert np.allclose(schur.T_world_cam, gtsam.T_world_cam, atol=1e-7)
+    assert np.allclose(schur.p_world, gtsam.p_world, atol=1e-6)
+    assert np.array_equal(schur.inlier_obs, gtsam.inlier_obs)

@@ -6,12 +6,13 @@ keeps inserting keyframes, and applies the result when it ends. Here that is thr
 1. ``global_ba_problem(bmap, window)`` on the map's owner: a ``BAProblem`` over every keyframe
    (the first one fixed: the gauge) and every observed point, built from copies of the map's
    arrays, with local BA's observation model (``BAWindowConfig``). Nothing in it refers to the map.
-2. ``run_global_ba(problem, config)`` anywhere: local BA's solver (``LocalBundleAdjuster``: a
-   Huber pass, outliers dropped, a plain pass) with the global schedule. It touches no shared
-   state, and problem and result pickle, so it can run in another process. gtsam holds the GIL
-   for the whole of an optimisation, so a Python thread running it stalls every other Python
-   thread of the process until it returns: run it in a separate process to keep local mapping
-   going (a worker thread only makes sense where nothing else needs the interpreter meanwhile).
+2. ``run_global_ba(problem, config)`` anywhere: a local BA solver (a Huber pass, outliers
+   dropped, a plain pass) with the global schedule: local BA's own (``schur_lm``) for maps whose
+   reduced camera system is small enough to solve densely, gtsam's sparse elimination above. It
+   touches no shared state, and problem and result pickle, so it can run in another process. gtsam
+   holds the GIL for the whole of an optimisation, so a Python thread running it stalls every
+   other Python thread of the process until it returns: run it in a separate process to keep local
+   mapping going (a worker thread only makes sense where nothing else needs the interpreter meanwhile).
 3. ``apply_global_ba(bmap, problem, result)`` on the owner, when the owner decides: optimised poses
    and points written; keyframes inserted since the problem was built are corrected through the
    spanning tree (a child takes its parent's correction, root first, as ORB-SLAM), and points not
@@ -31,7 +32,7 @@ from typing import Literal
 import numpy as np
 
 from zenslam.backend.ba_problem import BAProblem, BAResult, LocalBAConfig
-from zenslam.backend.local_mapping import BAWindowConfig, ba_problem
+from zenslam.backend.local_mapping import BAWindowConfig, ba_problem, bundle_adjuster
 from zenslam.backend.map import BackendMap
 from zenslam.geometry import invert_T
 
@@ -50,12 +51,25 @@ class GlobalBAConfig:
     ordering: Literal["landmarks_first", "colamd", "metis"] = "landmarks_first"
     # A pass stops early when the error drops by less than this fraction in one iteration.
     relative_error_tolerance: float = 1e-4
+    # The solver. schur_lm is local BA's: the points eliminated in compiled loops, then the reduced
+    # camera system solved densely; it holds (6 x keyframes)^2 numbers and its solve grows with the
+    # cube of the keyframes. batch_lm is gtsam's sparse elimination, whose cost follows the
+    # covisibility graph instead. auto: schur_lm up to dense_max_keyframes keyframes, batch_lm above
+    # (benchmarks/loop_closing.md measures both).
+    solver: Literal["auto", "schur_lm", "batch_lm"] = "auto"
+    dense_max_keyframes: int = 300
 
-    def local_ba_config(self) -> LocalBAConfig:
-        """The solver settings: local BA's thresholds with this schedule."""
+    def method(self, n_keyframes: int) -> Literal["schur_lm", "batch_lm"]:
+        """The solver for a map of ``n_keyframes`` keyframes."""
+        if self.solver != "auto":
+            return self.solver
+        return "schur_lm" if n_keyframes <= self.dense_max_keyframes else "batch_lm"
+
+    def local_ba_config(self, n_keyframes: int = 0) -> LocalBAConfig:
+        """The solver settings for a map of ``n_keyframes`` keyframes: local BA's thresholds with this schedule."""
         return dataclasses.replace(
             LocalBAConfig(),
-            method="batch_lm",  # gtsam's sparse elimination: the reduced system of a whole map is large
+            method=self.method(n_keyframes),
             robust_iterations=self.robust_iterations,
             refine_iterations=self.iterations,
             two_passes=True,
@@ -88,12 +102,11 @@ def global_ba_problem(bmap: BackendMap, window: BAWindowConfig) -> GlobalBAProbl
 
 def run_global_ba(problem: GlobalBAProblem, config: GlobalBAConfig) -> BAResult:
     """Optimise the problem (no access to any map; safe in another thread or process)."""
-    from zenslam.backend.local_ba import LocalBundleAdjuster  # gtsam: only where the optimisation runs
-
-    result = LocalBundleAdjuster(config.local_ba_config()).optimize(problem.problem)
+    n_keyframes = len(problem.problem.keyframe_ids)
+    result = bundle_adjuster(config.local_ba_config(n_keyframes)).optimize(problem.problem)
     logger.info(
-        "global BA: %d keyframes, %d points, %d iterations, %.0f ms",
-        len(problem.problem.keyframe_ids), len(problem.problem.point_ids), result.stats["iterations"], result.stats["time_ms"],
+        "global BA (%s): %d keyframes, %d points, %d iterations, %.0f ms", config.method(n_keyframes),
+        n_keyframes, len(problem.problem.point_ids), result.stats["iterations"], result.stats["time_ms"],
     )  # fmt: skip
     return result
 
