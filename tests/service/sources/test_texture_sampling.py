@@ -13,8 +13,7 @@ import numpy as np
 import pytest
 
 from zenslam.runtime import cpu_kernels
-from renderer_numpy_reference import reflect_101
-from zenslam.service.sources.synthetic.tile_raster import sample_bilinear
+from zenslam.service.sources.synthetic.tile_raster import _reflect_101, sample_bilinear
 
 RNG = np.random.default_rng(3)
 TEXTURE = RNG.integers(0, 256, size=(37, 53), dtype=np.uint8)
@@ -30,7 +29,7 @@ def test_reflect_101_folds_as_opencv_border_interpolate() -> None:
     for size in (1, 2, 5, 37):
         index = np.arange(-3 * size - 2, 4 * size + 3)
         expected = [cv2.borderInterpolate(int(i), size, cv2.BORDER_REFLECT_101) for i in index]
-        assert reflect_101(index, size).tolist() == expected
+        assert [_reflect_101(int(i), size) for i in index] == expected
 
 
 def test_each_pixel_is_the_bilinear_interpolation_at_its_projected_centre() -> None:

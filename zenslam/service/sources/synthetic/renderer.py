@@ -68,6 +68,11 @@ class Renderer:
         self._corners = np.stack([t.quad.corners_world() for t in self._tiles])  # (N, 4, 3)
         self._normals = np.stack([t.quad.normal for t in self._tiles])
         self._near_m = near_m
+        # The compiled pixel loop is imported with the renderer, which a synthetic source builds at
+        # its first frame: a source of recorded frames (KITTI, EuRoC, a bus) never loads numba.
+        from zenslam.service.sources.synthetic.tile_raster import raster_tile
+
+        self._raster_tile = raster_tile
         self._frustum = self._frustum_planes(near_m, margin_px)
 
     def _frustum_planes(self, near_m: float, margin_px: float) -> np.ndarray:
@@ -141,12 +146,8 @@ class Renderer:
         level = self._mip_level(tile, self._homography(tile, 0, R_cw, t_cw), uv)
         M = np.linalg.inv(self._homography(tile, level, R_cw, t_cw))  # image pixel -> texel of the chosen level
         near_limit = np.float32(1.0 / self._near_m) if crosses_near else None
-        # The compiled pixel loop is imported here, at the first frame drawn: a source of recorded
-        # frames (KITTI, EuRoC, a bus) never loads numba.
-        from zenslam.service.sources.synthetic.tile_raster import raster_tile
-
         plane = (np.float32(a), np.float32(b), np.float32(k))
-        raster_tile(grey, inv_depth, (x0, y0, x1, y1), plane, near_limit, edges, tile.pyramid[level], M)
+        self._raster_tile(grey, inv_depth, (x0, y0, x1, y1), plane, near_limit, edges, tile.pyramid[level], M)
 
     def _edge_half_planes(
         self, tile: Tile, R_cw: np.ndarray, t_cw: np.ndarray, roi: tuple[int, int, int, int]
