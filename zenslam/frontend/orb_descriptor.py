@@ -59,52 +59,55 @@ def blur(image: np.ndarray) -> np.ndarray:
 _GAUSSIAN_TAPS = cv2.getGaussianKernel(7, 2.0, cv2.CV_32F).ravel().astype(np.float32)
 
 
-@kernel
-def _reflect_101(i, n):
-    """OpenCV's BORDER_REFLECT_101 index for ``i`` in an axis of ``n`` (>= 4) samples, 3 past either end at most."""
-    if i < 0:
-        return -i
-    if i >= n:
-        return 2 * n - 2 - i
-    return i
+# 1.5 * 2**23: adding it to a float32 in [0, 2**22) and subtracting it again rounds to an integer,
+# half to even (the FPU's default rounding), as np.rint does, without a call per pixel.
+_ROUND_HALF_EVEN = np.float32(12582912.0)
 
 
 @kernel
 def _separable_blur(image, taps):
     """(H, W) uint8: the rows filtered with the 7 taps in order (float32 sums from the first tap), then
     the columns as a symmetric filter (the centre tap, then each pair of rows summed before its tap),
-    rounded half to even and saturated: OpenCV's RowFilter and SymmColumnFilter on its baseline path.
-    Each pass runs over a padded row at a time, so its loop over columns has no branch and vectorises
-    (across pixels; each pixel's sum keeps its order)."""
+    saturated and rounded half to even: OpenCV's RowFilter and SymmColumnFilter on its baseline path.
+    Each pass runs over a padded row at a time, so its loops over columns have no branch and
+    vectorise (across pixels; each pixel's sum keeps its order). Saturating before rounding gives
+    the same grey levels as after, and keeps the rounding trick's operand in range."""
     rows, cols = image.shape
     filtered = np.empty((rows + 6, cols), np.float32)  # rows -3 .. rows + 2, reflected
-    padded = np.empty(cols + 6, np.float32)
+    padded = np.empty(cols + 6, np.float32)  # columns -3 .. cols + 2, BORDER_REFLECT_101
+    t0, t1, t2, t3, t4, t5, t6 = taps[0], taps[1], taps[2], taps[3], taps[4], taps[5], taps[6]
     for y in range(rows):
-        for x in range(cols + 6):
-            padded[x] = np.float32(image[y, _reflect_101(x - 3, cols)])
+        source = image[y]
+        for k in range(3):
+            padded[k] = np.float32(source[3 - k])
+            padded[cols + 3 + k] = np.float32(source[cols - 2 - k])
+        for x in range(cols):
+            padded[x + 3] = np.float32(source[x])
         row = filtered[y + 3]
         for x in range(cols):
-            s = taps[0] * padded[x]
-            s = s + taps[1] * padded[x + 1]
-            s = s + taps[2] * padded[x + 2]
-            s = s + taps[3] * padded[x + 3]
-            s = s + taps[4] * padded[x + 4]
-            s = s + taps[5] * padded[x + 5]
-            s = s + taps[6] * padded[x + 6]
+            s = t0 * padded[x]
+            s = s + t1 * padded[x + 1]
+            s = s + t2 * padded[x + 2]
+            s = s + t3 * padded[x + 3]
+            s = s + t4 * padded[x + 4]
+            s = s + t5 * padded[x + 5]
+            s = s + t6 * padded[x + 6]
             row[x] = s
     for k in range(1, 4):
         filtered[3 - k] = filtered[3 + k]
         filtered[rows + 2 + k] = filtered[rows + 2 - k]
     out = np.empty((rows, cols), np.uint8)
+    black, white = np.float32(0.0), np.float32(255.0)
     for y in range(rows):
         c, u1, d1, u2, d2, u3, d3 = filtered[y + 3], filtered[y + 2], filtered[y + 4], filtered[y + 1], filtered[y + 5], filtered[y], filtered[y + 6]
         target = out[y]
         for x in range(cols):
-            s = taps[3] * c[x]
-            s = s + taps[4] * (u1[x] + d1[x])
-            s = s + taps[5] * (u2[x] + d2[x])
-            s = s + taps[6] * (u3[x] + d3[x])
-            target[x] = np.uint8(min(max(np.rint(s), np.float32(0.0)), np.float32(255.0)))
+            s = t3 * c[x]
+            s = s + t4 * (u1[x] + d1[x])
+            s = s + t5 * (u2[x] + d2[x])
+            s = s + t6 * (u3[x] + d3[x])
+            s = min(max(s, black), white)
+            target[x] = np.uint8((s + _ROUND_HALF_EVEN) - _ROUND_HALF_EVEN)
     return out
 
 
