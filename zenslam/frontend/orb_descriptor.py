@@ -59,19 +59,13 @@ def blur(image: np.ndarray) -> np.ndarray:
 _GAUSSIAN_TAPS = cv2.getGaussianKernel(7, 2.0, cv2.CV_32F).ravel().astype(np.float32)
 
 
-# 1.5 * 2**23: adding it to a float32 in [0, 2**22) and subtracting it again rounds to an integer,
-# half to even (the FPU's default rounding), as np.rint does, without a call per pixel.
-_ROUND_HALF_EVEN = np.float32(12582912.0)
-
-
 @kernel
 def _separable_blur(image, taps):
     """(H, W) uint8: the rows filtered with the 7 taps in order (float32 sums from the first tap), then
     the columns as a symmetric filter (the centre tap, then each pair of rows summed before its tap),
-    saturated and rounded half to even: OpenCV's RowFilter and SymmColumnFilter on its baseline path.
-    Each pass runs over a padded row at a time, so its loops over columns have no branch and
-    vectorise (across pixels; each pixel's sum keeps its order). Saturating before rounding gives
-    the same grey levels as after, and keeps the rounding trick's operand in range."""
+    rounded half to even and saturated: OpenCV's RowFilter and SymmColumnFilter on its baseline path.
+    Each pass runs over a padded row at a time (the reflected border columns written apart), so its
+    loops over columns have no branch and vectorise (across pixels; each pixel's sum keeps its order)."""
     rows, cols = image.shape
     filtered = np.empty((rows + 6, cols), np.float32)  # rows -3 .. rows + 2, reflected
     padded = np.empty(cols + 6, np.float32)  # columns -3 .. cols + 2, BORDER_REFLECT_101
@@ -106,8 +100,7 @@ def _separable_blur(image, taps):
             s = s + t4 * (u1[x] + d1[x])
             s = s + t5 * (u2[x] + d2[x])
             s = s + t6 * (u3[x] + d3[x])
-            s = min(max(s, black), white)
-            target[x] = np.uint8((s + _ROUND_HALF_EVEN) - _ROUND_HALF_EVEN)
+            target[x] = np.uint8(min(max(np.rint(s), black), white))
     return out
 
 
